@@ -1,0 +1,1 @@
+"""Deployment: manifests, launcher, CLI and zenoh configurations."""

@@ -1,0 +1,252 @@
+"""The ``contactflow`` command line (typer + rich)."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.logging import RichHandler
+from rich.table import Table
+
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.session import default_site, open_tool_session
+from contactflow.nodes.wire import WireError, decode, decode_any, to_builtins
+
+app = typer.Typer(help="contactflow: distributed runtime for contact-driven manipulation.",
+                  no_args_is_help=True, pretty_exceptions_show_locals=False)
+console = Console()
+
+BENCHMARKS = {
+    "messaging": "contactflow.nodes.bench_messaging",
+    "sim": "contactflow.embodiments.bench_sim",
+    "grasp": "contactflow.embodiments.bench_grasp",
+    "empty-box": "contactflow.embodiments.bench_empty_box",
+    "contacts": "contactflow.fusion.bench_contacts",
+    "fusion": "contactflow.fusion.bench_fusion",
+    "vision": "contactflow.recognition.bench_vision",
+    "recognition": "contactflow.recognition.bench_recognition",
+    "deploy": "contactflow.deploy.bench_deploy",
+}
+"""``contactflow bench NAME`` runs ``run(out_dir, quick)`` of the module named here."""
+
+SUBCOMMANDS = {
+    "contacts": ("contactflow.fusion.cli", "Fused contact events: watch them live."),
+    "deploy": ("contactflow.deploy.launcher_cli", "Deploy manifests across hosts."),
+}
+"""Sub-applications contributed by the areas (a ``typer.Typer`` named ``app`` each)."""
+
+Site = Annotated[str | None, typer.Option("--site", "-s", help="site name (default: $CONTACTFLOW_SITE or 'default')")]
+Connect = Annotated[list[str] | None, typer.Option("--connect", "-e", help="zenoh endpoint to connect to (repeatable)")]
+
+
+def setup_logging(verbose: bool = False) -> None:
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(message)s",
+                        handlers=[RichHandler(console=Console(stderr=True), show_path=False)], force=True)
+
+
+@app.command()
+def node(config: Path, verbose: bool = False) -> None:
+    """Run one node process hosting the modules CONFIG names (until SIGINT/SIGTERM)."""
+    from contactflow.nodes.config import ConfigError
+    from contactflow.nodes.node import run_node
+
+    setup_logging(verbose)
+    try:
+        run_node(config)
+    except ConfigError as exc:
+        console.print(f"[red]config error:[/] {exc}")
+        raise typer.Exit(2) from None
+
+
+@app.command("ls")
+def list_nodes(site: Site = None, connect: Connect = None, wait: float = 1.3) -> None:
+    """List nodes and modules of a site with their status (liveliness + status stream)."""
+    from contactflow.nodes.messages import StatusMsg
+
+    ks = KeySpace(default_site(site))
+    t = open_tool_session(connect)
+    statuses: dict[str, StatusMsg] = {}
+
+    def on_status(key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, StatusMsg, key)
+        except WireError:
+            return
+        statuses[msg.module] = msg
+
+    sub = t.subscribe(ks.status(), on_status)
+    nodes = t.alive(ks.alive_node(), timeout=1.0)
+    modules = t.alive(ks.alive_module(), timeout=1.0)
+    time.sleep(wait)
+    sub.close()
+    t.close()
+    table = Table(title=f"site {ks.site}: {len(nodes)} nodes, {len(modules)} modules")
+    for col in ("host/node", "module", "layer", "state", "rate Hz", "steps", "rejected", "detail"):
+        table.add_column(col)
+    for n in sorted(nodes):
+        host, node_name = n.split("/")[-2:]
+        table.add_row(f"[bold]{host}/{node_name}[/]", "", "", "[green]alive[/]", "", "", "", "")
+        for m in sorted(modules):
+            robot, mnode, mname = m.split("/")[-3:]
+            if mnode != node_name:
+                continue
+            s = statuses.get(f"{robot}/{mnode}/{mname}")
+            table.add_row("", f"{robot}/{mname}", s.layer if s else "?", str(s.state) if s else "?",
+                          f"{s.rate_hz:g}" if s else "", str(s.steps) if s else "",
+                          str(s.rejected) if s else "", (s.detail[:40] if s else ""))
+    console.print(table)
+
+
+@app.command()
+def ctl(module: Annotated[str, typer.Argument(help="[robot/]module")],
+        command: Annotated[str, typer.Argument(help="run | stop | reset | describe | set")],
+        assignments: Annotated[list[str] | None, typer.Argument(help="key=value for set")] = None,
+        site: Site = None, connect: Connect = None, robot: str = "site") -> None:
+    """Send a control message to a module and print its reply."""
+    from contactflow.nodes.messages import Command, ControlReply, ControlRequest
+    from contactflow.nodes.wire import encode
+
+    try:
+        cmd = Command(command)
+    except ValueError:
+        console.print(f"[red]unknown command {command!r}[/]: use {', '.join(c.value for c in Command)}")
+        raise typer.Exit(2) from None
+    params: dict[str, str] = {}
+    for a in assignments or []:
+        k, eq, v = a.partition("=")
+        if not eq:
+            console.print(f"[red]{a!r} is not key=value[/]")
+            raise typer.Exit(2)
+        params[k] = v
+    r, _, mname = module.rpartition("/")
+    ks = KeySpace(default_site(site))
+    t = open_tool_session(connect)
+    try:
+        replies = t.query(ks.control(r or robot, "*", mname), encode(ControlRequest(cmd=cmd, params=params, issuer="cli")))
+    finally:
+        t.close()
+    if not replies:
+        console.print(f"[red]no module answers on {ks.control(r or robot, '*', mname)}[/]")
+        raise typer.Exit(1)
+    for key, payload in replies:
+        reply = decode(payload, ControlReply, key)
+        colour = "green" if reply.ok else "red"
+        console.print(f"[{colour}]{key}: {'ok' if reply.ok else reply.error}[/] state={reply.state}")
+        if reply.description:
+            console.print(reply.description)
+        elif reply.params:
+            console.print(reply.params)
+        if not reply.ok:
+            raise typer.Exit(1)
+
+
+@app.command()
+def echo(keyexpr: Annotated[str, typer.Argument(help="key expression, e.g. 'cf/default/**'")],
+         count: int = 0, duration: float = 0.0, connect: Connect = None, raw: bool = False) -> None:
+    """Print decoded messages on KEYEXPR (Ctrl-C to stop)."""
+    t = open_tool_session(connect)
+    seen = 0
+    done = threading.Event()
+
+    def on_sample(key: str, payload: bytes) -> None:
+        nonlocal seen
+        try:
+            view = to_builtins(decode_any(payload, key))
+        except WireError as exc:
+            console.print(f"[red]{exc}[/]")
+            return
+        seen += 1
+        if raw:
+            console.print_json(json.dumps({"key": key, "msg": view}, default=str))
+        else:
+            console.print(f"[cyan]{key}[/] {view}")
+        if count and seen >= count:
+            done.set()
+
+    sub = t.subscribe(keyexpr, on_sample)
+    try:
+        done.wait(duration if duration > 0 else None)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sub.close()
+        t.close()
+
+
+@app.command()
+def new(kind: Annotated[str, typer.Argument(help="service | primitive | task")], name: str,
+        out: Path = Path("."), package: str | None = None) -> None:
+    """Generate a module skeleton, its description and its configuration (thesis §6.2.1)."""
+    from contactflow.nodes.generate import generate
+
+    try:
+        files = generate(kind, name, out, package)
+    except (ValueError, FileExistsError) as exc:
+        console.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
+    for f in files:
+        console.print(f"wrote {f}")
+
+
+@app.command()
+def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMARKS)}")],
+          out: Path = Path("bench-results"), quick: bool = False) -> None:
+    """Run a benchmark: prints a table and writes JSON (and plots) under OUT."""
+    path = BENCHMARKS.get(name)
+    if path is None:
+        console.print(f"[red]unknown benchmark {name!r}[/]: {', '.join(BENCHMARKS)}")
+        raise typer.Exit(2)
+    try:
+        mod = importlib.import_module(path)
+    except ModuleNotFoundError as exc:
+        console.print(f"[red]benchmark {name!r} is not available: {exc}[/]")
+        raise typer.Exit(1) from None
+    out.mkdir(parents=True, exist_ok=True)
+    mod.run(out, quick=quick)
+    console.print(f"results in {out}")
+
+
+@app.command()
+def demo(out: Path = Path("demo-report"), quick: bool = False) -> None:
+    """Start a small deployment on loopback and show it working (the README's main command)."""
+    mod = importlib.import_module("contactflow.deploy.demo")
+    code = mod.run(out, quick=quick)
+    raise typer.Exit(code)
+
+
+def _mount_subcommands() -> None:
+    for name, (path, help_text) in SUBCOMMANDS.items():
+        try:
+            mod = importlib.import_module(path)
+        except ModuleNotFoundError as exc:
+            if exc.name != path:
+                raise
+            continue
+        app.add_typer(mod.app, name=name, help=help_text)
+    for path in ("contactflow.abstraction.cli",):
+        try:
+            mod = importlib.import_module(path)
+        except ModuleNotFoundError as exc:
+            if exc.name != path:
+                raise
+            continue
+        mod.register(app)
+
+
+def main() -> None:
+    os.environ.setdefault("PYTHONWARNINGS", "ignore::UserWarning")
+    _mount_subcommands()
+    app(prog_name="contactflow")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

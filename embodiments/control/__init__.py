@@ -1,0 +1,1 @@
+"""Pure control classes: kinematics, velocity IK, Cartesian and joint control, planning, trajectories."""

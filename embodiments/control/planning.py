@@ -1,0 +1,292 @@
+"""Joint-space planning with OMPL (KPIECE1 as in the thesis, RRTConnect), collision-checked robot vs. scene.
+
+Two checkers: ``CoalChecker`` (pinocchio geometry model of the URDF collision meshes
+against the scene primitives, via coal) and ``SphericalChecker`` (the App. B spherical
+model against points sampled on the obstacle surfaces). Self-collision is not checked
+(the simulated robots run with self-collision off). Nothing here imports SAPIEN: the
+scene comes in as :class:`Obstacle` records.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import coal
+import numpy as np
+import pinocchio as pin
+from ompl import base as ob
+from ompl import geometric as og
+from ompl import util as ou
+
+from contactflow.embodiments.control.kinematics import Kinematics
+from contactflow.embodiments.transforms import inv, rotvec_error
+
+ou.setLogLevel(ou.LogLevel.LOG_WARN)
+
+PLANNERS = {"KPIECE1": og.KPIECE1, "RRTConnect": og.RRTConnect}
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """A scene primitive in the world frame; cylinders/capsules along local z."""
+
+    name: str
+    kind: str  # box | cylinder | sphere | capsule
+    size: tuple[float, ...]  # as ShapeSpec: box full sizes; cylinder radius, length; sphere radius
+    pose: np.ndarray  # 4x4 world
+
+
+@dataclass
+class Plan:
+    """A joint-space path of one arm."""
+
+    joints: tuple[str, ...]
+    waypoints: np.ndarray  # (K, n)
+    planner: str
+    planning_time: float  # s
+    success: bool
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(np.diff(self.waypoints, axis=0), axis=1).sum())
+
+
+def _coal_shape(o: Obstacle, padding: float):
+    if o.kind == "box":
+        return coal.Box(*[s + 2 * padding for s in o.size])
+    if o.kind == "sphere":
+        return coal.Sphere(o.size[0] + padding)
+    if o.kind == "cylinder":
+        return coal.Cylinder(o.size[0] + padding, o.size[1] + 2 * padding)
+    if o.kind == "capsule":
+        return coal.Capsule(o.size[0] + padding, o.size[1])
+    raise ValueError(f"obstacle {o.name!r}: kind {o.kind!r} is not box|cylinder|sphere|capsule")
+
+
+class CoalChecker:
+    """Robot collision meshes vs. obstacles with pinocchio/coal."""
+
+    def __init__(self, kin: Kinematics, urdf: str, obstacles: list[Obstacle], padding: float = 0.005) -> None:
+        self.kin = kin
+        self.model = kin.model
+        self.geom = pin.buildGeomFromUrdf(self.model, str(urdf), pin.GeometryType.COLLISION)
+        robot_geoms = list(range(len(self.geom.geometryObjects)))
+        base_inv = inv(kin.base)
+        obs_ids = []
+        for o in obstacles:
+            M = base_inv @ np.asarray(o.pose)
+            go = pin.GeometryObject(f"obstacle/{o.name}", 0, 0, pin.SE3(M[:3, :3], M[:3, 3]), _coal_shape(o, padding))
+            obs_ids.append(self.geom.addGeometryObject(go))
+        for g in robot_geoms:
+            for o in obs_ids:
+                self.geom.addCollisionPair(pin.CollisionPair(g, o))
+        self.data = self.model.createData()
+        self.gdata = pin.GeometryData(self.geom)
+        self.checks = 0
+
+    def valid(self, q: np.ndarray) -> bool:
+        self.checks += 1
+        if not self.geom.collisionPairs:
+            return True
+        return not pin.computeCollisions(self.model, self.data, self.geom, self.gdata, q, True)
+
+
+def sample_surface(o: Obstacle, spacing: float = 0.01) -> np.ndarray:
+    """Points on the surface of an obstacle (world frame), about ``spacing`` apart."""
+    if o.kind == "box":
+        hx, hy, hz = (s / 2 for s in o.size)
+        pts = []
+        for axis, h, (a, b) in ((0, hx, (hy, hz)), (1, hy, (hx, hz)), (2, hz, (hx, hy))):
+            ua = np.linspace(-a, a, max(2, int(2 * a / spacing) + 1))
+            ub = np.linspace(-b, b, max(2, int(2 * b / spacing) + 1))
+            A, B = np.meshgrid(ua, ub)
+            for sgn in (-1, 1):
+                P = np.zeros((A.size, 3))
+                others = [i for i in range(3) if i != axis]
+                P[:, axis] = sgn * h
+                P[:, others[0]], P[:, others[1]] = A.ravel(), B.ravel()
+                pts.append(P)
+        local = np.vstack(pts)
+    elif o.kind == "sphere":
+        n = max(20, int(4 * np.pi * o.size[0] ** 2 / spacing**2))
+        v = np.random.default_rng(0).normal(size=(n, 3))
+        local = o.size[0] * v / np.linalg.norm(v, axis=1, keepdims=True)
+    else:
+        r, h = o.size[0], o.size[1] / 2
+        na = max(8, int(2 * np.pi * r / spacing))
+        nz = max(2, int(2 * h / spacing) + 1)
+        a, z = np.meshgrid(np.linspace(0, 2 * np.pi, na, endpoint=False), np.linspace(-h, h, nz))
+        side = np.stack([r * np.cos(a).ravel(), r * np.sin(a).ravel(), z.ravel()], 1)
+        rr, aa = np.meshgrid(np.linspace(0, r, max(2, int(r / spacing) + 1)), np.linspace(0, 2 * np.pi, na, endpoint=False))
+        cap = np.stack([(rr * np.cos(aa)).ravel(), (rr * np.sin(aa)).ravel(), np.zeros(rr.size)], 1)
+        local = np.vstack([side, cap + [0, 0, -h], cap + [0, 0, h]])
+    T = np.asarray(o.pose)
+    return local @ T[:3, :3].T + T[:3, 3]
+
+
+class SphericalChecker:
+    """The spherical model (App. B) vs. points sampled on the obstacles."""
+
+    def __init__(self, kin: Kinematics, model, obstacles: list[Obstacle], margin: float = 0.005, spacing: float = 0.015) -> None:
+        self.kin, self.model, self.margin = kin, model, margin
+        self.points = np.vstack([sample_surface(o, spacing) for o in obstacles]) if obstacles else np.zeros((0, 3))
+        self.checks = 0
+
+    def valid(self, q: np.ndarray) -> bool:
+        self.checks += 1
+        if len(self.points) == 0:
+            return True
+        self.kin.update(q)
+        self.model.update(self.kin)
+        return bool(self.model.distance(self.points).min() > self.margin)
+
+
+@dataclass(frozen=True)
+class PlannerParams:
+    resolution: float = 0.005  # fraction of the space extent between segment checks
+    max_step: float = 0.05  # rad, waypoint spacing after interpolation
+    simplify: bool = True
+    range_: float = 0.0  # planner range (0 = OMPL default)
+
+
+class ArmPlanner:
+    """Plans the joints ``joints`` of ``kin``; the other joints stay at ``q_fixed``."""
+
+    def __init__(self, kin: Kinematics, joints: tuple[str, ...], valid: Callable[[np.ndarray], bool], q_fixed: np.ndarray,
+                 params: PlannerParams | None = None) -> None:
+        self.kin, self.joints, self._valid = kin, tuple(joints), valid
+        self.idx = kin.q_index(self.joints)
+        self.q_fixed = np.asarray(q_fixed, dtype=np.float64).copy()
+        self.params = params or PlannerParams()
+        self.lower = np.maximum(kin.lower[self.idx], -np.pi * 2)
+        self.upper = np.minimum(kin.upper[self.idx], np.pi * 2)
+
+    def full(self, q_arm: np.ndarray) -> np.ndarray:
+        q = self.q_fixed.copy()
+        q[self.idx] = q_arm
+        return q
+
+    def valid(self, q_arm: np.ndarray) -> bool:
+        q = np.asarray(q_arm)
+        if np.any(q < self.lower) or np.any(q > self.upper):
+            return False
+        return bool(self._valid(self.full(q)))
+
+    def plan(self, start: np.ndarray, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0,
+             seed: int | None = None) -> Plan:
+        if planner not in PLANNERS:
+            raise ValueError(f"planner {planner!r} is not one of {sorted(PLANNERS)}")
+        n = len(self.idx)
+        start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
+        t0 = time.perf_counter()
+        fail = Plan(self.joints, np.stack([start]), planner, 0.0, False)
+        if not self.valid(start) or not self.valid(goal):
+            fail.planning_time = time.perf_counter() - t0
+            return fail
+        if seed is not None:
+            ou.RNG.setSeed(seed)
+        space = ob.RealVectorStateSpace(n)
+        bounds = ob.RealVectorBounds(n)
+        for i in range(n):
+            bounds.setLow(i, float(self.lower[i]))
+            bounds.setHigh(i, float(self.upper[i]))
+        space.setBounds(bounds)
+        ss = og.SimpleSetup(space)
+        buf = np.empty(n)
+
+        def check(s) -> bool:
+            for i in range(n):
+                buf[i] = s[i]
+            return self.valid(buf)
+
+        ss.setStateValidityChecker(check)
+        si = ss.getSpaceInformation()
+        si.setStateValidityCheckingResolution(self.params.resolution)
+        s0, s1 = space.allocState(), space.allocState()
+        for i in range(n):
+            s0[i], s1[i] = float(start[i]), float(goal[i])
+        ss.setStartAndGoalStates(s0, s1)
+        p = PLANNERS[planner](si)
+        if self.params.range_ > 0:
+            p.setRange(self.params.range_)
+        ss.setPlanner(p)
+        ok = bool(ss.solve(timeout)) and ss.haveExactSolutionPath()
+        if not ok:
+            fail.planning_time = time.perf_counter() - t0
+            return fail
+        if self.params.simplify:
+            ss.simplifySolution()
+        path = ss.getSolutionPath()
+        W = np.array([[path.getState(k)[i] for i in range(n)] for k in range(path.getStateCount())])
+        dense = [W[0]]
+        for a, b in zip(W[:-1], W[1:], strict=True):
+            m = max(1, int(np.ceil(np.abs(b - a).max() / self.params.max_step)))
+            dense += [a + (b - a) * (j / m) for j in range(1, m + 1)]
+        return Plan(self.joints, np.array(dense), planner, time.perf_counter() - t0, True)
+
+
+def solve_ik(kin: Kinematics, joints: tuple[str, ...], frame: str, target: np.ndarray, q_full: np.ndarray,
+             valid: Callable[[np.ndarray], bool] | None = None, iters: int = 300, restarts: int = 8, seed: int = 0,
+             tol: float = 1e-3) -> np.ndarray | None:
+    """Arm joints placing ``frame`` at ``target`` (4x4 world), damped least squares with random restarts."""
+    idx = kin.q_index(joints)
+    lo, hi = np.maximum(kin.lower[idx], -2 * np.pi), np.minimum(kin.upper[idx], 2 * np.pi)
+    rng = np.random.default_rng(seed)
+    q0 = np.asarray(q_full, dtype=np.float64).copy()
+    for attempt in range(restarts):
+        q = q0.copy()
+        if attempt:
+            q[idx] = rng.uniform(lo, hi)
+        for _ in range(iters):
+            kin.update(q)
+            T = kin.frame_pose(frame)
+            err = np.concatenate([target[:3, 3] - T[:3, 3], rotvec_error(target[:3, :3], T[:3, :3])])
+            if np.linalg.norm(err[:3]) < tol and np.linalg.norm(err[3:]) < 10 * tol:
+                if valid is None or valid(q):
+                    return q[idx].copy()
+                break
+            J = kin.jacobian(frame)[:, idx]
+            dq = J.T @ np.linalg.solve(J @ J.T + 1e-4 * np.eye(6), err)
+            q[idx] = np.clip(q[idx] + dq, lo, hi)
+    return None
+
+
+def obstacles_from_world(world, ignore: tuple[str, ...] = ()) -> list[Obstacle]:
+    """Obstacles for every shape of every object of a world (anything with ``objects`` of ObjectSpec)."""
+    out = []
+    for name, obj in world.objects.items():
+        if name in ignore:
+            continue
+        T = obj.pose()
+        for k, s in enumerate(obj.spec.shapes):
+            from contactflow.embodiments.transforms import xyz_rpy_to_matrix
+
+            out.append(Obstacle(f"{name}/{k}", s.kind, tuple(s.size), T @ xyz_rpy_to_matrix(s.xyz, s.rpy)))
+    return out
+
+
+def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
+             ignore: tuple[str, ...] = (), seed: int | None = None) -> Plan | None:
+    """Plan ``arm`` of a SimRobot from its commanded joints to a joint goal or a 4x4 pose."""
+    kin = Kinematics(robot.spec.urdf(), robot.kin.base)
+    q_full = robot._kin_q_cmd()
+    obstacles = obstacles_from_world(robot.world, ignore)
+    if checker == "coal":
+        check = CoalChecker(kin, str(robot.spec.urdf()), obstacles)
+    elif checker == "spherical":
+        from contactflow.embodiments.spherical import SphericalModel
+
+        check = SphericalChecker(kin, SphericalModel.from_urdf(kin, str(robot.spec.urdf())), obstacles)
+    else:
+        raise ValueError(f"checker {checker!r} is not coal|spherical")
+    ap = ArmPlanner(kin, arm.joints, check.valid, q_full)
+    goal = np.asarray(goal, dtype=np.float64)
+    if goal.shape == (4, 4):
+        q_goal = solve_ik(kin, arm.joints, arm.spec.ee_frame, goal, q_full, check.valid)
+        if q_goal is None:
+            return None
+    else:
+        q_goal = goal
+    return ap.plan(q_full[ap.idx], q_goal, planner=planner, timeout=timeout, seed=seed)

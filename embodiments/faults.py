@@ -1,0 +1,68 @@
+"""Hardware fault detection: physics blow-up (NaN, joint explosion), stuck joint, lost sensor stream.
+
+A detected fault becomes a ``hardware_failure`` condition and the robot is stopped by its
+owner; :meth:`FaultMonitor.check` never raises.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FaultParams:
+    max_joint_speed: float = 20.0  # rad/s or m/s, faster means the simulation exploded
+    limit_excess: float = 0.3  # rad, this far beyond a joint limit means an explosion
+    stuck_error: float = 0.08  # rad, tracking error of a joint that does not move
+    stuck_speed: float = 0.02  # rad/s
+    stuck_time: float = 0.4  # s the condition must last
+    sensor_timeout: float = 0.25  # s without a new sample
+
+
+@dataclass(frozen=True)
+class Fault:
+    kind: str  # nan | explosion | stuck_joint | sensor_loss
+    detail: str
+
+
+class FaultMonitor:
+    """Checks one robot's state at the control rate."""
+
+    def __init__(self, joint_names: list[str], lower: np.ndarray, upper: np.ndarray, watched: np.ndarray | None = None,
+                 params: FaultParams | None = None) -> None:
+        self.names = list(joint_names)
+        self.lower, self.upper = np.asarray(lower), np.asarray(upper)
+        self.watched = np.ones(len(self.names), bool) if watched is None else np.asarray(watched, bool)
+        self.params = params or FaultParams()
+        self._stuck_since = np.full(len(self.names), np.nan)
+
+    def check(self, t: float, q: np.ndarray, qd: np.ndarray, target: np.ndarray,
+              sensor_stamps: dict[str, float] | None = None) -> Fault | None:
+        p = self.params
+        try:
+            if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+                bad = [self.names[i] for i in np.nonzero(~(np.isfinite(q) & np.isfinite(qd)))[0]]
+                return Fault("nan", f"non-finite joint state in {bad[:4]}")
+            fast = np.abs(qd) > p.max_joint_speed
+            out = (q < self.lower - p.limit_excess) | (q > self.upper + p.limit_excess)
+            if fast.any() or out.any():
+                i = int(np.nonzero(fast | out)[0][0])
+                return Fault("explosion", f"joint {self.names[i]} q={q[i]:.3f} qd={qd[i]:.2f}")
+            err = np.abs(target - q)
+            cond = self.watched & (err > p.stuck_error) & (np.abs(qd) < p.stuck_speed)
+            self._stuck_since = np.where(cond, np.where(np.isnan(self._stuck_since), t, self._stuck_since), np.nan)
+            long = cond & (t - np.nan_to_num(self._stuck_since, nan=t) >= p.stuck_time)
+            if long.any():
+                i = int(np.nonzero(long)[0][0])
+                return Fault("stuck_joint", f"joint {self.names[i]} does not follow (error {err[i]:.3f})")
+            for name, stamp in (sensor_stamps or {}).items():
+                if t - stamp > p.sensor_timeout:
+                    return Fault("sensor_loss", f"sensor {name} silent for {t - stamp:.2f} s")
+        except (ValueError, FloatingPointError, IndexError) as exc:
+            return Fault("nan", f"state check failed: {exc}")
+        return None
+
+    def reset(self) -> None:
+        self._stuck_since[:] = np.nan

@@ -1,0 +1,219 @@
+"""Embodiments as data: the spec dataclasses and the one registry of robots.
+
+Each robot is one data module under ``embodiments/robots/`` defining ``SPEC``. A spec says
+where the URDF comes from (a composition of example-robot-data parts), its arms (chain,
+controlled frame, home pose, gains), hands (kind, preshapes, finger joints, tactile pads),
+sensors (wrist F/T, cameras), head, capabilities (abstract primitives, workspace) and the
+computers its modules run on (thesis App. A).
+"""
+
+from __future__ import annotations
+
+import importlib
+import pathlib
+from dataclasses import dataclass, field
+
+from contactflow.embodiments.urdf_compose import Composition, write
+
+
+class RegistryError(KeyError):
+    """Unknown robot or inconsistent spec."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """A kinematic chain controlled as one arm."""
+
+    name: str  # e.g. "left", "right", "arm"
+    joints: tuple[str, ...]  # chain joints, base to tip
+    base_link: str  # link the chain starts from (Cartesian commands default to it)
+    ee_frame: str  # controlled frame (a link or fixed frame of the URDF)
+    home: tuple[float, ...]  # rad, home pose of ``joints``
+    hand: str = ""  # name of the hand mounted on this arm
+    ft: str = ""  # name of the wrist F/T sensor of this arm
+    kp: float = 1000.0  # N m/rad, position drive stiffness
+    kd: float = 100.0  # N m s/rad, drive damping
+    force_limit: float = 500.0  # N m, drive force limit
+    max_velocity: float = 1.0  # rad/s, joint speed used by trajectories
+
+
+@dataclass(frozen=True)
+class PadSpec:
+    """A tactile pad: ``rows`` x ``cols`` taxels on a patch of ``link`` (thesis A.1.2: 5x8)."""
+
+    name: str
+    link: str
+    origin: tuple[float, float, float]  # m, pad centre in the link frame
+    normal: tuple[float, float, float]  # outward normal in the link frame
+    u_axis: tuple[float, float, float]  # direction of the ``cols`` axis in the link frame
+    size: tuple[float, float]  # m, extent along u (cols) and v (rows)
+    rows: int = 5
+    cols: int = 8
+    radius: float = 0.0  # m, curvature of a fingertip pad (0 = flat)
+    sigma: float = 0.003  # m, Gaussian spread of one contact over the taxels
+    range_: float = 0.004  # m, contacts farther than this from the pad surface are ignored
+
+
+@dataclass(frozen=True)
+class HandSpec:
+    """A hand: its actuated joints, preshapes and tactile pads."""
+
+    name: str
+    kind: str  # "multi_finger" | "parallel"
+    joints: tuple[str, ...]  # actuated finger joints
+    preshapes: dict[str, tuple[float, ...]]  # name -> positions of ``joints`` (must hold open/closed)
+    mimic: tuple[tuple[str, str, float], ...] = ()  # (joint, master joint, multiplier)
+    fingertips: tuple[str, ...] = ()  # fingertip link names
+    palm_link: str = ""
+    pads: tuple[PadSpec, ...] = ()
+    kp: float = 1000.0
+    kd: float = 100.0
+    force_limit: float = 100.0  # N or N m per finger joint
+    friction: float = 2.0  # finger link friction coefficient
+    max_velocity: float = 2.0  # rad/s or m/s
+
+
+@dataclass(frozen=True)
+class FTSpec:
+    """A wrist force-torque sensor at the incoming joint of ``link`` (expressed in ``link``)."""
+
+    name: str
+    link: str
+    rate_hz: float = 200.0  # Hz (JR3: up to 200 Hz, App. A.1.2)
+    force_noise: float = 0.05  # N, std dev
+    torque_noise: float = 0.005  # N m, std dev
+    bias: tuple[float, ...] = (0.0,) * 6  # constant offset added to the reading
+    estimated: bool = False  # True: estimated from joint efforts (Baxter, App. A.4.2)
+    arm: str = ""  # arm whose joint efforts estimate the wrench (when ``estimated``)
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """An RGBD camera on ``link``; optical frame: x right, y down, z forward."""
+
+    name: str
+    link: str
+    width: int = 640
+    height: int = 480
+    fx: float = 525.0  # px, Kinect v1 defaults
+    fy: float = 525.0
+    cx: float = 319.5
+    cy: float = 239.5
+    near: float = 0.3  # m
+    far: float = 4.0  # m
+    rate_hz: float = 30.0
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)  # optical frame in the link frame
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What the embodiment can do: abstract primitives and a reachable workspace box."""
+
+    primitives: tuple[str, ...]
+    workspace_min: tuple[float, float, float]  # m, world frame
+    workspace_max: tuple[float, float, float]
+    payload: float = 1.0  # kg
+
+
+@dataclass(frozen=True)
+class Computer:
+    """A computer of the robot and the modules that run there (thesis Fig. A.6)."""
+
+    name: str
+    role: str
+    modules: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """Everything the system knows about one embodiment."""
+
+    name: str
+    description: str
+    composition: Composition
+    arms: tuple[ArmSpec, ...]
+    hands: tuple[HandSpec, ...] = ()
+    fts: tuple[FTSpec, ...] = ()
+    cameras: tuple[CameraSpec, ...] = ()
+    head_joints: tuple[str, ...] = ()
+    head_home: tuple[float, ...] = ()
+    capabilities: Capabilities | None = None
+    computers: tuple[Computer, ...] = ()
+    base_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m, default placement in the world
+    base_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    task_frames: dict[str, tuple[str, tuple[float, ...]]] = field(default_factory=dict)
+    """Named task frames: name -> (parent frame, xyz + rpy offset)."""
+
+    def urdf(self, directory: pathlib.Path | None = None) -> pathlib.Path:
+        """Path of the composed URDF (written to the cache on first use)."""
+        return write(self.composition, directory)
+
+    def arm(self, name: str) -> ArmSpec:
+        for a in self.arms:
+            if a.name == name:
+                return a
+        raise RegistryError(f"robot {self.name!r} has no arm {name!r} (arms: {[a.name for a in self.arms]})")
+
+    def hand(self, name: str) -> HandSpec:
+        for h in self.hands:
+            if h.name == name:
+                return h
+        raise RegistryError(f"robot {self.name!r} has no hand {name!r} (hands: {[h.name for h in self.hands]})")
+
+    def ft(self, name: str) -> FTSpec:
+        for f in self.fts:
+            if f.name == name:
+                return f
+        raise RegistryError(f"robot {self.name!r} has no F/T sensor {name!r} (F/T: {[f.name for f in self.fts]})")
+
+    def camera(self, name: str) -> CameraSpec:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise RegistryError(f"robot {self.name!r} has no camera {name!r} (cameras: {[c.name for c in self.cameras]})")
+
+    def validate(self) -> None:
+        """Cross-check names; raises RegistryError naming the robot and field."""
+        hands = {h.name for h in self.hands}
+        fts = {f.name for f in self.fts}
+        for a in self.arms:
+            if len(a.home) != len(a.joints):
+                raise RegistryError(f"{self.name}.arms[{a.name}].home has {len(a.home)} values for {len(a.joints)} joints")
+            if a.hand and a.hand not in hands:
+                raise RegistryError(f"{self.name}.arms[{a.name}].hand names unknown hand {a.hand!r}")
+            if a.ft and a.ft not in fts:
+                raise RegistryError(f"{self.name}.arms[{a.name}].ft names unknown sensor {a.ft!r}")
+        for h in self.hands:
+            for key in ("open", "closed"):
+                if key not in h.preshapes:
+                    raise RegistryError(f"{self.name}.hands[{h.name}].preshapes lacks {key!r}")
+            for key, vals in h.preshapes.items():
+                if len(vals) != len(h.joints):
+                    raise RegistryError(f"{self.name}.hands[{h.name}].preshapes[{key}] has {len(vals)} values for {len(h.joints)} joints")
+        if len(self.head_home) != len(self.head_joints):
+            raise RegistryError(f"{self.name}.head_home does not match head_joints")
+
+
+_ROBOTS = {
+    "tombatossals": "contactflow.embodiments.robots.tombatossals",
+    "melfa": "contactflow.embodiments.robots.melfa",
+    "baxter": "contactflow.embodiments.robots.baxter",
+}
+
+
+def names() -> list[str]:
+    """Names of every registered embodiment."""
+    return sorted(_ROBOTS)
+
+
+def get(name: str) -> RobotSpec:
+    """The spec of robot ``name`` (validated)."""
+    if name not in _ROBOTS:
+        raise RegistryError(f"unknown robot {name!r} (known: {names()})")
+    spec = importlib.import_module(_ROBOTS[name]).SPEC
+    spec.validate()
+    return spec

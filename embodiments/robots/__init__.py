@@ -1,0 +1,1 @@
+"""One data module per robot, each defining ``SPEC`` (see ``contactflow.embodiments.registry``)."""

@@ -1,0 +1,1 @@
+"""Sensors derived from the physics: wrist F/T, tactile arrays, finger encoders, RGBD camera, ground truth."""

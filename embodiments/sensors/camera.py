@@ -1,0 +1,172 @@
+"""RGBD camera: depth image and world point cloud by ray casting on the collision geometry (open3d).
+
+This is the no-Vulkan backend: the scene's collision shapes (objects, table, floor, robot
+links, at their current poses) are meshed once per shape and moved per frame into an open3d
+``RaycastingScene``; rays follow the pinhole model of the camera's intrinsics, so the image
+has the same geometry a rendered one would (robot pixels differ where link collision
+meshes are convex hulls). Depth is the optical-axis distance; 0 means no return.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+import sapien
+
+from contactflow.embodiments.registry import CameraSpec
+from contactflow.embodiments.transforms import pose_to_matrix, xyz_rpy_to_matrix
+
+
+@dataclass(frozen=True)
+class DepthFrame:
+    """One camera frame. ``labels``/``label_names`` say which body each pixel hit (evaluation only)."""
+
+    t: float
+    depth: np.ndarray  # (H, W) float32, m along the optical axis, 0 = no return
+    points: np.ndarray  # (N, 3) float64, world frame, valid pixels only
+    pixels: np.ndarray  # (N, 2) int32, (row, col) of each point
+    K: np.ndarray  # 3x3 intrinsics
+    T_world_cam: np.ndarray  # 4x4 optical frame (x right, y down, z forward)
+    labels: np.ndarray  # (H, W) int32, index into label_names, -1 = none
+    label_names: tuple[str, ...]
+
+
+def intrinsics(spec: CameraSpec) -> np.ndarray:
+    return np.array([[spec.fx, 0.0, spec.cx], [0.0, spec.fy, spec.cy], [0.0, 0.0, 1.0]])
+
+
+def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    m = o3d.geometry.TriangleMesh.create_box(*(2 * half))
+    v = np.asarray(m.vertices) - half
+    return v, np.asarray(m.triangles)
+
+
+def _along_x(m: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.ndarray]:
+    v = np.asarray(m.vertices)
+    return v[:, [2, 1, 0]] * np.array([1.0, 1.0, -1.0]), np.asarray(m.triangles)[:, [0, 2, 1]]
+
+
+def shape_mesh(shape) -> tuple[np.ndarray, np.ndarray] | None:
+    """Vertices and triangles of one PhysX collision shape in its own local frame."""
+    P = sapien.physx
+    if isinstance(shape, P.PhysxCollisionShapeBox):
+        return _box(np.asarray(shape.get_half_size(), dtype=np.float64))
+    if isinstance(shape, P.PhysxCollisionShapeSphere):
+        m = o3d.geometry.TriangleMesh.create_sphere(shape.get_radius(), resolution=12)
+        return np.asarray(m.vertices), np.asarray(m.triangles)
+    if isinstance(shape, P.PhysxCollisionShapeCylinder):
+        return _along_x(o3d.geometry.TriangleMesh.create_cylinder(shape.get_radius(), 2 * shape.get_half_length(), resolution=24))
+    if isinstance(shape, P.PhysxCollisionShapeCapsule):
+        r, h = shape.get_radius(), shape.get_half_length()
+        parts = [o3d.geometry.TriangleMesh.create_cylinder(r, 2 * h, resolution=16)]
+        for z in (-h, h):
+            s = o3d.geometry.TriangleMesh.create_sphere(r, resolution=8)
+            s.translate((0.0, 0.0, z))
+            parts.append(s)
+        m = parts[0] + parts[1] + parts[2]
+        return _along_x(m)
+    if isinstance(shape, (P.PhysxCollisionShapeConvexMesh, P.PhysxCollisionShapeTriangleMesh)):
+        v = np.asarray(shape.get_vertices(), dtype=np.float64) * np.asarray(shape.get_scale(), dtype=np.float64)
+        return v, np.asarray(shape.get_triangles(), dtype=np.int64)
+    if isinstance(shape, P.PhysxCollisionShapePlane):
+        # PhysX planes face +x in their local frame
+        s = 20.0
+        v = np.array([[0.0, -s, -s], [0.0, s, -s], [0.0, s, s], [0.0, -s, s]])
+        return v, np.array([[0, 1, 2], [0, 2, 3]])
+    return None
+
+
+class RaycastCamera:
+    """A camera attached to a link (or fixed in the world when ``link`` is None)."""
+
+    def __init__(self, world, spec: CameraSpec, link=None, T_world_cam: np.ndarray | None = None) -> None:
+        self.world, self.spec, self.link = world, spec, link
+        self.K = intrinsics(spec)
+        self.offset = xyz_rpy_to_matrix(spec.xyz, spec.rpy)
+        self.fixed_pose = T_world_cam
+        if link is None and T_world_cam is None:
+            raise ValueError(f"camera {spec.name}: give a link or a fixed T_world_cam")
+        self._cache: dict[int, tuple] = {}
+        self._last: DepthFrame | None = None
+        self.lost = False
+
+    def pose(self) -> np.ndarray:
+        if self.link is None:
+            return np.asarray(self.fixed_pose, dtype=np.float64)
+        return pose_to_matrix(self.link.get_pose()) @ self.offset
+
+    def _bodies(self) -> list:
+        system = self.world.scene.get_physx_system()
+        return (list(system.get_rigid_static_components()) + list(system.get_rigid_dynamic_components())
+                + list(system.get_articulation_link_components()))
+
+    def _geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+        verts, tris, tri_label, names = [], [], [], []
+        n = 0
+        for body in self._bodies():
+            key = id(body)
+            if key not in self._cache:
+                local = []
+                for shape in body.get_collision_shapes():
+                    mesh = shape_mesh(shape)
+                    if mesh is not None:
+                        local.append((pose_to_matrix(shape.get_local_pose()), mesh[0], mesh[1]))
+                self._cache[key] = (body, local, body.get_name() or body.entity.get_name())
+            _, local, name = self._cache[key]
+            if not local:
+                continue
+            T = pose_to_matrix(body.get_pose())
+            label = len(names)
+            names.append(name)
+            for L, v, t in local:
+                M = T @ L
+                verts.append(v @ M[:3, :3].T + M[:3, 3])
+                tris.append(t + n)
+                tri_label.append(np.full(len(t), label, dtype=np.int32))
+                n += len(v)
+        return (np.concatenate(verts).astype(np.float32), np.concatenate(tris).astype(np.uint32),
+                np.concatenate(tri_label), names)
+
+    def capture(self, t: float) -> DepthFrame:
+        """A new frame of the current scene (about 20-40 ms on one core)."""
+        s = self.spec
+        V, F, tri_label, names = self._geometry()
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
+        Twc = self.pose()
+        extrinsic = np.linalg.inv(Twc)
+        rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
+            o3d.core.Tensor(self.K), o3d.core.Tensor(extrinsic), s.width, s.height)
+        ans = scene.cast_rays(rays)
+        r = rays.numpy().reshape(s.height, s.width, 6)
+        th = ans["t_hit"].numpy().reshape(s.height, s.width)
+        prim = ans["primitive_ids"].numpy().reshape(s.height, s.width)
+        pts = r[..., :3] + th[..., None] * r[..., 3:]
+        z = (pts - Twc[:3, 3]) @ Twc[:3, 2]
+        valid = np.isfinite(th) & (z >= s.near) & (z <= s.far)
+        depth = np.where(valid, z, 0.0).astype(np.float32)
+        labels = np.full((s.height, s.width), -1, dtype=np.int32)
+        labels[valid] = tri_label[prim[valid].astype(np.int64)]
+        rows, cols = np.nonzero(valid)
+        frame = DepthFrame(t, depth, pts[valid].astype(np.float64), np.stack([rows, cols], 1).astype(np.int32),
+                           self.K, Twc, labels, tuple(names))
+        self._last = frame
+        return frame
+
+    def read(self, t: float) -> DepthFrame:
+        """Frame valid at ``t``: re-captured at most at ``rate_hz``."""
+        if self._last is not None and t - self._last.t < 1.0 / self.spec.rate_hz - 1e-9:
+            return self._last
+        return self.capture(t)
+
+
+def depth_to_points(depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:
+    """Back-project a depth image (optical z, 0 = invalid) to world points (N, 3)."""
+    rows, cols = np.nonzero(depth > 0)
+    z = depth[rows, cols].astype(np.float64)
+    x = (cols - K[0, 2]) / K[0, 0] * z
+    y = (rows - K[1, 2]) / K[1, 1] * z
+    p = np.stack([x, y, z], 1)
+    return p @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]

@@ -1,0 +1,505 @@
+"""In-process facade over one simulated robot: arm and hand commands, sensors read from the physics.
+
+``SimRobot`` is what primitives and benchmarks use in-process (``embodiments/API.md``). Its
+controllers run as a world hook at the control rate (200 Hz, §6.3.1): every arm and hand
+controller submits joint commands to the weighted :class:`JointCommandMixer`, external
+sources may submit too, and the mixed targets drive the joints. Sensors always read the
+physics. A detected fault stops the robot and raises ``Event.HARDWARE_FAILURE`` instead of
+an exception.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from contactflow.embodiments.control.cartesian import CartesianController, CartesianParams, Mode
+from contactflow.embodiments.control.ik import IKParams, VelocityIK
+from contactflow.embodiments.control.kinematics import Kinematics
+from contactflow.embodiments.control.mixer import JointCommandMixer
+from contactflow.embodiments.control.trajectory import TrajectoryFollower, TrajectoryParams
+from contactflow.embodiments.faults import Fault, FaultMonitor, FaultParams
+from contactflow.embodiments.registry import ArmSpec, HandSpec, RobotSpec
+from contactflow.embodiments.sensors.camera import DepthFrame, RaycastCamera
+from contactflow.embodiments.sensors.encoders import Encoders
+from contactflow.embodiments.sensors.ft import WrenchReading, WristFT
+from contactflow.embodiments.sensors.ground_truth import GroundTruth, read_ground_truth
+from contactflow.embodiments.sensors.tactile import TactileSensor
+from contactflow.embodiments.world import World
+from contactflow.nodes.status import Event, Status
+
+
+@dataclass(frozen=True)
+class SimRobotParams:
+    control_rate: float = 200.0  # Hz, joint command mixing and controllers (§6.3.1)
+    seed: int = 0
+    settle_time: float = 0.1  # s simulated before the F/T sensors are tared
+    mixer_timeout: float = 0.1  # s a command stays fresh
+    hand_tolerance: float = 0.01  # rad or m, finger target reached
+    faults: FaultParams = FaultParams()
+
+
+class ArmHandle:
+    """Commands and state of one arm (see API.md)."""
+
+    def __init__(self, robot: SimRobot, spec: ArmSpec) -> None:
+        self.robot, self.spec = robot, spec
+        self.name = spec.name
+        self.joints = spec.joints
+        self.home = spec.home
+        self._sidx = robot.art.indices(spec.joints)
+        self._kidx = robot.kin.q_index(spec.joints)
+        self.ik = VelocityIK(robot.kin, spec.joints, spec.ee_frame, posture=np.asarray(spec.home), params=IKParams())
+        self.cart = CartesianController(robot.kin, self.ik, CartesianParams())
+        self.traj: TrajectoryFollower | None = None
+        self.q_cmd = robot.art.qpos()[self._sidx].copy()
+        self.mode = "idle"  # idle | joint | cartesian | guarded
+        self.status = Status.IDLE
+        self.abort_reason = ""
+        self._guard: tuple[float, np.ndarray | None] | None = None
+        self._submit = False
+
+    # -- state -----------------------------------------------------------------------------
+    def q(self) -> np.ndarray:
+        return self.robot._q_s[self._sidx].copy()
+
+    def qd(self) -> np.ndarray:
+        return self.robot._qd_s[self._sidx].copy()
+
+    def ee_pose(self, frame: str = "world") -> np.ndarray:
+        return self.robot.frame_pose(self.spec.ee_frame, frame)
+
+    def done(self) -> bool:
+        return self.status in (Status.SUCCESS, Status.FAILURE)
+
+    def wait(self, timeout: float) -> Status:
+        """Step the world until the command finishes or ``timeout`` s pass."""
+        dt = 1.0 / self.robot.params.control_rate
+        t_end = self.robot.time + timeout
+        while not self.done() and self.robot.time < t_end and not self.robot.failed:
+            self.robot.step(dt)
+        return self.status
+
+    # -- commands --------------------------------------------------------------------------
+    def _start(self, mode: str) -> None:
+        if self.robot.failed:
+            self.status = Status.FAILURE
+            self.abort_reason = "hardware_failure"
+            return
+        self.mode, self.status, self.abort_reason, self._submit = mode, Status.RUNNING, "", True
+
+    def stop(self) -> None:
+        """Hold the current commanded position."""
+        self.cart.stop()
+        self.traj = None
+        self.mode = "idle"
+        if self.status == Status.RUNNING:
+            self.status = Status.IDLE
+
+    def set_joint_target(self, q: np.ndarray) -> None:
+        """Immediate joint position target (no interpolation)."""
+        self.move_joints(q, speed=1e6)
+
+    def move_joints(self, q: np.ndarray, speed: float | None = None) -> None:
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (len(self.joints),):
+            raise ValueError(f"arm {self.name}: move_joints needs {len(self.joints)} values, got shape {q.shape}")
+        self.execute_waypoints(np.stack([self.q_cmd, q]), speed=speed, abort_force=np.inf)
+
+    def execute_waypoints(self, waypoints: np.ndarray, speed: float | None = None, abort_force: float = 8.0) -> None:
+        """Follow joint waypoints; abort when the F/T force changes by more than ``abort_force`` N."""
+        w = np.asarray(waypoints, dtype=np.float64)
+        if np.linalg.norm(w[0] - self.q_cmd) > 1e-6:
+            w = np.vstack([self.q_cmd, w])
+        self.traj = TrajectoryFollower(w, TrajectoryParams(max_velocity=speed or self.spec.max_velocity, abort_force=abort_force))
+        self._start("joint")
+
+    def execute(self, plan, abort_force: float = 8.0, speed: float | None = None) -> None:
+        """Execute a :class:`~contactflow.embodiments.control.planning.Plan` (or a waypoint array)."""
+        self.execute_waypoints(getattr(plan, "waypoints", plan), speed=speed, abort_force=abort_force)
+
+    def _cart_start(self) -> None:
+        self.traj = None
+        self.cart.reset(self.q_cmd)
+        self.robot._sync_kin(self._kidx, self.q_cmd)
+
+    def move_pose(self, T: np.ndarray, frame: str = "world", speed: float = 0.1) -> None:
+        self._cart_start()
+        self.cart.set_pose(T, frame, speed)
+        self._start("cartesian")
+
+    def set_twist(self, twist: np.ndarray, frame: str = "world", duration: float | None = None) -> None:
+        self._cart_start()
+        self.cart.set_twist(twist, frame, duration)
+        self._start("cartesian")
+
+    def set_wrench(self, wrench: np.ndarray, frame: str = "world") -> None:
+        if not self.spec.ft:
+            raise ValueError(f"arm {self.name} has no F/T sensor for wrench control")
+        self._cart_start()
+        self.cart.set_wrench(wrench, frame)
+        self._start("cartesian")
+
+    def guarded_move(self, twist: np.ndarray, frame: str = "world", max_force: float = 5.0,
+                     duration: float | None = None) -> None:
+        """Move at ``twist`` until the wrist force changes by ``max_force`` N (SUCCESS + CONTACT)."""
+        if not self.spec.ft:
+            raise ValueError(f"arm {self.name} has no F/T sensor for a guarded move")
+        self._cart_start()
+        self.cart.set_twist(twist, frame, duration)
+        self._guard = (max_force, None)
+        self._start("guarded")
+
+    def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal"):
+        """OMPL plan from the current commanded joints to a joint goal or a 4x4 pose of the controlled frame."""
+        from contactflow.embodiments.control.planning import plan_arm
+
+        return plan_arm(self.robot, self, goal, planner=planner, timeout=timeout, checker=checker)
+
+    # -- control tick ----------------------------------------------------------------------
+    def _tick(self, dt: float) -> None:
+        r = self.robot
+        if self.mode == "idle":
+            if self._submit:
+                r.mixer.submit(f"arm/{self.name}", self.joints, self.q_cmd, None, 1.0, r.time)
+            return
+        force = r.ft(self.name).force if self.spec.ft else None
+        if self.mode == "joint" and self.traj is not None:
+            q, qd = self.traj.step(dt, force)
+            self.q_cmd = q
+            if self.traj.status == Status.FAILURE:
+                self.abort_reason = self.traj.abort_reason
+                r._event(Event.CONTACT, f"arm {self.name}: trajectory aborted on contact")
+                self.q_cmd = r._q_s[self._sidx].copy()
+                qd = np.zeros_like(qd)
+            if self.traj.status != Status.RUNNING:
+                self.status = self.traj.status
+                self.mode = "idle"
+        else:
+            wrench = r.ft(self.name).vector if self.spec.ft else None
+            full = r._kin_q_cmd()
+            q, qd = self.cart.update(full, dt, wrench)
+            self.q_cmd = q
+            if self.mode == "guarded" and force is not None and self._guard is not None:
+                limit, f0 = self._guard
+                if f0 is None:
+                    self._guard = (limit, force.copy())
+                elif np.linalg.norm(force - f0) > limit:
+                    self.cart.stop()
+                    self.q_cmd = r._q_s[self._sidx].copy()
+                    qd = np.zeros_like(qd)
+                    self.status, self.mode = Status.SUCCESS, "idle"
+                    r._event(Event.CONTACT, f"arm {self.name}: guarded move stopped on contact")
+                elif self.cart.status == Status.SUCCESS:
+                    self.status, self.mode = Status.FAILURE, "idle"
+                    self.abort_reason = "no contact"
+            elif self.cart.mode == Mode.IDLE:
+                self.status = self.cart.status
+                self.mode = "idle"
+        r.mixer.submit(f"arm/{self.name}", self.joints, self.q_cmd, qd, 1.0, r.time)
+
+
+class HandHandle:
+    """Commands and state of one hand (see API.md)."""
+
+    def __init__(self, robot: SimRobot, spec: HandSpec) -> None:
+        self.robot, self.spec = robot, spec
+        self.name, self.kind, self.joints = spec.name, spec.kind, spec.joints
+        self.preshapes = tuple(spec.preshapes)
+        self._sidx = robot.art.indices(spec.joints)
+        self._mimic = [(robot.art.joint(j), list(spec.joints).index(m), k) for j, m, k in spec.mimic]
+        self.encoders = Encoders(robot.art, spec.joints, seed=robot.params.seed)
+        self.goal = robot.art.qpos()[self._sidx].copy()
+        self.q_cmd = self.goal.copy()
+        self.status = Status.IDLE
+        self._still = 0.0
+        self._submit = False
+        self._lim = robot.art.force_limit[self._sidx].copy()
+
+    def positions(self) -> np.ndarray:
+        return self.encoders.read()[0]
+
+    def done(self) -> bool:
+        return self.status in (Status.SUCCESS, Status.FAILURE)
+
+    def wait(self, timeout: float) -> Status:
+        dt = 1.0 / self.robot.params.control_rate
+        t_end = self.robot.time + timeout
+        while not self.done() and self.robot.time < t_end and not self.robot.failed:
+            self.robot.step(dt)
+        return self.status
+
+    def set_fingers(self, q: np.ndarray, effort: float = 1.0) -> None:
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (len(self.joints),):
+            raise ValueError(f"hand {self.name}: set_fingers needs {len(self.joints)} values, got shape {q.shape}")
+        if not 0.0 < effort <= 1.0:
+            raise ValueError(f"hand {self.name}: effort must be in (0, 1], got {effort}")
+        art = self.robot.art
+        lim = self._lim * effort
+        for k, i in enumerate(self._sidx):
+            art.force_limit[i] = lim[k]
+            art.joints[int(i)].set_drive_property(float(art.kp[i]), float(art.kd[i]), float(lim[k]), "force")
+        for i, _m, _k in self._mimic:
+            art.force_limit[i] = lim[0]
+            art.joints[i].set_drive_property(float(art.kp[i]), float(art.kd[i]), float(lim[0]), "force")
+        self.goal = np.clip(q, art.lower[self._sidx], art.upper[self._sidx])
+        self.status, self._still, self._submit = Status.RUNNING, 0.0, True
+        if self.robot.failed:
+            self.status = Status.FAILURE
+
+    def preshape(self, name: str, effort: float = 1.0) -> None:
+        if name not in self.spec.preshapes:
+            raise ValueError(f"hand {self.name}: unknown preshape {name!r} (known: {list(self.preshapes)})")
+        self.set_fingers(np.asarray(self.spec.preshapes[name]), effort)
+
+    def open(self) -> None:
+        self.preshape("open")
+
+    def close(self, effort: float = 1.0) -> None:
+        self.preshape("closed", effort)
+
+    def _tick(self, dt: float) -> None:
+        r = self.robot
+        if not self._submit:
+            return
+        step = self.spec.max_velocity * dt
+        self.q_cmd = self.q_cmd + np.clip(self.goal - self.q_cmd, -step, step)
+        names = list(self.joints)
+        qs = list(self.q_cmd)
+        for i, m, k in self._mimic:
+            names.append(r.art.joint_names[i])
+            qs.append(k * self.q_cmd[m])
+        r.mixer.submit(f"hand/{self.name}", names, np.asarray(qs), None, 1.0, r.time)
+        if self.status == Status.RUNNING and np.allclose(self.q_cmd, self.goal):
+            q = r._q_s[self._sidx]
+            qd = r._qd_s[self._sidx]
+            if np.abs(q - self.goal).max() < r.params.hand_tolerance:
+                self.status = Status.SUCCESS
+            elif np.abs(qd).max() < 0.01:
+                self._still += dt
+                if self._still > 0.1:
+                    self.status = Status.SUCCESS  # blocked by an object: the grasp closed on it
+            else:
+                self._still = 0.0
+
+
+class SimRobot:
+    """One robot in a :class:`World`, with controllers, sensors and fault handling."""
+
+    def __init__(self, world: World, robot: str | RobotSpec, name: str | None = None, base: np.ndarray | None = None,
+                 params: SimRobotParams | None = None) -> None:
+        self.world = world
+        self.params = params or SimRobotParams()
+        self.art = world.add_robot(robot, name=name, base=base)
+        self.spec: RobotSpec = self.art.spec
+        self.name = self.art.name
+        self.kin = Kinematics(self.spec.urdf(), self.art.base)
+        self._s2k = self.kin.q_index(self.art.joint_names)
+        self._q_s = self.art.qpos()
+        self._qd_s = self.art.qvel()
+        self._kin_stamp = -1.0
+        self.mixer = JointCommandMixer(self.art.joint_names, timeout=self.params.mixer_timeout)
+        self.mixer.hold(self._q_s)
+        self._arms = {a.name: ArmHandle(self, a) for a in self.spec.arms}
+        self._hands = {h.name: HandHandle(self, h) for h in self.spec.hands}
+        self._ft_of_arm: dict[str, WristFT] = {}
+        for a in self.spec.arms:
+            if a.ft:
+                f = self.spec.ft(a.ft)
+                self._ft_of_arm[a.name] = WristFT(self.art, f, seed=self.params.seed + len(self._ft_of_arm),
+                                                  kin=self.kin, arm_joints=a.joints)
+        self._tactile = {h.name: TactileSensor(self.art, h) for h in self.spec.hands}
+        self._cameras: dict[str, RaycastCamera] = {}
+        watched = np.zeros(len(self.art.joint_names), bool)
+        for a in self.spec.arms:
+            watched[self.art.indices(a.joints)] = True
+        self.monitor = FaultMonitor(self.art.joint_names, self.art.lower, self.art.upper, watched, self.params.faults)
+        self.failed = False
+        self.failure = ""
+        self.events: list[tuple[float, Event, str]] = []
+        self._sensor_stamps: dict[str, float] = {}
+        self._lost: set[str] = set()
+        self._nan_injected = False
+        self._every = max(1, int(round(1.0 / (self.params.control_rate * world.params.timestep))))
+        self._last_tick = -1
+        world.add_hook(self._hook)
+        self.step(self.params.settle_time)
+        for f in self._ft_of_arm.values():
+            self._sync_kin()
+            f.tare()
+
+    # -- time ------------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        return self.world.time
+
+    def step(self, dt: float) -> None:
+        """Advance the world by ``dt`` seconds (all robots in it)."""
+        self.world.step(max(1, int(round(dt / self.world.params.timestep))))
+
+    def _hook(self, world: World) -> None:
+        if world.steps % self._every:
+            return
+        self._control(self._every * world.params.timestep)
+
+    # -- handles ---------------------------------------------------------------------------
+    def arm(self, name: str) -> ArmHandle:
+        try:
+            return self._arms[name]
+        except KeyError:
+            raise KeyError(f"robot {self.name}: no arm {name!r} (arms: {list(self._arms)})") from None
+
+    def hand(self, name: str) -> HandHandle:
+        try:
+            return self._hands[name]
+        except KeyError:
+            raise KeyError(f"robot {self.name}: no hand {name!r} (hands: {list(self._hands)})") from None
+
+    @property
+    def arms(self) -> list[str]:
+        return list(self._arms)
+
+    @property
+    def hands(self) -> list[str]:
+        return list(self._hands)
+
+    # -- sensors ---------------------------------------------------------------------------
+    def ft(self, arm: str) -> WrenchReading:
+        try:
+            sensor = self._ft_of_arm[arm]
+        except KeyError:
+            raise KeyError(f"robot {self.name}: arm {arm!r} has no F/T sensor") from None
+        if sensor.spec.estimated:
+            self._sync_kin()
+        return sensor.read(self.time)
+
+    def tare_ft(self, arm: str) -> None:
+        self._sync_kin()
+        self._ft_of_arm[arm].tare()
+
+    def tactile(self, hand: str) -> dict[str, np.ndarray]:
+        try:
+            sensor = self._tactile[hand]
+        except KeyError:
+            raise KeyError(f"robot {self.name}: no hand {hand!r}") from None
+        return sensor.read(self.world.contacts(), self.world.params.timestep)
+
+    def finger_positions(self, hand: str) -> np.ndarray:
+        return self.hand(hand).positions()
+
+    def camera(self, name: str = "kinect") -> DepthFrame:
+        if name not in self._cameras:
+            spec = self.spec.camera(name)
+            self._cameras[name] = RaycastCamera(self.world, spec, self.art.links[spec.link])
+        return self._cameras[name].read(self.time)
+
+    def ground_truth(self) -> GroundTruth:
+        """Object poses and true contacts — evaluation only."""
+        return read_ground_truth(self.world)
+
+    def joint_state(self) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+        """(names, positions, velocities, efforts) of every active joint."""
+        return list(self.art.joint_names), self._q_s.copy(), self._qd_s.copy(), self.art.drive_efforts()
+
+    # -- kinematics ------------------------------------------------------------------------
+    def _kin_q(self) -> np.ndarray:
+        q = self.kin.q.copy()
+        q[self._s2k] = self._q_s
+        return q
+
+    def _kin_q_cmd(self) -> np.ndarray:
+        q = self._kin_q()
+        for a in self._arms.values():
+            q[a._kidx] = a.q_cmd
+        return q
+
+    def _sync_kin(self, kidx: np.ndarray | None = None, values: np.ndarray | None = None) -> None:
+        q = self._kin_q()
+        if kidx is not None:
+            q[kidx] = values
+        self.kin.update(q)
+        self._kin_stamp = self.time if kidx is None else -1.0
+
+    def frame_pose(self, frame: str, relative_to: str = "world") -> np.ndarray:
+        self._q_s = self.art.qpos() if not self._nan_injected else self._q_s
+        self._sync_kin()
+        return self.kin.frame_pose(frame, relative_to)
+
+    def add_task_frame(self, name: str, parent: str, T: np.ndarray) -> None:
+        self.kin.add_task_frame(name, parent, T)
+
+    @property
+    def spherical(self):
+        from contactflow.embodiments.spherical import SphericalModel
+
+        if not hasattr(self, "_spherical"):
+            self._spherical = SphericalModel.from_robot(self.kin, self.art)
+        self._sync_kin()
+        self._spherical.update(self.kin)
+        return self._spherical
+
+    # -- control and faults ----------------------------------------------------------------
+    def _event(self, event: Event, detail: str) -> None:
+        self.events.append((self.time, event, detail))
+
+    def _control(self, dt: float) -> None:
+        if self.failed:
+            return
+        q, qd = self.art.qpos(), self.art.qvel()
+        if self._nan_injected:
+            q = q.copy()
+            q[0] = np.nan
+        for name in list(self._ft_of_arm) + list(self._tactile):
+            if name not in self._lost:
+                self._sensor_stamps[name] = self.time
+        fault = self.monitor.check(self.time, q, qd, self.art.target, self._sensor_stamps)
+        if fault is not None:
+            self._fail(fault)
+            return
+        self._q_s, self._qd_s = q, qd
+        for a in self._arms.values():
+            a._tick(dt)
+        for h in self._hands.values():
+            h._tick(dt)
+        mq, mqd, mask = self.mixer.mix(self.time)
+        if mask.any():
+            idx = np.nonzero(mask)[0]
+            self.art.set_targets(idx, mq[idx], mqd[idx])
+
+    def _fail(self, fault: Fault) -> None:
+        self.failed = True
+        self.failure = f"{fault.kind}: {fault.detail}"
+        self.art.freeze()
+        for a in self._arms.values():
+            a.cart.stop()
+            a.traj = None
+            if a.status == Status.RUNNING:
+                a.status, a.abort_reason = Status.FAILURE, "hardware_failure"
+            a.mode = "idle"
+        for h in self._hands.values():
+            if h.status == Status.RUNNING:
+                h.status = Status.FAILURE
+        self._event(Event.HARDWARE_FAILURE, self.failure)
+
+    def inject_fault(self, kind: str, joint: str | None = None, sensor: str | None = None) -> None:
+        """Test hook: ``nan`` (encoders return NaN), ``explode`` (a joint is kicked to a huge speed),
+        ``stuck_joint`` (a joint is locked where it is), ``sensor_loss`` (a sensor stops sampling)."""
+        if kind == "nan":
+            self._nan_injected = True
+        elif kind == "explode":
+            qd = self.art.qvel()
+            qd[self.art.joint(joint or self.art.joint_names[0])] = 1e3
+            self.art.articulation.set_qvel(qd)
+        elif kind == "stuck_joint":
+            i = self.art.joint(joint or self.spec.arms[0].joints[0])
+            q = float(self.art.qpos()[i])
+            self.art.joints[i].set_limits([[q - 1e-4, q + 1e-4]])
+        elif kind == "sensor_loss":
+            name = sensor or next(iter(self._ft_of_arm), "")
+            if name not in self._ft_of_arm and name not in self._tactile:
+                raise ValueError(f"robot {self.name}: no sensor {name!r} (F/T by arm: {list(self._ft_of_arm)}, tactile: {list(self._tactile)})")
+            self._lost.add(name)
+        else:
+            raise ValueError(f"unknown fault kind {kind!r} (nan | explode | stuck_joint | sensor_loss)")

@@ -1,0 +1,403 @@
+"""A SAPIEN physics world playing "reality": floor, table, objects and robots.
+
+Scenes are physics-only (``PhysxCpuSystem``); nothing here needs a Vulkan device. Robots are
+loaded through the articulation builder with their visual records dropped, every robot
+gets its own collision group with self-collision disabled (PhysX ignore bits would leak
+between robots otherwise), joint friction is set to zero and gravity is compensated every
+physics step, as a real arm controller does. Stepping is deterministic in lockstep;
+``realtime=True`` makes :meth:`World.run` sleep to follow the wall clock.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import sapien
+
+from contactflow.embodiments.registry import RobotSpec, get
+from contactflow.embodiments.transforms import pose_to_matrix, xyz_rpy_to_matrix
+
+
+class WorldError(ValueError):
+    """Bad scene description (names the object/robot and field)."""
+
+
+@dataclass(frozen=True)
+class WorldParams:
+    timestep: float = 0.0025  # s, physics step (400 Hz)
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)  # m/s^2
+    floor_z: float = 0.0  # m
+    realtime: bool = False  # follow the wall clock in run()
+    position_iterations: int = 20  # PhysX solver iterations of articulations
+    velocity_iterations: int = 2
+    default_friction: float = 0.6
+
+
+@dataclass(frozen=True)
+class ShapeSpec:
+    """One primitive of an object; cylinders and capsules have their axis along local z."""
+
+    kind: str  # box | cylinder | sphere | capsule
+    size: tuple[float, ...]  # box: full x, y, z; cylinder/capsule: radius, length; sphere: radius
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m, in the object frame
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """A rigid object: one or several shapes, mass, friction and initial pose."""
+
+    name: str
+    shapes: tuple[ShapeSpec, ...]
+    mass: float = 0.2  # kg (ignored when static)
+    friction: float = 0.6
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    static: bool = False
+    category: str = "object"
+
+    def volume(self) -> float:
+        v = 0.0
+        for s in self.shapes:
+            if s.kind == "box":
+                v += float(np.prod(s.size))
+            elif s.kind == "sphere":
+                v += 4.0 / 3.0 * np.pi * s.size[0] ** 3
+            elif s.kind == "cylinder":
+                v += np.pi * s.size[0] ** 2 * s.size[1]
+            elif s.kind == "capsule":
+                v += np.pi * s.size[0] ** 2 * s.size[1] + 4.0 / 3.0 * np.pi * s.size[0] ** 3
+        return v
+
+
+def box(name: str, size: tuple[float, float, float], xyz: tuple[float, float, float], mass: float = 0.2,
+        friction: float = 0.6, rpy: tuple[float, float, float] = (0.0, 0.0, 0.0), static: bool = False) -> ObjectSpec:
+    return ObjectSpec(name, (ShapeSpec("box", size),), mass, friction, xyz, rpy, static, "box")
+
+
+def cylinder(name: str, radius: float, length: float, xyz: tuple[float, float, float], mass: float = 0.2,
+             friction: float = 0.6) -> ObjectSpec:
+    return ObjectSpec(name, (ShapeSpec("cylinder", (radius, length)),), mass, friction, xyz, category="cylinder")
+
+
+def sphere(name: str, radius: float, xyz: tuple[float, float, float], mass: float = 0.1, friction: float = 0.6) -> ObjectSpec:
+    return ObjectSpec(name, (ShapeSpec("sphere", (radius,)),), mass, friction, xyz, category="sphere")
+
+
+def mug(name: str, xyz: tuple[float, float, float], mass: float = 0.3) -> ObjectSpec:
+    """A household-like compound: cylinder body and a box handle."""
+    return ObjectSpec(name, (ShapeSpec("cylinder", (0.04, 0.1)), ShapeSpec("box", (0.02, 0.012, 0.06), xyz=(0.05, 0.0, 0.0))),
+                      mass, 0.6, xyz, category="mug")
+
+
+def bottle(name: str, xyz: tuple[float, float, float], mass: float = 0.4) -> ObjectSpec:
+    """A household-like compound: body cylinder, neck cylinder and cap sphere."""
+    return ObjectSpec(name, (ShapeSpec("cylinder", (0.035, 0.16), xyz=(0.0, 0.0, -0.03)),
+                             ShapeSpec("cylinder", (0.015, 0.06), xyz=(0.0, 0.0, 0.08)),
+                             ShapeSpec("sphere", (0.017,), xyz=(0.0, 0.0, 0.11))), mass, 0.6, xyz, category="bottle")
+
+
+_TO_X = sapien.Pose(q=[np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0])
+"""PhysX cylinders and capsules lie along x; our specs put them along z."""
+
+
+def _sapien_pose(T: np.ndarray) -> sapien.Pose:
+    return sapien.Pose(np.asarray(T, dtype=np.float64))
+
+
+@dataclass
+class SimObject:
+    """An object in the world; ``pose()`` is ground truth, for evaluation only."""
+
+    spec: ObjectSpec
+    entity: sapien.Entity
+    body: sapien.physx.PhysxRigidBaseComponent
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def pose(self) -> np.ndarray:
+        return pose_to_matrix(self.entity.get_pose())
+
+    def set_pose(self, T: np.ndarray) -> None:
+        self.entity.set_pose(_sapien_pose(T))
+        if isinstance(self.body, sapien.physx.PhysxRigidDynamicComponent):
+            self.body.set_linear_velocity([0.0, 0.0, 0.0])
+            self.body.set_angular_velocity([0.0, 0.0, 0.0])
+
+
+class SimArticulation:
+    """A robot loaded in the world: joints by name, drives, gravity compensation, link poses."""
+
+    def __init__(self, world: World, spec: RobotSpec, name: str, base: np.ndarray, group: int) -> None:
+        self.world, self.spec, self.name, self.group = world, spec, name, group
+        self.base = np.asarray(base, dtype=np.float64)
+        scene = world.scene
+        loader = scene.create_urdf_loader()
+        loader.fix_root_link = True
+        builder = loader.load_file_as_articulation_builder(str(spec.urdf()))
+        for lb in builder.link_builders:
+            lb.visual_records = []
+        self.articulation = builder.build()
+        self.articulation.set_name(name)
+        self.articulation.set_root_pose(_sapien_pose(self.base))
+        self.articulation.set_solver_position_iterations(world.params.position_iterations)
+        self.articulation.set_solver_velocity_iterations(world.params.velocity_iterations)
+        self.links = {lk.get_name(): lk for lk in self.articulation.get_links()}
+        self.joints = self.articulation.get_active_joints()
+        self.joint_names = [j.get_name() for j in self.joints]
+        self.index = {n: i for i, n in enumerate(self.joint_names)}
+        self.lower = np.array([j.get_limits()[0][0] for j in self.joints])
+        self.upper = np.array([j.get_limits()[0][1] for j in self.joints])
+        self.kp = np.zeros(len(self.joints))
+        self.kd = np.zeros(len(self.joints))
+        self.force_limit = np.zeros(len(self.joints))
+        self.target = np.zeros(len(self.joints))
+        self.target_vel = np.zeros(len(self.joints))
+        self.gravity_compensation = True
+        self.frozen = False
+        self._setup_collisions()
+        self._setup_drives()
+        self.set_home()
+
+    # -- setup ---------------------------------------------------------------------------
+    def _setup_collisions(self) -> None:
+        finger_links: dict[str, float] = {}
+        for h in self.spec.hands:
+            names = set(h.fingertips) | {h.palm_link}
+            names |= {self._child_link(j) for j in h.joints} | {self._child_link(m[0]) for m in h.mimic}
+            for n in names:
+                finger_links[n] = h.friction
+        for lname, link in self.links.items():
+            for shape in link.get_collision_shapes():
+                g = shape.get_collision_groups()
+                shape.set_collision_groups([g[0], g[1], g[2] | (1 << 30), self.group])
+                if lname in finger_links:
+                    f = finger_links[lname]
+                    shape.set_physical_material(sapien.physx.PhysxMaterial(f, f, 0.0))
+
+    def _child_link(self, joint: str) -> str:
+        for j in self.articulation.get_joints():
+            if j.get_name() == joint:
+                return j.get_child_link().get_name()
+        raise WorldError(f"robot {self.name}: joint {joint!r} is not in {self.spec.urdf()}")
+
+    def _setup_drives(self) -> None:
+        for i, j in enumerate(self.joints):
+            j.set_friction(0.0)
+            self.kp[i], self.kd[i], self.force_limit[i] = 400.0, 40.0, 200.0
+        for arm in self.spec.arms:
+            for n in arm.joints:
+                i = self.joint(n)
+                self.kp[i], self.kd[i], self.force_limit[i] = arm.kp, arm.kd, arm.force_limit
+        for h in self.spec.hands:
+            for n in list(h.joints) + [m[0] for m in h.mimic]:
+                i = self.joint(n)
+                self.kp[i], self.kd[i], self.force_limit[i] = h.kp, h.kd, h.force_limit
+        for i, j in enumerate(self.joints):
+            j.set_drive_property(float(self.kp[i]), float(self.kd[i]), float(self.force_limit[i]), "force")
+
+    def joint(self, name: str) -> int:
+        """SAPIEN index of an active joint."""
+        try:
+            return self.index[name]
+        except KeyError:
+            raise WorldError(f"robot {self.name}: no active joint {name!r}") from None
+
+    def indices(self, names: tuple[str, ...] | list[str]) -> np.ndarray:
+        return np.array([self.joint(n) for n in names], dtype=np.int64)
+
+    def home_q(self) -> np.ndarray:
+        q = np.clip(np.zeros(len(self.joints)), self.lower, self.upper)
+        for arm in self.spec.arms:
+            q[self.indices(arm.joints)] = arm.home
+        for h in self.spec.hands:
+            q[self.indices(h.joints)] = h.preshapes["open"]
+            for joint, master, mult in h.mimic:
+                q[self.joint(joint)] = mult * q[self.joint(master)]
+        if self.spec.head_joints:
+            q[self.indices(self.spec.head_joints)] = self.spec.head_home
+        return q
+
+    def set_home(self) -> None:
+        self.set_state(self.home_q())
+
+    # -- state ---------------------------------------------------------------------------
+    def set_state(self, q: np.ndarray) -> None:
+        """Teleport the joints to ``q`` (SAPIEN order) at rest and hold there."""
+        q = np.asarray(q, dtype=np.float64)
+        self.articulation.set_qpos(q)
+        self.articulation.set_qvel(np.zeros_like(q))
+        self.set_targets(np.arange(len(q)), q, np.zeros_like(q))
+
+    def qpos(self) -> np.ndarray:
+        return np.asarray(self.articulation.get_qpos(), dtype=np.float64)
+
+    def qvel(self) -> np.ndarray:
+        return np.asarray(self.articulation.get_qvel(), dtype=np.float64)
+
+    def set_targets(self, idx: np.ndarray, q: np.ndarray, qd: np.ndarray | None = None) -> None:
+        """Position (and velocity) drive targets of joints ``idx``."""
+        if self.frozen:
+            return
+        q = np.clip(np.asarray(q, dtype=np.float64), self.lower[idx], self.upper[idx])
+        qd = np.zeros_like(q) if qd is None else np.asarray(qd, dtype=np.float64)
+        self.target[idx], self.target_vel[idx] = q, qd
+        for k, i in enumerate(idx):
+            j = self.joints[int(i)]
+            j.set_drive_target(float(q[k]))
+            j.set_drive_velocity_target(float(qd[k]))
+
+    def drive_efforts(self) -> np.ndarray:
+        """Joint efforts of the position drives (what motor currents would show)."""
+        q, qd = self.qpos(), self.qvel()
+        tau = self.kp * (self.target - q) + self.kd * (self.target_vel - qd)
+        return np.clip(tau, -self.force_limit, self.force_limit)
+
+    def freeze(self) -> None:
+        """Stop the robot: hold the current position with zero velocity (a fault stop)."""
+        q = self.qpos()
+        if not np.all(np.isfinite(q)):
+            q = np.where(np.isfinite(q), q, self.target)
+            self.articulation.set_qpos(q)
+        self.articulation.set_qvel(np.zeros_like(q))
+        self.frozen = False
+        self.set_targets(np.arange(len(q)), q, np.zeros_like(q))
+        self.frozen = True
+
+    def unfreeze(self) -> None:
+        self.frozen = False
+
+    def link_pose(self, name: str) -> np.ndarray:
+        try:
+            return pose_to_matrix(self.links[name].get_pose())
+        except KeyError:
+            raise WorldError(f"robot {self.name}: no link {name!r}") from None
+
+    def pre_step(self) -> None:
+        if self.gravity_compensation:
+            self.articulation.set_qf(self.articulation.compute_passive_force(True, True))
+
+
+class World:
+    """The physics scene. Add a table, objects and robots, then ``step``."""
+
+    def __init__(self, params: WorldParams | None = None) -> None:
+        self.params = params or WorldParams()
+        sapien.physx.set_body_config(sleep_threshold=0.0)
+        sapien.physx.set_default_material(self.params.default_friction, self.params.default_friction, 0.0)
+        self.scene = sapien.Scene([sapien.physx.PhysxCpuSystem()])
+        self.scene.set_timestep(self.params.timestep)
+        self.scene.get_physx_system().config  # touch: the system exists before entities are added
+        self.scene.add_ground(self.params.floor_z, render=False)
+        self.robots: dict[str, SimArticulation] = {}
+        self.objects: dict[str, SimObject] = {}
+        self.time = 0.0
+        self.steps = 0
+        self._hooks: list = []
+        self._t0_wall: float | None = None
+        if tuple(self.params.gravity) != (0.0, 0.0, -9.81):
+            cfg = sapien.physx.get_scene_config()
+            cfg.gravity = np.array(self.params.gravity)
+
+    # -- building ------------------------------------------------------------------------
+    def add_table(self, size: tuple[float, float, float] = (0.8, 1.4, 0.75), xyz: tuple[float, float] = (0.65, 0.0),
+                  friction: float = 0.6) -> SimObject:
+        """A static table whose top is at z = ``size[2]`` above the floor."""
+        return self.add_object(ObjectSpec("table", (ShapeSpec("box", size),), friction=friction,
+                                          xyz=(xyz[0], xyz[1], self.params.floor_z + size[2] / 2), static=True, category="table"))
+
+    def add_object(self, spec: ObjectSpec) -> SimObject:
+        if spec.name in self.objects:
+            raise WorldError(f"object {spec.name!r} added twice")
+        if not spec.shapes:
+            raise WorldError(f"object {spec.name!r}: shapes is empty")
+        b = self.scene.create_actor_builder()
+        mat = sapien.physx.PhysxMaterial(spec.friction, spec.friction, 0.0)
+        density = spec.mass / max(spec.volume(), 1e-9)
+        for k, s in enumerate(spec.shapes):
+            pose = _sapien_pose(xyz_rpy_to_matrix(s.xyz, s.rpy))
+            if s.kind == "box":
+                if len(s.size) != 3:
+                    raise WorldError(f"object {spec.name!r}: shapes[{k}] box needs 3 sizes, got {s.size}")
+                b.add_box_collision(pose=pose, half_size=[x / 2 for x in s.size], material=mat, density=density)
+            elif s.kind == "sphere":
+                b.add_sphere_collision(pose=pose, radius=s.size[0], material=mat, density=density)
+            elif s.kind == "cylinder":
+                b.add_cylinder_collision(pose=pose * _TO_X, radius=s.size[0], half_length=s.size[1] / 2, material=mat, density=density)
+            elif s.kind == "capsule":
+                b.add_capsule_collision(pose=pose * _TO_X, radius=s.size[0], half_length=s.size[1] / 2, material=mat, density=density)
+            else:
+                raise WorldError(f"object {spec.name!r}: shapes[{k}].kind {s.kind!r} is not box|cylinder|sphere|capsule")
+        b.set_initial_pose(_sapien_pose(xyz_rpy_to_matrix(spec.xyz, spec.rpy)))
+        entity = b.build_static(name=spec.name) if spec.static else b.build(name=spec.name)
+        body = entity.find_component_by_type(sapien.physx.PhysxRigidBaseComponent)
+        obj = SimObject(spec, entity, body)
+        self.objects[spec.name] = obj
+        return obj
+
+    def add_robot(self, robot: str | RobotSpec, name: str | None = None, base: np.ndarray | None = None) -> SimArticulation:
+        """Load a registered robot (by name or spec) at ``base`` (default: the spec's placement)."""
+        spec = get(robot) if isinstance(robot, str) else robot
+        name = name or spec.name
+        if name in self.robots:
+            raise WorldError(f"robot {name!r} added twice (give a different name=)")
+        if base is None:
+            base = xyz_rpy_to_matrix(spec.base_xyz, spec.base_rpy)
+        art = SimArticulation(self, spec, name, base, group=len(self.robots) + 1)
+        self.robots[name] = art
+        return art
+
+    def remove_object(self, name: str) -> None:
+        obj = self.objects.pop(name)
+        self.scene.remove_entity(obj.entity)
+
+    # -- running -------------------------------------------------------------------------
+    def add_hook(self, fn) -> None:
+        """Call ``fn(world)`` before every physics step (controllers at physics rate)."""
+        self._hooks.append(fn)
+
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` physics steps in lockstep."""
+        dt = self.params.timestep
+        for _ in range(n):
+            for fn in self._hooks:
+                fn(self)
+            for r in self.robots.values():
+                r.pre_step()
+            self.scene.step()
+            self.steps += 1
+            self.time = self.steps * dt
+
+    def run(self, duration: float) -> None:
+        """Step for ``duration`` s; in real-time mode sleep so sim time follows the wall clock."""
+        n = max(1, int(round(duration / self.params.timestep)))
+        if not self.params.realtime:
+            self.step(n)
+            return
+        if self._t0_wall is None:
+            self._t0_wall = time.perf_counter() - self.time
+        for _ in range(n):
+            self.step()
+            ahead = self.time - (time.perf_counter() - self._t0_wall)
+            if ahead > 0:
+                time.sleep(ahead)
+
+    def contacts(self) -> list:
+        return self.scene.get_contacts()
+
+
+@dataclass
+class ContactPoint:
+    """A true contact between two named bodies (world frame), for evaluation."""
+
+    body_a: str
+    body_b: str
+    position: np.ndarray
+    normal: np.ndarray
+    impulse: float
+    separation: float = 0.0
+    extra: dict = field(default_factory=dict)

@@ -1,0 +1,1 @@
+"""Contact fusion (thesis ch. 4): hypotheses, generators, integrator, condensation, contact events."""

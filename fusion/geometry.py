@@ -1,0 +1,82 @@
+"""Point distances to a posed spherical robot model (thesis App. B, eq. B.2-B.3), on arrays.
+
+The embodiment owns the model (which spheres, on which links); generators receive it posed
+in the world as a (m, 8) array of bi-spheres ``[c1x, c1y, c1z, r1, c2x, c2y, c2z, r2]`` (a
+single sphere repeats its centre) and evaluate distances here, so they need no simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+DistanceFn = Callable[[np.ndarray], np.ndarray]
+"""Signed distance (n,) of world points (n, 3) to the robot surface: < 0 inside."""
+
+
+def check_capsules(caps: np.ndarray, where: str = "capsules") -> np.ndarray:
+    caps = np.asarray(caps, dtype=np.float64)
+    if caps.ndim != 2 or caps.shape[1] != 8:
+        raise ValueError(f"{where}: shape {caps.shape}, expected (m, 8) [c1, r1, c2, r2]")
+    if caps.size and (not np.isfinite(caps).all() or (caps[:, [3, 7]] < 0).any()):
+        raise ValueError(f"{where}: radii must be >= 0 and every value finite")
+    return caps
+
+
+def capsule_distance(points: np.ndarray, caps: np.ndarray, chunk: int = 65536) -> np.ndarray:
+    """Signed distance of each point to the union of bi-spheres (eq. B.3 then B.2), min over parts."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    caps = check_capsules(caps)
+    if caps.shape[0] == 0:
+        return np.full(pts.shape[0], np.inf)
+    c1, r1, c2, r2 = caps[:, 0:3], caps[:, 3], caps[:, 4:7], caps[:, 7]
+    axis = c2 - c1
+    len2 = np.einsum("ij,ij->i", axis, axis)
+    out = np.empty(pts.shape[0])
+    for s in range(0, pts.shape[0], chunk):
+        p = pts[s:s + chunk, None, :]
+        lam = np.einsum("nmk,mk->nm", p - c1, axis) / np.where(len2 > 0, len2, 1.0)
+        lam = np.clip(lam, 0.0, 1.0)
+        cmin = c1 + lam[..., None] * axis
+        rmin = r1 + lam * (r2 - r1)
+        out[s:s + chunk] = (np.linalg.norm(p - cmin, axis=2) - rmin).min(axis=1)
+    return out
+
+
+def distance_fn(caps: np.ndarray) -> DistanceFn:
+    caps = check_capsules(caps)
+    return lambda points: capsule_distance(points, caps)
+
+
+def gradient(distance: DistanceFn, points: np.ndarray, h: float = 1e-3) -> np.ndarray:
+    """Outward unit normals of the distance field by central differences (zero where flat)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = pts.shape[0]
+    offsets = np.concatenate([np.eye(3) * h, -np.eye(3) * h])
+    d = distance((pts[None, :, :] + offsets[:, None, :]).reshape(-1, 3)).reshape(6, n)
+    g = (d[:3] - d[3:]).T / (2 * h)
+    norm = np.linalg.norm(g, axis=1, keepdims=True)
+    return np.divide(g, norm, out=np.zeros_like(g), where=norm > 1e-9)
+
+
+def grid_points(lo: np.ndarray, hi: np.ndarray, step: float) -> np.ndarray:
+    """Centres of a regular grid of cells of size ``step`` covering the box [lo, hi]."""
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    axes = [np.arange(lo[a] + step / 2, hi[a], step) for a in range(3)]
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return np.stack([m.ravel() for m in mesh], axis=1)
+
+
+def surface_points(distance: DistanceFn, lo: np.ndarray, hi: np.ndarray, step: float, band: float | None = None) -> np.ndarray:
+    """Grid points within ``band`` (default half a cell diagonal) of the surface, inside [lo, hi]."""
+    pts = grid_points(lo, hi, step)
+    band = step * np.sqrt(3) / 2 if band is None else band
+    return pts[np.abs(distance(pts)) <= band]
+
+
+def capsules_bounds(caps: np.ndarray, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    caps = check_capsules(caps)
+    r = np.concatenate([caps[:, 3], caps[:, 7]])[:, None]
+    c = np.concatenate([caps[:, 0:3], caps[:, 4:7]])
+    return (c - r).min(axis=0) - margin, (c + r).max(axis=0) + margin

@@ -1,0 +1,416 @@
+"""Contact hypotheses as structure-of-arrays clouds, and the voxel hypothesis space (thesis §4.2).
+
+A generator produces a :class:`Hypotheses` cloud: locations, one likelihood per hypothesis,
+force magnitude and direction, a :class:`HypothesisType` per hypothesis and the time stamp of
+the reading. The integrator keeps a :class:`HypothesisSpace`: the 3D world discretised in
+voxels of fixed size, each occupied voxel holding one likelihood, time stamp, type and force
+per contributing source (a column), plus the bitmask of its sources. Voxels are found through
+:class:`VoxelIndex`, an open-addressing hash table of packed integer voxel coordinates that
+inserts and looks up whole arrays at once (no per-hypothesis Python loop).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+VOXEL_SIZE = 0.005  # m, thesis §4.7: the same 5 mm in generators and integrator
+_BITS = 21
+_OFFSET = 1 << (_BITS - 1)
+_MASK21 = (1 << _BITS) - 1
+EMPTY_KEY = np.int64(-1)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+class HypothesisType(IntEnum):
+    """Regular: perceptual evidence. Support: context/prediction, never alone. Null: veto."""
+
+    REGULAR = 0
+    SUPPORT = 1
+    NULL = 2
+
+
+def voxel_coords(points: np.ndarray, voxel_size: float) -> np.ndarray:
+    """Integer voxel coordinates (n, 3) of world points (n, 3)."""
+    return np.floor(np.asarray(points, dtype=np.float64) / voxel_size).astype(np.int64)
+
+
+def pack_keys(ijk: np.ndarray) -> np.ndarray:
+    """Pack integer voxel coordinates into one int64 key (21 bits per axis, ±5 km at 5 mm)."""
+    if ijk.size and (np.abs(ijk).max() >= _OFFSET):
+        raise ValueError(f"voxel coordinates out of range ±{_OFFSET} (point too far from the origin)")
+    u = ijk + _OFFSET
+    return (u[:, 0] << (2 * _BITS)) | (u[:, 1] << _BITS) | u[:, 2]
+
+
+def unpack_keys(keys: np.ndarray) -> np.ndarray:
+    keys = np.asarray(keys, dtype=np.int64)
+    return np.stack(((keys >> (2 * _BITS)) & _MASK21, (keys >> _BITS) & _MASK21, keys & _MASK21), axis=1) - _OFFSET
+
+
+def voxel_keys(points: np.ndarray, voxel_size: float) -> np.ndarray:
+    return pack_keys(voxel_coords(points, voxel_size))
+
+
+def voxel_centers(keys: np.ndarray, voxel_size: float) -> np.ndarray:
+    return (unpack_keys(keys).astype(np.float64) + 0.5) * voxel_size
+
+
+def _check(name: str, a: np.ndarray, shape: tuple[int, ...], where: str) -> None:
+    if a.shape != shape:
+        raise ValueError(f"{where}: field {name!r} has shape {a.shape}, expected {shape}")
+    if a.dtype.kind == "f" and a.size and not np.isfinite(a).all():
+        raise ValueError(f"{where}: field {name!r} contains NaN or inf")
+
+
+@dataclass(frozen=True, eq=False)
+class Hypotheses:
+    """A cloud of contact hypotheses from one source, as parallel numpy arrays.
+
+    ``location`` (n, 3) world frame, m; ``likelihood`` (n,) in [0, 1]; ``kind`` (n,) uint8
+    :class:`HypothesisType`; ``force`` (n,) N; ``direction`` (n, 3) unit vectors (zero when
+    unknown); ``stamp`` the time of the reading the cloud was computed from, s.
+    """
+
+    location: np.ndarray
+    likelihood: np.ndarray
+    kind: np.ndarray
+    force: np.ndarray
+    direction: np.ndarray
+    stamp: float = 0.0
+
+    def __len__(self) -> int:
+        return int(self.location.shape[0])
+
+    @classmethod
+    def make(
+        cls,
+        location: np.ndarray,
+        likelihood: np.ndarray | float,
+        kind: HypothesisType | np.ndarray = HypothesisType.REGULAR,
+        force: np.ndarray | float = 0.0,
+        direction: np.ndarray | None = None,
+        stamp: float = 0.0,
+        where: str = "hypotheses",
+    ) -> Hypotheses:
+        """Build a cloud, broadcasting scalars, and validate shapes and ranges."""
+        loc = np.asarray(location, dtype=np.float64).reshape(-1, 3)
+        n = loc.shape[0]
+        lik = np.broadcast_to(np.asarray(likelihood, dtype=np.float64), (n,)).copy()
+        knd = np.broadcast_to(np.asarray(kind, dtype=np.uint8), (n,)).copy()
+        frc = np.broadcast_to(np.asarray(force, dtype=np.float64), (n,)).copy()
+        if direction is None:
+            dirn = np.zeros((n, 3))
+        else:
+            dirn = np.broadcast_to(np.asarray(direction, dtype=np.float64), (n, 3)).copy()
+        h = cls(loc, lik, knd, frc, dirn, float(stamp))
+        h.validate(where)
+        return h
+
+    @classmethod
+    def empty(cls, stamp: float = 0.0) -> Hypotheses:
+        return cls.make(np.zeros((0, 3)), 0.0, stamp=stamp)
+
+    def validate(self, where: str = "hypotheses") -> None:
+        n = len(self)
+        _check("location", self.location, (n, 3), where)
+        _check("likelihood", self.likelihood, (n,), where)
+        _check("kind", self.kind, (n,), where)
+        _check("force", self.force, (n,), where)
+        _check("direction", self.direction, (n, 3), where)
+        if n and (self.likelihood.min() < 0.0 or self.likelihood.max() > 1.0):
+            raise ValueError(f"{where}: field 'likelihood' must lie in [0, 1]")
+        if n and self.kind.max() > max(HypothesisType):
+            raise ValueError(f"{where}: field 'kind' holds {int(self.kind.max())}, not a HypothesisType")
+        if not np.isfinite(self.stamp):
+            raise ValueError(f"{where}: field 'stamp' is not finite")
+
+    def select(self, mask: np.ndarray) -> Hypotheses:
+        return Hypotheses(self.location[mask], self.likelihood[mask], self.kind[mask], self.force[mask],
+                          self.direction[mask], self.stamp)
+
+    @staticmethod
+    def concat(clouds: list[Hypotheses], stamp: float | None = None) -> Hypotheses:
+        if not clouds:
+            return Hypotheses.empty(stamp or 0.0)
+        return Hypotheses(
+            np.concatenate([c.location for c in clouds]),
+            np.concatenate([c.likelihood for c in clouds]),
+            np.concatenate([c.kind for c in clouds]),
+            np.concatenate([c.force for c in clouds]),
+            np.concatenate([c.direction for c in clouds]),
+            max(c.stamp for c in clouds) if stamp is None else stamp,
+        )
+
+
+def voxelize(h: Hypotheses, voxel_size: float = VOXEL_SIZE, reduce: str = "max") -> Hypotheses:
+    """Merge hypotheses that share a voxel; the result sits on voxel centres.
+
+    ``reduce="sum"`` keeps the total probability of a single-contact generator (eq. 4.1);
+    ``"max"`` suits multi-contact generators (eq. 4.2). Force and direction are averaged
+    weighted by likelihood; the type of a voxel is the highest of its hypotheses (a null
+    hypothesis wins over a support one, which wins over a regular one).
+    """
+    if reduce not in ("max", "sum"):
+        raise ValueError(f"voxelize: reduce={reduce!r} is not 'max' or 'sum'")
+    if len(h) == 0:
+        return h
+    keys, inv = np.unique(voxel_keys(h.location, voxel_size), return_inverse=True)
+    m = keys.shape[0]
+    if reduce == "sum":
+        lik = np.minimum(np.bincount(inv, weights=h.likelihood, minlength=m), 1.0)
+    else:
+        lik = np.zeros(m)
+        np.maximum.at(lik, inv, h.likelihood)
+    kind = np.zeros(m, dtype=np.uint8)
+    np.maximum.at(kind, inv, h.kind)
+    w = h.likelihood + 1e-12
+    wsum = np.bincount(inv, weights=w, minlength=m)
+    force = np.bincount(inv, weights=w * h.force, minlength=m) / wsum
+    direction = np.stack([np.bincount(inv, weights=w * h.direction[:, a], minlength=m) for a in range(3)], axis=1)
+    direction = normalise(direction)
+    return Hypotheses(voxel_centers(keys, voxel_size), lik, kind, force, direction, h.stamp)
+
+
+def normalise(v: np.ndarray) -> np.ndarray:
+    """Unit vectors along the last axis; zero vectors stay zero."""
+    norm = np.sqrt(np.einsum("...i,...i->...", v, v))[..., None]
+    return np.divide(v, norm, out=np.zeros_like(v), where=norm > 1e-12)
+
+
+class VoxelIndex:
+    """Open-addressing (linear probing) hash table: packed voxel key -> row number.
+
+    Lookups and insertions take whole key arrays; each probing round is one vectorised pass
+    over the keys still unresolved, and with the load factor kept under one half almost every
+    key resolves in the first round or two. Rows are numbered densely in insertion order.
+    """
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self._alloc(max(16, 1 << int(np.ceil(np.log2(max(capacity, 1) * 2)))))
+        self.row_keys = np.zeros(max(capacity, 16), dtype=np.int64)
+        """Key of each row, in row order (valid up to ``count``)."""
+        self.count = 0
+        self.generation = 0
+        """Incremented on every rebuild, so callers can cache rows between rebuilds."""
+
+    def _alloc(self, size: int) -> None:
+        self.size = size
+        self.mask = np.uint64(size - 1)
+        self.shift = np.uint64(64 - int(np.log2(size)))
+        self.keys = np.full(size, EMPTY_KEY, dtype=np.int64)
+        self.rows = np.full(size, -1, dtype=np.int64)
+
+    def _hash(self, keys: np.ndarray) -> np.ndarray:
+        return ((keys.view(np.uint64) * _GOLDEN) >> self.shift).astype(np.int64)
+
+    def _probe(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Slot holding each key, or the empty slot ending its probe chain; and found flags."""
+        slot = self._hash(keys)
+        found = np.zeros(keys.shape[0], dtype=bool)
+        tk = self.keys[slot]
+        hit = tk == keys
+        found |= hit
+        pending = np.flatnonzero(~hit & (tk != EMPTY_KEY))
+        mask = int(self.mask)
+        while pending.size:
+            s = (slot[pending] + 1) & mask
+            slot[pending] = s
+            tk = self.keys[s]
+            hit = tk == keys[pending]
+            found[pending[hit]] = True
+            pending = pending[~hit & (tk != EMPTY_KEY)]
+        return slot, found
+
+    def lookup(self, keys: np.ndarray) -> np.ndarray:
+        """Row of each key, -1 where absent."""
+        keys = np.ascontiguousarray(keys, dtype=np.int64)
+        slot, found = self._probe(keys)
+        return np.where(found, self.rows[slot], -1)
+
+    def insert(self, keys: np.ndarray) -> np.ndarray:
+        """Row of each key, adding absent keys (duplicates in ``keys`` share one new row)."""
+        keys = np.ascontiguousarray(keys, dtype=np.int64)
+        if self.count + keys.shape[0] > self.size // 2:
+            self._grow(self.count + keys.shape[0])
+        slot, found = self._probe(keys)
+        rows = np.where(found, self.rows[slot], -1)
+        missing = np.flatnonzero(~found)
+        if missing.size:
+            mk, ms = keys[missing], slot[missing]
+            pending = np.arange(missing.size)
+            mask = int(self.mask)
+            while pending.size:
+                s = ms[pending]
+                k = mk[pending]
+                free = self.keys[s] == EMPTY_KEY
+                self.keys[s[free]] = k[free]
+                ok = self.keys[s] == k
+                pending = pending[~ok]
+                ms[pending] = (ms[pending] + 1) & mask
+            uniq, first = np.unique(ms, return_index=True)
+            new_slots = uniq[np.argsort(first)]  # rows numbered in order of first appearance
+            fresh = new_slots[self.rows[new_slots] < 0]
+            end = self.count + fresh.size
+            if end > self.row_keys.shape[0]:
+                grown = np.zeros(max(end, 2 * self.row_keys.shape[0]), dtype=np.int64)
+                grown[: self.count] = self.row_keys[: self.count]
+                self.row_keys = grown
+            self.rows[fresh] = np.arange(self.count, end)
+            self.row_keys[self.count:end] = self.keys[fresh]
+            self.count = end
+            rows[missing] = self.rows[ms]
+        return rows
+
+    def _grow(self, needed: int) -> None:
+        size = self.size
+        while needed > size // 2:
+            size *= 2
+        self.rebuild(self.row_keys[: self.count].copy(), size)
+
+    def rebuild(self, keys: np.ndarray, size: int | None = None) -> None:
+        """Start over with ``keys`` as rows 0..n-1 (keys must be unique)."""
+        n = keys.shape[0]
+        size = size or self.size
+        while n > size // 2:
+            size *= 2
+        self._alloc(size)
+        self.count = 0
+        self.generation += 1
+        if n:
+            rows = self.insert(keys)
+            if not np.array_equal(rows, np.arange(n)):
+                raise ValueError("VoxelIndex.rebuild: keys are not unique")
+
+
+class HypothesisSpace:
+    """The hypothesis space HS: occupied voxels with per-source likelihood, stamp, type, force.
+
+    Sources are columns (at most 64, so a voxel's sources fit a uint64 bitmask). Storage is
+    column-major, ``lik[col, row]`` and ``direction[col, axis, row]`` and ``center[axis, row]``, so that writing one source's cloud and reducing over the
+    few sources are both contiguous passes. A column entry is empty when its stamp is
+    ``-inf`` and its likelihood 0. Rows whose every column is empty are dead; they are dropped
+    in bulk when they outnumber the live ones.
+    """
+
+    MAX_SOURCES = 64
+
+    def __init__(self, voxel_size: float = VOXEL_SIZE, capacity: int = 1024, columns: int = 4) -> None:
+        if not voxel_size > 0:
+            raise ValueError(f"HypothesisSpace: voxel_size={voxel_size} must be > 0")
+        self.voxel_size = float(voxel_size)
+        self.index = VoxelIndex(capacity)
+        self.n = 0
+        self.cap = 0
+        self.ncol = 0
+        self.center = np.zeros((3, 0))
+        self._alloc_rows(max(capacity, 16), columns)
+
+    def _alloc_rows(self, cap: int, ncol: int) -> None:
+        n, c = self.n, self.ncol
+        lik = np.zeros((ncol, cap))
+        stamp = np.full((ncol, cap), -np.inf)
+        kind = np.zeros((ncol, cap), dtype=np.uint8)
+        force = np.zeros((ncol, cap))
+        direction = np.zeros((ncol, 3, cap))
+        center = np.zeros((3, cap))
+        if n:
+            center[:, :n] = self.center[:, :n]
+        if c:
+            lik[:c, :n] = self.lik[:, :n]
+            stamp[:c, :n] = self.stamp[:, :n]
+            kind[:c, :n] = self.kind[:, :n]
+            force[:c, :n] = self.force[:, :n]
+            direction[:c, :, :n] = self.direction[:, :, :n]
+        self.lik, self.stamp, self.kind, self.force, self.direction = lik, stamp, kind, force, direction
+        self.center = center
+        self.cap, self.ncol = cap, ncol
+
+    def ensure_column(self, col: int) -> None:
+        if not 0 <= col < self.MAX_SOURCES:
+            raise ValueError(f"HypothesisSpace: source column {col} outside [0, {self.MAX_SOURCES})")
+        if col >= self.ncol:
+            self._alloc_rows(self.cap, min(self.MAX_SOURCES, max(col + 1, 2 * self.ncol)))
+
+    def rows_for(self, keys: np.ndarray) -> np.ndarray:
+        """Rows of the voxels ``keys``, creating rows for new voxels."""
+        rows = self.index.insert(keys)
+        n_new = self.index.count
+        if n_new > self.cap:
+            cap = self.cap
+            while cap < n_new:
+                cap *= 2
+            self._alloc_rows(cap, self.ncol)
+        if n_new > self.n:
+            self.center[:, self.n:n_new] = voxel_centers(self.keys[self.n:n_new], self.voxel_size).T
+            self.n = n_new
+        return rows
+
+    def put(self, col: int, rows: np.ndarray, h: Hypotheses) -> None:
+        """Write one source's hypotheses into its column (the newest reading of a source wins)."""
+        self.ensure_column(col)
+        if rows.size and np.bincount(rows).max() > 1:
+            # Several hypotheses of one cloud in one voxel: keep the most likely of them.
+            order = np.lexsort((h.likelihood, rows))
+            last = np.ones(order.size, dtype=bool)
+            last[:-1] = rows[order][1:] != rows[order][:-1]
+            sel = order[last]
+            rows, h = rows[sel], h.select(sel)
+        # Assigning through the 1-D row views is several times faster than [col, rows].
+        self.lik[col][rows] = h.likelihood
+        self.stamp[col][rows] = h.stamp
+        self.kind[col][rows] = h.kind
+        self.force[col][rows] = h.force
+        for a in range(3):
+            self.direction[col, a][rows] = h.direction[:, a]
+
+    def clear_column(self, col: int) -> None:
+        if col < self.ncol:
+            self.lik[col] = 0.0
+            self.stamp[col] = -np.inf
+
+    def expire(self, older_than: float) -> int:
+        """Empty every column entry stamped before ``older_than``; returns how many."""
+        n = self.n
+        stamp = self.stamp[:, :n]
+        old = (stamp < older_than) & (stamp > -np.inf)
+        count = int(np.count_nonzero(old))
+        if count:
+            self.lik[:, :n][old] = 0.0
+            stamp[old] = -np.inf
+        return count
+
+    def live(self) -> np.ndarray:
+        return (self.stamp[:, : self.n] > -np.inf).any(axis=0)
+
+    def compact(self, force: bool = False) -> bool:
+        """Drop dead rows when they are the majority (or always with ``force``)."""
+        live = self.live()
+        n_live = int(np.count_nonzero(live))
+        if not force and (self.n - n_live) * 2 <= max(self.n, 64):
+            return False
+        keep = np.flatnonzero(live)
+        keys = self.keys[keep]
+        for name in ("lik", "stamp", "kind", "force", "direction"):
+            arr = getattr(self, name)
+            arr[..., :n_live] = np.take(arr, keep, axis=-1)
+        self.center[:, :n_live] = np.take(self.center, keep, axis=1)
+        self.stamp[:, n_live:self.n] = -np.inf
+        self.lik[:, n_live:self.n] = 0.0
+        self.n = n_live
+        self.index.rebuild(keys)
+        return True
+
+    @property
+    def keys(self) -> np.ndarray:
+        """Packed voxel key of each row (valid up to ``n``)."""
+        return self.index.row_keys
+
+    def centers(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """Voxel centres (k, 3) of ``rows`` (a transposed view of a (3, k) array)."""
+        return (self.center[:, : self.n].copy() if rows is None else np.take(self.center, rows, axis=1)).T
+
+    def __len__(self) -> int:
+        return int(np.count_nonzero(self.live()))

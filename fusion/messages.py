@@ -1,0 +1,163 @@
+"""Wire messages of contact fusion: hypothesis clouds, fused clouds, contacts, contact events.
+
+Arrays travel as :class:`~contactflow.nodes.wire.NDArray` in float32 (5 mm voxels need no
+more) except time stamps and bitmasks. Every location is in the one world frame.
+"""
+
+from __future__ import annotations
+
+import msgspec
+import numpy as np
+from contactflow.fusion.condensation import Contact
+from contactflow.fusion.events import ContactEvent
+from contactflow.fusion.hypotheses import Hypotheses, HypothesisType
+from contactflow.fusion.integrator import Fused
+from contactflow.nodes.status import Event
+from contactflow.nodes.wire import Message, NDArray, WireError
+
+
+def _arr(msg_name: str, field: str, a: NDArray, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+    out = a.numpy()
+    if out.shape != shape:
+        raise WireError(f"{msg_name}.{field}: shape {tuple(out.shape)}, expected {shape}")
+    return out.astype(dtype, copy=False)
+
+
+class HypothesisCloud(Message, tag="hypothesis_cloud"):
+    """One generator's cloud (thesis §4.2.1), published on ``KeySpace.hypotheses(robot, generator)``.
+
+    ``robot`` is the robot whose contacts the cloud is about (a head camera of robot A may
+    publish about robot B), ``link`` the link the hypotheses lie on when the generator knows
+    it. ``stamp`` is the time of the sensor reading. ``force`` and ``direction`` may be empty
+    arrays when the generator knows no force.
+    """
+
+    max_bytes = 64 << 20
+    robot: str
+    generator: str
+    stamp: float
+    location: NDArray  # (n, 3) float32, m, world frame
+    likelihood: NDArray  # (n,) float32 in [0, 1]
+    kind: NDArray  # (n,) uint8 HypothesisType
+    force: NDArray  # (n,) float32 N, or (0,)
+    direction: NDArray  # (n, 3) float32 unit, or (0, 3)
+    link: str = ""
+    frame: str = "world"
+
+    @property
+    def source(self) -> str:
+        return f"{self.robot}/{self.generator}"
+
+    @classmethod
+    def of(cls, h: Hypotheses, robot: str, generator: str, link: str = "") -> HypothesisCloud:
+        has_force = bool(len(h)) and bool(np.any(h.force) or np.any(h.direction))
+        return cls(
+            robot=robot, generator=generator, stamp=h.stamp, link=link,
+            location=NDArray.of(h.location.astype(np.float32)),
+            likelihood=NDArray.of(h.likelihood.astype(np.float32)),
+            kind=NDArray.of(h.kind.astype(np.uint8)),
+            force=NDArray.of(h.force.astype(np.float32) if has_force else np.zeros(0, np.float32)),
+            direction=NDArray.of(h.direction.astype(np.float32) if has_force else np.zeros((0, 3), np.float32)),
+        )
+
+    def hypotheses(self) -> Hypotheses:
+        """Decode into a validated :class:`Hypotheses` (errors name the message and field)."""
+        where = f"HypothesisCloud({self.source})"
+        if self.frame != "world":
+            raise WireError(f"{where}.frame: {self.frame!r}, fusion works in the world frame")
+        loc = self.location.numpy()
+        if loc.ndim != 2 or loc.shape[1] != 3:
+            raise WireError(f"{where}.location: shape {tuple(loc.shape)}, expected (n, 3)")
+        n = loc.shape[0]
+        lik = _arr(where, "likelihood", self.likelihood, (n,), np.float64)
+        kind = _arr(where, "kind", self.kind, (n,), np.uint8)
+        if self.force.shape == [0]:
+            force = np.zeros(n)
+        else:
+            force = _arr(where, "force", self.force, (n,), np.float64)
+        if self.direction.shape == [0, 3]:
+            direction = np.zeros((n, 3))
+        else:
+            direction = _arr(where, "direction", self.direction, (n, 3), np.float64)
+        h = Hypotheses(loc.astype(np.float64), lik, kind, force, direction, float(self.stamp))
+        try:
+            h.validate(where)
+        except ValueError as exc:
+            raise WireError(str(exc)) from None
+        return h
+
+
+class FusedCloud(Message, tag="fused_cloud"):
+    """The fused hypotheses H(x) of one integrator cycle (for display and analysis)."""
+
+    max_bytes = 64 << 20
+    stamp: float
+    location: NDArray  # (k, 3) float32
+    likelihood: NDArray  # (k,) float32
+    force: NDArray  # (k,) float32
+    direction: NDArray  # (k, 3) float32
+    sources: NDArray  # (k,) uint64 bitmask over ``columns``
+    columns: list[str]
+    vetoed: int = 0
+    unsupported: int = 0
+
+    @classmethod
+    def of(cls, f: Fused) -> FusedCloud:
+        return cls(
+            stamp=f.stamp, location=NDArray.of(f.location.astype(np.float32)),
+            likelihood=NDArray.of(f.likelihood.astype(np.float32)), force=NDArray.of(f.force.astype(np.float32)),
+            direction=NDArray.of(f.direction.astype(np.float32)), sources=NDArray.of(f.sources.astype(np.uint64)),
+            columns=list(f.columns), vetoed=f.vetoed, unsupported=f.unsupported,
+        )
+
+
+class ContactInfo(msgspec.Struct, frozen=True, kw_only=True):
+    """One condensed contact."""
+
+    location: list[float]  # m, world frame
+    likelihood: float
+    sigma: float  # m
+    force: float  # N
+    direction: list[float]
+    voxels: int
+    sources: list[str]
+    robot: str = ""
+    link: str = ""
+
+    @classmethod
+    def of(cls, c: Contact, columns: list[str]) -> ContactInfo:
+        names = [n for i, n in enumerate(columns) if n and (c.sources >> i) & 1]
+        return cls(location=[float(v) for v in c.location], likelihood=c.likelihood, sigma=c.sigma, force=c.force,
+                   direction=[float(v) for v in c.direction], voxels=c.voxels, sources=names, robot=c.robot,
+                   link=c.link)
+
+
+class ContactList(Message, tag="contact_list"):
+    """The condensed contacts of one cycle, on ``KeySpace.fused(robot, "contacts")``."""
+
+    stamp: float
+    contacts: list[ContactInfo] = []
+
+
+class ContactEventMsg(Message, tag="contact_event"):
+    """A contact made or broken, on ``KeySpace.fused(robot, "events")``."""
+
+    event: Event
+    contact_id: int
+    robot: str
+    link: str
+    location: list[float]  # m, world frame
+    likelihood: float
+    t: float
+
+    def __post_init__(self) -> None:
+        if self.event not in (Event.CONTACT_MADE, Event.CONTACT_BROKEN):
+            raise ValueError(f"ContactEventMsg.event: {self.event!r} is not contact_made or contact_broken")
+
+    @classmethod
+    def of(cls, e: ContactEvent) -> ContactEventMsg:
+        return cls(event=e.event, contact_id=e.id, robot=e.robot, link=e.link,
+                   location=[float(v) for v in e.location], likelihood=e.likelihood, t=e.t)
+
+
+__all__ = ["ContactEventMsg", "ContactInfo", "ContactList", "FusedCloud", "HypothesisCloud", "HypothesisType"]

@@ -1,0 +1,1 @@
+"""Runtime: node process, module layers, wire messages, key space and task engine."""

@@ -1,0 +1,1 @@
+"""Small generic modules: a signal source, filters and a threshold watcher (demo pipelines)."""

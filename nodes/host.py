@@ -1,0 +1,362 @@
+"""The module host: wires modules to a transport, schedules their loops, answers control.
+
+One host runs inside each node process. It gives every module a :class:`HostedIO` (inputs
+decoded and validated, outputs stamped with provenance), steps running modules at their
+rate on the node's clock, publishes status, announces modules with liveliness tokens,
+arbitrates shared resources (thesis §6.6) and never lets a module's exception or a
+malformed message take the node down.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import traceback
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from contactflow.nodes.clock import SimClock, WallClock
+from contactflow.nodes.config import ModuleConfig, NodeConfig
+from contactflow.nodes.keys import KeySpace, ModuleAddr
+from contactflow.nodes.messages import Command, ControlReply, ControlRequest, EventMsg, ParamValue, StatusMsg
+from contactflow.nodes.module import LayerError, Module
+from contactflow.nodes.params import ParamError, params_dict
+from contactflow.nodes.status import STATUS_EVENT, Event, Status
+from contactflow.nodes.transport import Handle, Transport
+from contactflow.nodes.wire import Message, MsgId, WireError, decode, encode, stamp
+
+STATUS_PERIOD = 1.0  # s between periodic status messages
+QUEUE_DEPTH = 256  # messages kept per input port between two steps
+
+
+@dataclass
+class Counters:
+    received: int = 0
+    rejected: int = 0
+    published: int = 0
+    steps: int = 0
+    errors: int = 0
+
+
+class HostedIO:
+    """ModuleIO of one hosted module."""
+
+    def __init__(self, host: ModuleHost, hm: HostedModule) -> None:
+        self._host = host
+        self._hm = hm
+        self._lock = threading.Lock()
+        self._latest: dict[str, Message] = {}
+        self._queues: dict[str, deque[Message]] = {p.name: deque(maxlen=QUEUE_DEPTH) for p in hm.module.inputs}
+        self._seq = 0
+
+    @property
+    def now(self) -> float:
+        return self._host.clock.now()
+
+    def deliver(self, port: str, msg: Message) -> None:
+        with self._lock:
+            self._latest[port] = msg
+            self._queues[port].append(msg)
+
+    def latest(self, port: str) -> Message | None:
+        with self._lock:
+            return self._latest.get(port)
+
+    def take(self, port: str) -> list[Message]:
+        with self._lock:
+            q = self._queues.get(port)
+            if not q:
+                return []
+            out = list(q)
+            q.clear()
+            return out
+
+    def _next_seq(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    def publish(self, port: str, msg: Message, inputs: list[MsgId] | None = None) -> None:
+        pub = self._hm.publishers.get(port)
+        if pub is None:
+            raise LayerError(f"{self._hm.addr}: no output port {port!r}")
+        if inputs is None:
+            with self._lock:
+                inputs = [m.hdr.id for m in self._latest.values()]
+        stamp(msg, f"{self._hm.addr}/{port}", self._next_seq(), self.now, inputs)
+        pub(encode(msg))
+        self._hm.counters.published += 1
+
+    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
+        msg = EventMsg(event=event, module=str(self._hm.addr), detail=detail, values=values or {})
+        stamp(msg, str(self._hm.addr), self._next_seq(), self.now)
+        self._hm.event_pub(encode(msg))
+
+    def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:
+        if not self._hm.module.may_command:
+            raise LayerError(f"{self._hm.addr}: a {self._hm.module.layer} module may not send control messages")
+        return self._host.send_control(target, cmd, params or {}, issuer=str(self._hm.addr), default_robot=self._hm.addr.robot)
+
+    def log(self, text: str) -> None:
+        self._host.log.info("%s: %s", self._hm.addr, text)
+
+
+@dataclass
+class HostedModule:
+    cfg: ModuleConfig
+    module: Module
+    addr: ModuleAddr
+    io: HostedIO | None = None
+    publishers: dict[str, Any] = field(default_factory=dict)
+    event_pub: Any = None
+    status_pub: Any = None
+    handles: list[Handle] = field(default_factory=list)
+    claims: list[Handle] = field(default_factory=list)
+    counters: Counters = field(default_factory=Counters)
+    next_due: float = 0.0
+    last_status: float = -1e9
+    detail: str = ""
+    lock: threading.RLock = field(default_factory=threading.RLock)
+
+    @property
+    def state(self) -> Status:
+        return self.module.state
+
+
+class ModuleHost:
+    """Hosts the modules of one node on a transport."""
+
+    def __init__(self, config: NodeConfig, transport: Transport, clock: WallClock | SimClock | None = None) -> None:
+        self.config = config
+        self.ks: KeySpace = config.keyspace
+        self.transport = transport
+        self.clock = clock if clock is not None else (
+            SimClock(transport, self.ks) if config.clock == "sim" else WallClock()
+        )
+        self.log = logging.getLogger(f"contactflow.node.{config.node}")
+        self.modules: dict[tuple[str, str], HostedModule] = {}
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._node_token: Handle | None = None
+
+    # -- set up ---------------------------------------------------------------------------
+    def add(self, cfg: ModuleConfig, module: Module | None = None) -> HostedModule:
+        module = module if module is not None else cfg.cls(cfg.name, cfg.params)
+        addr = ModuleAddr(cfg.robot, self.config.node, cfg.name)
+        hm = HostedModule(cfg=cfg, module=module, addr=addr)
+        hm.io = HostedIO(self, hm)
+        t = self.transport
+        for port in module.outputs:
+            key = cfg.outputs.get(port.name) or self.ks.output(addr.robot, addr.node, addr.module, port.name)
+            hm.publishers[port.name] = t.publisher(key)
+        hm.event_pub = t.publisher(self.ks.events(*self._a(addr)))
+        hm.status_pub = t.publisher(self.ks.status(*self._a(addr)))
+        for port in module.inputs:
+            src = cfg.inputs.get(port.name)
+            if src is None:
+                continue
+            key = src.keyexpr(self.ks, addr.robot)
+            hm.handles.append(t.subscribe(key, self._input_callback(hm, port.name, port.type)))
+        hm.handles.append(t.queryable(self.ks.control(*self._a(addr)), self._control_callback(hm)))
+        hm.handles.append(t.token(self.ks.alive_module(*self._a(addr))))
+        module.setup(hm.io)
+        with self._lock:
+            self.modules[(addr.robot, addr.module)] = hm
+        return hm
+
+    @staticmethod
+    def _a(addr: ModuleAddr) -> tuple[str, str, str]:
+        return addr.robot, addr.node, addr.module
+
+    def _input_callback(self, hm: HostedModule, port: str, type_: type[Message]):
+        def on_sample(key: str, payload: bytes) -> None:
+            hm.counters.received += 1
+            try:
+                msg = decode(payload, type_, key)
+            except WireError as exc:
+                hm.counters.rejected += 1
+                if hm.counters.rejected <= 10 or hm.counters.rejected % 1000 == 0:
+                    self.log.warning("rejected input #%d of %s: %s", hm.counters.rejected, hm.addr, exc)
+                return
+            hm.io.deliver(port, msg)
+        return on_sample
+
+    def _control_callback(self, hm: HostedModule):
+        def on_query(key: str, payload: bytes) -> bytes:
+            try:
+                req = decode(payload, ControlRequest, key)
+            except WireError as exc:
+                hm.counters.rejected += 1
+                self.log.warning("rejected control for %s: %s", hm.addr, exc)
+                return encode(ControlReply(ok=False, error=str(exc), state=hm.state))
+            return encode(self.handle_control(hm, req))
+        return on_query
+
+    # -- control --------------------------------------------------------------------------
+    def handle_control(self, hm: HostedModule, req: ControlRequest) -> ControlReply:
+        with hm.lock:
+            try:
+                return self._apply(hm, req)
+            except Exception as exc:  # a module hook raised: report, never crash the node
+                self._fail(hm, f"{req.cmd} raised {type(exc).__name__}: {exc}")
+                return ControlReply(ok=False, error=hm.detail, state=hm.state)
+
+    def _apply(self, hm: HostedModule, req: ControlRequest) -> ControlReply:
+        m = hm.module
+        if req.cmd == Command.RUN:
+            refusal = self._claim(hm)
+            if refusal:
+                return ControlReply(ok=False, error=refusal, state=m.state)
+            if req.params:
+                m.set_params(dict(req.params))
+            m.start()
+            m.state = Status.RUNNING
+            hm.detail = ""
+            hm.next_due = self.clock.now()
+        elif req.cmd == Command.STOP:
+            if m.state == Status.RUNNING:
+                m.stop()
+            m.state = Status.STOPPED
+            self._release(hm)
+        elif req.cmd == Command.RESET:
+            m.reset()
+            if m.state != Status.RUNNING:
+                m.state = Status.IDLE
+        elif req.cmd == Command.SET:
+            try:
+                m.set_params(dict(req.params))
+            except ParamError as exc:
+                return ControlReply(ok=False, error=str(exc), state=m.state, params=params_dict(m.params))
+        elif req.cmd == Command.DESCRIBE:
+            return ControlReply(ok=True, state=m.state, params=params_dict(m.params), description=m.describe_yaml())
+        self._publish_status(hm)
+        return ControlReply(ok=True, state=m.state, params=params_dict(m.params))
+
+    def _claim(self, hm: HostedModule) -> str:
+        """Claim the module's resources; a refusal message when another module holds one."""
+        if hm.claims:
+            return ""
+        for res in hm.module.resources:
+            holders = [k for k in self.transport.alive(self.ks.claim(hm.addr.robot, res), timeout=0.5)
+                       if not k.endswith(f"/{hm.addr.node}/{hm.addr.module}")]
+            if holders and res not in hm.cfg.mix:
+                holder = "/".join(holders[0].split("/")[-2:])
+                return (f"resource {res!r} of robot {hm.addr.robot!r} is already commanded by {holder}; "
+                        f"stop it first or declare weighted mixing (mix: {{{res}: <weight>}}) in the configuration")
+        for res in hm.module.resources:
+            hm.claims.append(self.transport.token(self.ks.claim(hm.addr.robot, res, hm.addr.node, hm.addr.module)))
+        return ""
+
+    def _release(self, hm: HostedModule) -> None:
+        for c in hm.claims:
+            c.close()
+        hm.claims.clear()
+
+    def send_control(self, target: str, cmd: Command, params: dict[str, ParamValue], issuer: str = "",
+                     default_robot: str = "site", timeout: float = 3.0) -> ControlReply:
+        robot, _, module = target.rpartition("/")
+        robot = robot or default_robot
+        req = ControlRequest(cmd=cmd, params=params, issuer=issuer)
+        local = self.modules.get((robot, module))
+        if local is not None:
+            return self.handle_control(local, decode(encode(req), ControlRequest))
+        key = self.ks.control(robot, "*", module)
+        replies = self.transport.query(key, encode(req), timeout=timeout)
+        if not replies:
+            return ControlReply(ok=False, error=f"no module answers on {key}", state=Status.ERROR)
+        rkey, payload = replies[0]
+        try:
+            return decode(payload, ControlReply, rkey)
+        except WireError as exc:
+            return ControlReply(ok=False, error=str(exc), state=Status.ERROR)
+
+    # -- running ----------------------------------------------------------------------------
+    def _publish_status(self, hm: HostedModule) -> None:
+        m = hm.module
+        msg = StatusMsg(module=str(hm.addr), layer=str(m.layer), state=m.state, rate_hz=m.params.rate_hz,
+                        steps=hm.counters.steps, rejected=hm.counters.rejected, detail=hm.detail)
+        stamp(msg, str(hm.addr), hm.counters.steps, self.clock.now())
+        hm.status_pub(encode(msg))
+        hm.last_status = self.clock.now()
+
+    def _fail(self, hm: HostedModule, detail: str) -> None:
+        hm.counters.errors += 1
+        hm.detail = detail
+        self.log.error("%s: %s", hm.addr, detail)
+        hm.module.state = Status.ERROR
+        self._release(hm)
+        try:
+            hm.io.emit(Event.ERROR, detail=detail[:500])
+            self._publish_status(hm)
+        except Exception:  # the transport itself failed; the node keeps running
+            self.log.exception("%s: could not report the error", hm.addr)
+
+    def start_autostart(self) -> None:
+        for hm in list(self.modules.values()):
+            if hm.cfg.autostart:
+                reply = self.handle_control(hm, ControlRequest(cmd=Command.RUN))
+                if not reply.ok:
+                    self.log.error("%s: autostart refused: %s", hm.addr, reply.error)
+
+    def tick(self) -> float:
+        """Step every running module that is due; returns the time the next one is due."""
+        now = self.clock.now()
+        next_due = now + STATUS_PERIOD
+        for hm in list(self.modules.values()):
+            with hm.lock:
+                m = hm.module
+                if m.state == Status.RUNNING and now >= hm.next_due:
+                    period = 1.0 / max(m.params.rate_hz, 1e-3)
+                    hm.next_due = max(hm.next_due + period, now) if hm.next_due > now - period else now + period
+                    try:
+                        status = m.step()
+                    except Exception as exc:
+                        self._fail(hm, f"step raised {type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
+                        continue
+                    hm.counters.steps += 1
+                    if status != Status.RUNNING:
+                        m.state = status
+                        self._release(hm)
+                        event = STATUS_EVENT.get(status)
+                        if event is not None:
+                            hm.io.emit(event)
+                        self._publish_status(hm)
+                if now - hm.last_status >= STATUS_PERIOD:
+                    self._publish_status(hm)
+                if m.state == Status.RUNNING:
+                    next_due = min(next_due, hm.next_due)
+        return next_due
+
+    def run(self) -> None:
+        """Block, stepping modules until :meth:`shutdown`."""
+        while not self._stop.is_set():
+            due = self.tick()
+            self.clock.wait_until(due, self._stop)
+
+    def start(self, host_name: str | None = None) -> None:
+        """Announce the node, autostart modules and run the loop on a thread."""
+        self._node_token = self.transport.token(self.ks.alive_node(host_name or self.config.host, self.config.node))
+        self.start_autostart()
+        self._thread = threading.Thread(target=self.run, name=f"host-{self.config.node}", daemon=True)
+        self._thread.start()
+
+    def shutdown(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        for hm in list(self.modules.values()):
+            with hm.lock:
+                if hm.module.state == Status.RUNNING:
+                    try:
+                        hm.module.stop()
+                    except Exception:
+                        self.log.exception("%s: stop raised", hm.addr)
+                    hm.module.state = Status.STOPPED
+                    self._publish_status(hm)
+                self._release(hm)
+                for h in hm.handles:
+                    h.close()
+        if self._node_token is not None:
+            self._node_token.close()
+        self.clock.close()

@@ -1,0 +1,156 @@
+"""The one module that builds every zenoh key expression of a contactflow site.
+
+Layout (``docs/protocol.md`` documents it with examples)::
+
+    cf/<site>/clock                                        simulation clock
+    cf/<site>/m/<robot>/<node>/<module>/out/<port>         module data output
+    cf/<site>/m/<robot>/<node>/<module>/evt                module events
+    cf/<site>/m/<robot>/<node>/<module>/status             module status
+    cf/<site>/m/<robot>/<node>/<module>/ctl                control queryable
+    cf/<site>/contacts/<robot>/<generator>                 contact hypothesis clouds
+    cf/<site>/contacts/fused/<robot>/{hypotheses,contacts,events}
+    cf/<site>/broker/dispatch                              broker queryable (ATD in)
+    cf/<site>/broker/progress/<task_id>                    abstract progress stream
+    cf/<site>/broker/robots/<robot>/{caps,translate,run}   per-robot broker queryables
+    cf/<site>/eval/<robot>/<stream>                        ground truth, for evaluation only
+    cf/<site>/alive/node/<host>/<node>                     liveliness: node process
+    cf/<site>/alive/m/<robot>/<node>/<module>              liveliness: module
+    cf/<site>/alive/robot/<robot>                          liveliness: robot advertising
+    cf/<site>/alive/claim/<robot>/<resource>/<node>/<module>  liveliness: resource claim
+
+``<robot>`` is ``site`` for modules that belong to no robot (the broker, a shared
+integrator). Subscribers address a module without knowing its node through ``*``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+ROOT = "cf"
+SITE_ROBOT = "site"
+"""Robot segment of modules that belong to the site, not to one robot."""
+RESERVED = frozenset({"fused", "*", "**"})
+_SEGMENT = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
+ANY = "*"
+
+
+class KeyExprError(ValueError):
+    """A name cannot be used as a key-expression segment."""
+
+
+def segment(value: str, field: str) -> str:
+    """Validate one key segment; ``field`` names what the value is, for the error."""
+    if value == ANY:
+        return value
+    if not isinstance(value, str) or not _SEGMENT.match(value):
+        raise KeyExprError(
+            f"{field}={value!r} is not a valid key segment (letters, digits, _ . - ; "
+            "no '/', '*', '$', '#', '?', not empty)"
+        )
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class ModuleAddr:
+    """Where a module lives: robot, node and module name."""
+
+    robot: str
+    node: str
+    module: str
+
+    def __str__(self) -> str:
+        return f"{self.robot}/{self.node}/{self.module}"
+
+
+@dataclass(frozen=True, slots=True)
+class KeySpace:
+    """Key expressions of one site (the site prefix isolates deployments)."""
+
+    site: str = "default"
+
+    def __post_init__(self) -> None:
+        segment(self.site, "site")
+
+    @property
+    def prefix(self) -> str:
+        return f"{ROOT}/{self.site}"
+
+    # -- clock -------------------------------------------------------------------------
+    def clock(self) -> str:
+        return f"{self.prefix}/clock"
+
+    # -- modules -----------------------------------------------------------------------
+    def module(self, robot: str, node: str, module: str) -> str:
+        segment(robot, "robot")
+        segment(node, "node")
+        segment(module, "module")
+        return f"{self.prefix}/m/{robot}/{node}/{module}"
+
+    def output(self, robot: str, node: str, module: str, port: str) -> str:
+        return f"{self.module(robot, node, module)}/out/{segment(port, 'port')}"
+
+    def events(self, robot: str = ANY, node: str = ANY, module: str = ANY) -> str:
+        return f"{self.module(robot, node, module)}/evt"
+
+    def status(self, robot: str = ANY, node: str = ANY, module: str = ANY) -> str:
+        return f"{self.module(robot, node, module)}/status"
+
+    def control(self, robot: str, node: str, module: str) -> str:
+        return f"{self.module(robot, node, module)}/ctl"
+
+    def parse_module(self, key: str) -> tuple[ModuleAddr, str]:
+        """Split a module key into its address and the rest (``out/<port>``, ``evt``, ...)."""
+        parts = str(key).split("/")
+        if len(parts) < 7 or parts[:3] != [ROOT, self.site, "m"]:
+            raise KeyExprError(f"key {key!r} is not a module key of site {self.site!r}")
+        return ModuleAddr(parts[3], parts[4], parts[5]), "/".join(parts[6:])
+
+    # -- contacts ----------------------------------------------------------------------
+    def hypotheses(self, robot: str = ANY, generator: str = ANY) -> str:
+        if robot in RESERVED - {ANY}:
+            raise KeyExprError(f"robot={robot!r} is reserved in contacts/<robot>/<generator>")
+        return f"{self.prefix}/contacts/{segment(robot, 'robot')}/{segment(generator, 'generator')}"
+
+    def fused(self, robot: str = ANY, stream: str = "events") -> str:
+        if stream not in ("hypotheses", "contacts", "events"):
+            raise KeyExprError(f"stream={stream!r}: fused streams are hypotheses, contacts, events")
+        return f"{self.prefix}/contacts/fused/{segment(robot, 'robot')}/{stream}"
+
+    # -- broker ------------------------------------------------------------------------
+    def dispatch(self) -> str:
+        return f"{self.prefix}/broker/dispatch"
+
+    def progress(self, task_id: str = ANY) -> str:
+        return f"{self.prefix}/broker/progress/{segment(task_id, 'task_id')}"
+
+    def robot_service(self, robot: str, verb: str) -> str:
+        if verb not in ("caps", "translate", "run", "cancel"):
+            raise KeyExprError(f"verb={verb!r}: robot services are caps, translate, run, cancel")
+        return f"{self.prefix}/broker/robots/{segment(robot, 'robot')}/{verb}"
+
+    # -- evaluation (ground truth; primitives and fusion never subscribe) -------------
+    def evaluation(self, robot: str = ANY, stream: str = ANY) -> str:
+        return f"{self.prefix}/eval/{segment(robot, 'robot')}/{segment(stream, 'stream')}"
+
+    # -- liveliness --------------------------------------------------------------------
+    def alive_node(self, host: str = ANY, node: str = ANY) -> str:
+        return f"{self.prefix}/alive/node/{segment(host, 'host')}/{segment(node, 'node')}"
+
+    def alive_module(self, robot: str = ANY, node: str = ANY, module: str = ANY) -> str:
+        return (
+            f"{self.prefix}/alive/m/{segment(robot, 'robot')}/{segment(node, 'node')}/"
+            f"{segment(module, 'module')}"
+        )
+
+    def alive_robot(self, robot: str = ANY) -> str:
+        return f"{self.prefix}/alive/robot/{segment(robot, 'robot')}"
+
+    def claim(self, robot: str, resource: str, node: str = ANY, module: str = ANY) -> str:
+        return (
+            f"{self.prefix}/alive/claim/{segment(robot, 'robot')}/"
+            f"{segment(resource, 'resource')}/{segment(node, 'node')}/{segment(module, 'module')}"
+        )
+
+    def everything(self) -> str:
+        return f"{self.prefix}/**"

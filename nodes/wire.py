@@ -1,0 +1,186 @@
+"""Wire format: typed message structs encoded as plain MessagePack maps with named fields.
+
+Every message is a ``msgspec`` struct deriving from :class:`Message`. On the wire it is a
+MessagePack map whose keys are the field names plus ``"type"`` (the message tag), so any
+msgpack client in any language can read it (``docs/protocol.md`` shows how). Numpy arrays
+travel as :class:`NDArray` maps ``{dtype, shape, data}``. Decoding validates types, the
+schema version and array sizes, and refuses payloads larger than the type allows.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, ClassVar, TypeVar
+
+import msgspec
+import numpy as np
+
+SCHEMA_VERSION = 1
+"""Bumped on any incompatible change of a message layout."""
+
+_ALLOWED_DTYPES = frozenset(
+    {"bool", "uint8", "int8", "uint16", "int16", "uint32", "int32", "int64", "uint64",
+     "float16", "float32", "float64"}
+)
+
+M = TypeVar("M", bound="Message")
+
+
+class WireError(ValueError):
+    """A payload could not be decoded; the message names the key expression and field."""
+
+
+class MsgId(msgspec.Struct, frozen=True, kw_only=True):
+    """Identity of one message: its source (``robot/node/module[/port]``) and sequence."""
+
+    source: str
+    seq: int
+
+
+class Header(msgspec.Struct, kw_only=True):
+    """Carried by every message: schema, origin, sequence, time stamps and provenance.
+
+    ``inputs`` lists the messages this one was computed from, so the output of a pipeline
+    can be traced back to the sensor reading that caused it (thesis §6.6).
+    """
+
+    schema: int = SCHEMA_VERSION
+    source: str = ""
+    seq: int = 0
+    t_sim: float = 0.0  # s, simulation (or robot) clock
+    t_wall: float = 0.0  # s since the Unix epoch
+    inputs: list[MsgId] = []
+
+    def __post_init__(self) -> None:
+        if self.schema != SCHEMA_VERSION:
+            raise ValueError(f"unknown schema version {self.schema} (this build reads {SCHEMA_VERSION})")
+        if self.seq < 0:
+            raise ValueError("seq must be >= 0")
+
+    @property
+    def id(self) -> MsgId:
+        return MsgId(source=self.source, seq=self.seq)
+
+
+_ITEMSIZE = {name: np.dtype(name).itemsize for name in _ALLOWED_DTYPES}
+_NAME_BY_CHAR = {np.dtype(name).char: name for name in _ALLOWED_DTYPES}  # dtype.name is slow
+
+
+class NDArray(msgspec.Struct, frozen=True, kw_only=True):
+    """A numpy array as ``{dtype, shape, data}``; ``data`` is C-order little-endian bytes.
+
+    ``data`` decodes as a zero-copy view of the received payload.
+    """
+
+    dtype: str
+    shape: list[int]
+    data: memoryview
+
+    def __post_init__(self) -> None:
+        itemsize = _ITEMSIZE.get(self.dtype)
+        if itemsize is None:
+            raise ValueError(f"dtype {self.dtype!r} is not one of {sorted(_ALLOWED_DTYPES)}")
+        if len(self.shape) > 8:
+            raise ValueError(f"shape {self.shape} has more than 8 dimensions")
+        count = 1
+        for d in self.shape:
+            if d < 0:
+                raise ValueError(f"shape {self.shape} has a negative dimension")
+            count *= d
+        nbytes = self.data.nbytes if isinstance(self.data, memoryview) else len(self.data)
+        if count * itemsize != nbytes:
+            raise ValueError(f"data has {nbytes} bytes, shape {self.shape} of {self.dtype} needs {count * itemsize}")
+
+    @classmethod
+    def of(cls, array: np.ndarray) -> NDArray:
+        a = array
+        if not a.flags.c_contiguous or a.dtype.byteorder == ">":
+            a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+        dt = a.dtype
+        name = _NAME_BY_CHAR.get(dt.char) or dt.name
+        return cls(dtype=name, shape=list(a.shape), data=memoryview(a).cast("B"))
+
+    def numpy(self) -> np.ndarray:
+        return np.frombuffer(self.data, dtype=np.dtype(self.dtype).newbyteorder("<")).reshape(self.shape)
+
+
+class Message(msgspec.Struct, kw_only=True, tag_field="type", tag=True):
+    """Base of every wire message. Subclasses give ``tag="snake_name"``.
+
+    ``max_bytes`` bounds the encoded size accepted for this type: a 10 MB payload on a key
+    that carries small messages is refused before decoding.
+    """
+
+    max_bytes: ClassVar[int] = 1 << 20
+
+    hdr: Header = msgspec.field(default_factory=Header)
+
+    @classmethod
+    def tag(cls) -> str:
+        return str(cls.__struct_config__.tag)
+
+
+def registry() -> dict[str, type[Message]]:
+    """Every imported message type by tag; two types may not share a tag."""
+    out: dict[str, type[Message]] = {}
+    todo = list(Message.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        todo.extend(cls.__subclasses__())
+        tag = cls.tag()
+        if tag in out and out[tag] is not cls:
+            raise TypeError(f"message tag {tag!r} used by {out[tag].__qualname__} and {cls.__qualname__}")
+        out[tag] = cls
+    return out
+
+
+_encoder = msgspec.msgpack.Encoder()
+_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+
+
+def encode(msg: Message) -> bytes:
+    return _encoder.encode(msg)
+
+
+def stamp(msg: M, source: str, seq: int, t_sim: float, inputs: list[MsgId] | None = None) -> M:
+    """Fill the header of an outgoing message (the runtime does this on publish)."""
+    h = msg.hdr
+    h.source, h.seq, h.t_sim, h.t_wall = source, seq, t_sim, time.time()
+    if inputs is not None:
+        h.inputs = inputs
+    return msg
+
+
+def decode(data: bytes | bytearray | memoryview, type_: type[M], where: str = "") -> M:
+    """Decode and validate ``data`` as ``type_``; ``where`` (a key expression) names the place."""
+    if len(data) > type_.max_bytes:
+        raise WireError(f"{where}: payload of {len(data)} bytes exceeds {type_.max_bytes} for {type_.__name__}")
+    dec = _decoders.get(type_)
+    if dec is None:
+        dec = _decoders[type_] = msgspec.msgpack.Decoder(type_)
+    try:
+        return dec.decode(data)
+    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        raise WireError(f"{where}: invalid {type_.__name__}: {exc}") from None
+
+
+def decode_any(data: bytes | bytearray | memoryview, where: str = "") -> Message:
+    """Decode a message of any registered type, chosen by its ``type`` tag."""
+    try:
+        raw = msgspec.msgpack.decode(data)
+    except msgspec.DecodeError as exc:
+        raise WireError(f"{where}: not MessagePack: {exc}") from None
+    tag = raw.get("type") if isinstance(raw, dict) else None
+    cls = registry().get(tag) if isinstance(tag, str) else None
+    if cls is None:
+        raise WireError(f"{where}: unknown message type {tag!r}")
+    return decode(data, cls, where)
+
+
+def to_builtins(msg: Message) -> Any:
+    """A plain-Python view of a message (arrays summarised), for printing."""
+    def hook(obj: Any) -> Any:
+        if isinstance(obj, bytes | memoryview):
+            return f"<{len(obj)} bytes>"
+        raise NotImplementedError
+    return msgspec.to_builtins(msg, enc_hook=hook)

@@ -1,0 +1,188 @@
+"""Wire messages of the recognition area: depth frames, clouds, plane/ROI, objects, grasps, labels.
+
+Every message derived from a depth frame names that frame in ``depth_frame`` and lists it
+in its header provenance (``hdr.inputs``), so a segmented object can be traced back to the
+image it was cut from (thesis §6.6).
+"""
+
+from __future__ import annotations
+
+import msgspec
+import numpy as np
+from contactflow.nodes.wire import Message, MsgId, NDArray
+from contactflow.recognition.geometry import Box
+from contactflow.recognition.pipeline import Cluster, Plane
+
+NO_FRAME = MsgId(source="", seq=0)
+
+
+class DepthFrame(Message, tag="vision_depth_frame"):
+    """A depth image (float32, metres along the optical axis; NaN/inf where nothing was seen)."""
+
+    max_bytes = 16 << 20
+    depth: NDArray
+    intrinsics: list[float]  # row-major 3x3 pinhole matrix
+    world_T_cam: list[float]  # row-major 4x4 pose of the optical frame (x right, y down, z fwd)
+    camera: str = "camera"
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(depth, K, world_T_cam); raises ValueError naming the bad field."""
+        if len(self.intrinsics) != 9:
+            raise ValueError(f"DepthFrame.intrinsics: expected 9 numbers, got {len(self.intrinsics)}")
+        if len(self.world_T_cam) != 16:
+            raise ValueError(f"DepthFrame.world_T_cam: expected 16 numbers, got {len(self.world_T_cam)}")
+        return self.depth.numpy(), np.reshape(self.intrinsics, (3, 3)), np.reshape(self.world_T_cam, (4, 4))
+
+    @classmethod
+    def of(cls, depth: np.ndarray, K: np.ndarray, world_T_cam: np.ndarray, camera: str = "camera") -> DepthFrame:
+        return cls(depth=NDArray.of(np.asarray(depth, np.float32)), intrinsics=[float(v) for v in np.ravel(K)],
+                   world_T_cam=[float(v) for v in np.ravel(world_T_cam)], camera=camera)
+
+
+class PointCloud(Message, tag="vision_cloud"):
+    """An (N, 3) float32 cloud in the world frame."""
+
+    max_bytes = 32 << 20
+    points: NDArray
+    depth_frame: MsgId = NO_FRAME
+    frame: str = "world"
+
+    def xyz(self) -> np.ndarray:
+        p = self.points.numpy()
+        if p.size == 0:
+            return np.zeros((0, 3))
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError(f"PointCloud.points: expected shape (N, 3), got {p.shape}")
+        return p.astype(np.float64)
+
+    @classmethod
+    def of(cls, points: np.ndarray, depth_frame: MsgId = NO_FRAME) -> PointCloud:
+        return cls(points=NDArray.of(np.asarray(points, np.float32).reshape(-1, 3)), depth_frame=depth_frame)
+
+
+class PlaneMsg(Message, tag="vision_plane"):
+    """The principal plane ``normal · p + offset = 0`` and its frame (z = normal)."""
+
+    normal: list[float]
+    offset: float
+    origin: list[float]
+    frame: list[float]  # row-major 3x3, columns are the plane axes
+    inliers: int
+    depth_frame: MsgId = NO_FRAME
+
+    def plane(self) -> Plane:
+        return Plane(np.array(self.normal), self.offset, np.array(self.origin), np.reshape(self.frame, (3, 3)),
+                     self.inliers)
+
+    @classmethod
+    def of(cls, plane: Plane, depth_frame: MsgId = NO_FRAME) -> PlaneMsg:
+        return cls(normal=plane.normal.tolist(), offset=float(plane.offset), origin=plane.origin.tolist(),
+                   frame=plane.frame.ravel().tolist(), inliers=int(plane.inliers), depth_frame=depth_frame)
+
+
+class BoxMsg(msgspec.Struct, kw_only=True):
+    """An oriented box: centre, row-major rotation (columns = axes) and full extents (m)."""
+
+    center: list[float]
+    rotation: list[float]
+    extent: list[float]
+
+    def box(self) -> Box:
+        if len(self.center) != 3 or len(self.rotation) != 9 or len(self.extent) != 3:
+            raise ValueError("BoxMsg: center needs 3, rotation 9 and extent 3 numbers")
+        return Box(np.array(self.center), np.reshape(self.rotation, (3, 3)), np.array(self.extent))
+
+    @classmethod
+    def of(cls, box: Box) -> BoxMsg:
+        return cls(center=box.center.tolist(), rotation=box.rotation.ravel().tolist(), extent=box.extent.tolist())
+
+
+class RoiMsg(Message, tag="vision_roi"):
+    """Region of interest: the 8 vertices of the box extruded from the plane, and the box."""
+
+    vertices: list[float]  # 8 x 3, row-major
+    box: BoxMsg
+    depth_frame: MsgId = NO_FRAME
+
+    @classmethod
+    def of(cls, box: Box, depth_frame: MsgId = NO_FRAME) -> RoiMsg:
+        return cls(vertices=box.vertices().ravel().tolist(), box=BoxMsg.of(box), depth_frame=depth_frame)
+
+
+class RobotSpheres(Message, tag="vision_robot_spheres"):
+    """The robot's spherical model at its current joint positions, in the world frame."""
+
+    centers: NDArray  # (M, 3) m
+    radii: NDArray  # (M,) m
+
+
+class SegmentedObject(msgspec.Struct, kw_only=True):
+    points: NDArray  # (N, 3) float32
+    centroid: list[float]
+    box: BoxMsg
+
+    def cluster(self) -> Cluster:
+        pts = self.points.numpy().astype(np.float64).reshape(-1, 3)
+        return Cluster(pts, np.array(self.centroid), self.box.box())
+
+
+class SegmentedObjects(Message, tag="vision_objects"):
+    """One segmented cloud per object found in the region of interest, largest first."""
+
+    max_bytes = 32 << 20
+    objects: list[SegmentedObject]
+    depth_frame: MsgId = NO_FRAME
+
+    def clusters(self) -> list[Cluster]:
+        return [o.cluster() for o in self.objects]
+
+    @classmethod
+    def of(cls, clusters: list[Cluster], depth_frame: MsgId = NO_FRAME) -> SegmentedObjects:
+        objs = [SegmentedObject(points=NDArray.of(c.points.astype(np.float32)), centroid=c.centroid.tolist(),
+                                box=BoxMsg.of(c.box)) for c in clusters]
+        return cls(objects=objs, depth_frame=depth_frame)
+
+
+class ApproachVectors(Message, tag="vision_approach_vectors"):
+    """Approach vectors: where the hand starts (position) and the direction it moves in."""
+
+    positions: NDArray  # (K, 3) m
+    directions: NDArray  # (K, 3) unit
+    scores: list[float] = []
+    depth_frame: MsgId = NO_FRAME
+
+
+class ShapeClass(Message, tag="vision_shape"):
+    """V4 shape class of an object (thesis §8.4.2); ``label`` is "unknown" below the 70 % rule."""
+
+    label: str
+    classes: list[str]
+    probabilities: list[float]
+    curvedness: float
+    depth_frame: MsgId = NO_FRAME
+
+
+class ObjectIdentity(Message, tag="vision_identity"):
+    """LOC object identity (thesis §8.4.3); ``label`` is "unknown" when not confident."""
+
+    label: str
+    confidence: float
+    features: list[float]
+    feature_names: list[str]
+    depth_frame: MsgId = NO_FRAME
+
+
+class MeasuredWeight(Message, tag="vision_weight"):
+    """Weight of a lifted object from the wrist force/torque sensor."""
+
+    weight: float  # N
+    std: float = 0.0  # N
+
+
+def provenance(depth_frame: MsgId, *inputs: Message | None) -> list[MsgId]:
+    """Header inputs of a derived message: the depth frame first, then the direct inputs."""
+    out = [depth_frame] if depth_frame.source else []
+    for m in inputs:
+        if m is not None and m.hdr.id not in out:
+            out.append(m.hdr.id)
+    return out

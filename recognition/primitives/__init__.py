@@ -1,0 +1,1 @@
+"""Perceptual primitives exposing detection and recognition to tasks (thesis §3, §8.6)."""

@@ -1,0 +1,1 @@
+"""Services of the 3D vision pipeline (thesis Fig. 6.5), one per file."""

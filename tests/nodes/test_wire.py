@@ -1,0 +1,87 @@
+"""Wire format: round trips, plain-msgpack readability, and validation of hostile payloads."""
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from contactflow.nodes.messages import Array, ControlRequest, EventMsg, Vector
+from contactflow.nodes.status import Event
+from contactflow.nodes.wire import SCHEMA_VERSION, NDArray, WireError, decode, decode_any, encode, stamp
+
+
+def test_event_is_a_plain_msgpack_map_with_named_fields():
+    msg = stamp(EventMsg(event=Event.GRASP_LOST, module="r/n/grasp", detail="slip"), "r/n/grasp", 7, 1.5)
+    raw = msgpack.unpackb(encode(msg))
+    assert raw["type"] == "event"
+    assert raw["event"] == "grasp_lost"
+    assert raw["hdr"]["seq"] == 7 and raw["hdr"]["schema"] == SCHEMA_VERSION
+    assert decode(encode(msg), EventMsg) == msg
+
+
+def test_ndarray_round_trip_keeps_dtype_and_shape():
+    a = np.arange(24, dtype=np.float32).reshape(2, 3, 4)
+    msg = decode(encode(Array(array=NDArray.of(a))), Array)
+    np.testing.assert_array_equal(msg.array.numpy(), a)
+    raw = msgpack.unpackb(encode(Array(array=NDArray.of(a))))
+    assert raw["array"]["dtype"] == "float32" and raw["array"]["shape"] == [2, 3, 4]
+
+
+def test_ndarray_with_inconsistent_size_is_refused():
+    raw = msgpack.packb({"type": "array", "array": {"dtype": "float64", "shape": [10], "data": b"\0" * 8}})
+    with pytest.raises(WireError, match="needs 80"):
+        decode(raw, Array, "cf/x/out")
+
+
+def test_unknown_schema_version_names_key_and_field():
+    raw = msgpack.packb({"type": "vector", "values": [1.0], "hdr": {"schema": 99}})
+    with pytest.raises(WireError) as err:
+        decode(raw, Vector, "cf/site/m/r/n/mod/out/x")
+    assert "cf/site/m/r/n/mod/out/x" in str(err.value) and "schema version 99" in str(err.value)
+
+
+def test_wrong_field_type_names_the_field():
+    raw = msgpack.packb({"type": "vector", "values": ["a"]})
+    with pytest.raises(WireError, match=r"values\[0\]"):
+        decode(raw, Vector, "k")
+
+
+def test_oversized_payload_is_refused_before_decoding():
+    with pytest.raises(WireError, match="exceeds"):
+        decode(b"\x00" * (10 << 20), Vector, "k")
+
+
+def test_decode_any_dispatches_on_type_tag():
+    msg = ControlRequest(cmd="run")
+    assert isinstance(decode_any(encode(msg)), ControlRequest)
+    with pytest.raises(WireError, match="unknown message type"):
+        decode_any(msgpack.packb({"type": "nope"}))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=512))
+def test_random_bytes_raise_only_wire_errors(data):
+    for cls in (EventMsg, Vector, ControlRequest, Array):
+        try:
+            decode(data, cls, "fuzz")
+        except WireError:
+            pass
+
+
+json_like = st.recursive(
+    st.none() | st.booleans() | st.integers(-(2**63), 2**64 - 1) | st.floats() | st.text(max_size=8) | st.binary(max_size=8),
+    lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=6), children, max_size=4),
+    max_leaves=20,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.dictionaries(st.sampled_from(["type", "event", "module", "values", "hdr", "cmd", "array"]), json_like))
+def test_structured_garbage_raises_only_wire_errors(fields):
+    data = msgpack.packb(fields, use_bin_type=True)
+    for cls in (EventMsg, Vector, ControlRequest, Array):
+        try:
+            decode(data, cls, "fuzz")
+        except WireError:
+            pass

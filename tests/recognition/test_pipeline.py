@@ -1,0 +1,173 @@
+"""3D vision pipeline on synthetic scenes with known answers, and its module chain."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from contactflow.nodes.testing import FakeIO, run_module
+from contactflow.nodes.wire import MsgId, NDArray, stamp
+from contactflow.recognition.geometry import depth_to_points, look_at
+from contactflow.recognition.messages import DepthFrame, RobotSpheres
+from contactflow.recognition.pipeline import (
+    SegmentationPipeline,
+    detect_plane,
+    extract_clusters,
+    self_filter,
+    sphere_distance,
+)
+from contactflow.recognition.services.cloud_builder import CloudBuilder
+from contactflow.recognition.services.cluster_extractor import ClusterExtractor
+from contactflow.recognition.services.plane_detector import PlaneDetector
+from contactflow.recognition.services.roi_filter import RoiFilter
+from contactflow.recognition.services.self_filter import SelfFilter
+from contactflow.recognition.synthetic import sphere_mesh
+from contactflow.recognition.testing import TableScene, three_objects
+
+
+@pytest.fixture(scope="module")
+def scene():
+    s = three_objects()
+    return s, s.render(noise=0.001, seed=1)
+
+
+def _match(clusters, objects):
+    """For each known object, the cluster whose centroid is nearest in the table plane."""
+    cents = np.array([c.centroid[:2] for c in clusters])
+    return [clusters[int(np.argmin(np.linalg.norm(cents - o.center[:2], axis=1)))] for o in objects]
+
+
+def test_plane_and_clusters_match_the_scene(scene):
+    s, depth = scene
+    res = SegmentationPipeline().process_depth(depth, s.K, s.pose)
+    assert res.plane is not None
+    assert res.plane.normal @ np.array([0, 0, 1.0]) > 0.999
+    assert abs(res.plane.offset) < 0.005
+    assert len(res.clusters) == 3
+    for c, o in zip(_match(res.clusters, s.objects), s.objects, strict=True):
+        assert np.linalg.norm(c.centroid[:2] - o.center[:2]) < 0.03
+        if o.kind == "box":
+            assert np.allclose(np.sort(c.box.extent[:2]), np.sort(o.size[:2]), atol=0.015)
+            assert abs(c.box.extent[2] - o.size[2]) < 0.015
+        else:
+            assert abs(c.box.extent[2] - o.size[1]) < 0.015
+    assert all(v >= 0 for v in res.timings.values())
+
+
+def test_plane_cache_reused_between_refits(scene):
+    s, depth = scene
+    pipe = SegmentationPipeline()
+    first = pipe.process_depth(depth, s.K, s.pose, t=0.0).plane
+    assert pipe.process_depth(depth, s.K, s.pose, t=0.5).plane is first
+    assert pipe.process_depth(depth, s.K, s.pose, t=1.2).plane is not first
+
+
+def test_wall_is_not_the_principal_plane():
+    rng = np.random.default_rng(0)
+    wall = np.column_stack((np.full(4000, 1.0), rng.uniform(-1, 1, 4000), rng.uniform(0, 2, 4000)))
+    floor = np.column_stack((rng.uniform(0, 1, 1500), rng.uniform(-1, 1, 1500), np.zeros(1500)))
+    plane, mask = detect_plane(np.vstack((wall, floor)))
+    assert plane is not None and plane.normal[2] > 0.99
+    assert mask[4000:].mean() > 0.95 and mask[:4000].mean() < 0.05
+
+
+def test_self_filter_removes_robot_points_and_keeps_object_points():
+    rng = np.random.default_rng(2)
+    centers, radii = np.array([[0.4, 0.0, 0.2], [0.4, 0.0, 0.35]]), np.array([0.05, 0.06])
+    dirs = rng.normal(size=(500, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    robot = np.vstack([c + r * dirs for c, r in zip(centers, radii, strict=True)])
+    obj = rng.uniform([0.6, 0.2, 0.0], [0.66, 0.26, 0.1], size=(400, 3))
+    kept = self_filter(np.vstack((robot, obj)), sphere_distance(centers, radii), margin=0.01)
+    assert len(kept) == len(obj)
+    assert np.allclose(np.sort(kept, axis=0), np.sort(obj, axis=0))
+
+
+def test_self_filter_in_scene_removes_the_arm_cluster():
+    arm = [(np.array([0.5, -0.02, 0.12 + 0.06 * k]), 0.04) for k in range(4)]
+    s = TableScene(three_objects().objects, extra=[sphere_mesh(r, c) for c, r in arm])
+    depth = s.render()
+    fn = sphere_distance(np.array([c for c, _ in arm]), np.array([r for _, r in arm]))
+    without = SegmentationPipeline().process_depth(depth, s.K, s.pose)
+    with_filter = SegmentationPipeline().process_depth(depth, s.K, s.pose, distance_fn=fn)
+    assert len(without.clusters) == 4
+    assert len(with_filter.clusters) == 3
+    for c in with_filter.clusters:
+        assert fn(c.points).min() > 0.015
+
+
+@pytest.mark.parametrize("case", ["nan", "empty", "sky", "zeros", "inf"])
+def test_garbage_depth_gives_an_empty_result(case):
+    s = three_objects()
+    if case == "nan":
+        depth = np.full((480, 640), np.nan, np.float32)
+    elif case == "empty":
+        depth = np.zeros((0, 0), np.float32)
+    elif case == "zeros":
+        depth = np.zeros((480, 640), np.float32)
+    elif case == "inf":
+        depth = np.full((480, 640), np.inf, np.float32)
+    else:
+        s.pose = look_at(np.array([0.5, 0.0, 0.5]), np.array([0.5, 0.01, 3.0]))
+        depth = s.render()
+        assert not np.isfinite(depth).any()
+    res = SegmentationPipeline().process_depth(depth, s.K, s.pose)
+    assert res.clusters == [] and res.plane is None
+
+
+def test_partly_nan_depth_still_segments(scene):
+    s, depth = scene
+    holes = depth.copy()
+    holes[np.random.default_rng(3).random(depth.shape) < 0.2] = np.nan
+    assert len(SegmentationPipeline().process_depth(holes, s.K, s.pose).clusters) == 3
+
+
+def test_garbage_clouds_give_empty_clusters():
+    assert extract_clusters(np.zeros((0, 3))) == []
+    assert extract_clusters(np.full((50, 3), np.nan)) == []
+    assert extract_clusters(np.zeros((3, 3))) == []
+    assert SegmentationPipeline().process_points(np.zeros((0, 3))).clusters == []
+    with pytest.raises(ValueError, match="points"):
+        extract_clusters(np.zeros((10, 2)))
+
+
+def test_bad_intrinsics_are_named():
+    with pytest.raises(ValueError, match="intrinsics"):
+        depth_to_points(np.ones((4, 4)), np.zeros((3, 3)), np.eye(4))
+
+
+def test_service_chain_carries_the_depth_frame_id(scene):
+    s, depth = scene
+    frame = stamp(DepthFrame.of(depth, s.K, s.pose), "site/cam/camera/depth", 42, 0.0)
+    fid = MsgId(source="site/cam/camera/depth", seq=42)
+
+    def run(module, feeds):
+        io = FakeIO()
+        for port, msg in feeds:
+            io.feed(port, msg)
+        run_module(module, io, steps=1)
+        return io
+
+    cloud = run(CloudBuilder("cloud"), [("depth", frame)]).published["cloud"][-1]
+    assert cloud.depth_frame == fid and cloud.hdr.inputs[0] == fid
+    io = run(PlaneDetector("plane"), [("cloud", cloud)])
+    plane, roi = io.published["plane"][-1], io.published["roi"][-1]
+    assert len(roi.vertices) == 24 and plane.normal[2] > 0.999
+    inside = run(RoiFilter("roi"), [("cloud", cloud), ("roi", roi)]).published["cloud"][-1]
+    assert 0 < len(inside.xyz()) < len(cloud.xyz())
+    spheres = RobotSpheres(centers=NDArray.of(np.array([[0.45, 0.10, 0.06]])), radii=NDArray.of(np.array([0.1])))
+    free = run(SelfFilter("self"), [("cloud", inside), ("spheres", spheres)]).published["cloud"][-1]
+    assert len(free.xyz()) < len(inside.xyz())
+    objs = run(ClusterExtractor("clusters"), [("cloud", free), ("plane", plane)]).published["objects"][-1]
+    assert len(objs.objects) == 2
+    assert objs.depth_frame == fid and objs.hdr.inputs[0] == fid
+    assert all(len(c.points) >= 25 for c in objs.clusters())
+
+
+def test_table_wins_over_a_larger_floor():
+    rng = np.random.default_rng(5)
+    floor = np.column_stack((rng.uniform(-2, 2, 6000), rng.uniform(-2, 2, 6000), np.zeros(6000)))
+    table = np.column_stack((rng.uniform(0.3, 1.0, 2500), rng.uniform(-0.5, 0.5, 2500), np.full(2500, 0.75)))
+    box_top = np.column_stack((rng.uniform(0.5, 0.6, 150), rng.uniform(0, 0.1, 150), np.full(150, 0.85)))
+    plane, mask = detect_plane(np.vstack((floor, table, box_top)))
+    assert plane is not None and abs(plane.offset + 0.75) < 0.005
+    assert mask[6000:8500].mean() > 0.95
