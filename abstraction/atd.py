@@ -361,7 +361,8 @@ def _parse_xml(data: bytes, file: str) -> Atd:
         raise AtdError([f"{file}: refused unsafe XML: {exc}"]) from None
     except ParseError as exc:
         line, col = exc.position
-        raise AtdError([f"{file}:{line}: not well-formed XML (column {col}): {exc.msg if hasattr(exc, 'msg') else exc}"]) from None
+        reason = str(exc).split(":")[0]
+        raise AtdError([f"{file}:{line}: not well-formed XML (column {col}): {reason}"]) from None
     x = _Xml(file, parser.lines)
     if root.tag != "statemachine":
         raise AtdError([f"{x.where(root)}: <{root.tag}>: the root element must be <statemachine>"])
@@ -394,8 +395,14 @@ def _parse_xml(data: bytes, file: str) -> Atd:
             if props is None:
                 continue
             try:
-                states.append(_state(e.get("name", "").strip(), _state_type(e.get("type", "").strip()),
-                                     props, x.where(e)))
+                kind = _state_type(e.get("type", "").strip())
+                allowed = _allowed_properties(kind)
+                bad = [c for c in e if c.tag not in allowed]
+                if bad:
+                    x.err(bad[0], f"property of {x.tag(e)} is not accepted by a {kind} state "
+                                  f"(accepted: {', '.join(sorted(allowed)) or 'none'})")
+                    continue
+                states.append(_state(e.get("name", "").strip(), kind, props, x.where(e)))
             except ValueError as exc:
                 x.err(e, str(exc))
         elif e.tag == "transition":

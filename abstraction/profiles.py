@@ -57,6 +57,7 @@ class RobotProfile:
     max_payload: float = 1.0  # kg
     max_opening: float = 0.1  # m, widest object the hand takes
     wrench_noise: float = 0.2  # N, standard deviation of the wrist force reading
+    speed: float = 0.1  # m/s, nominal Cartesian speed of the end effector
     factory: str = ""  # name of the factory to use (default: the robot's name)
 
     def has(self, *sensors: Sensor) -> bool:
@@ -79,6 +80,7 @@ TOMBATOSSALS = RobotProfile(
     max_payload=2.0,
     max_opening=0.14,
     wrench_noise=0.2,
+    speed=0.1,
 )
 
 MELFA = RobotProfile(
@@ -91,6 +93,7 @@ MELFA = RobotProfile(
     max_payload=3.0,
     max_opening=0.068,  # PG-70 stroke
     wrench_noise=0.0,
+    speed=0.25,
 )
 
 BAXTER = RobotProfile(
@@ -105,6 +108,7 @@ BAXTER = RobotProfile(
     max_payload=2.2,
     max_opening=0.09,
     wrench_noise=2.0,  # the wrist wrench is estimated from joint torques: noisy
+    speed=0.2,
 )
 
 PROFILES = {p.name: p for p in (TOMBATOSSALS, MELFA, BAXTER)}

@@ -84,9 +84,11 @@ class Translation:
         """Restate an engine progress report of this ESTD in ATD names and events."""
         state = self.states.get(p.node, p.label)
         transition = self.transitions.get(p.edge, "")
-        if p.implicit:
-            transition = f"{state}!{_CONCRETE_TO_ABSTRACT.get(p.event, AbstractEvent.ERROR) if p.event else 'error'}"
         abstract = _CONCRETE_TO_ABSTRACT.get(p.event) if p.event is not None else None
+        if p.implicit:
+            # a fault exit no transition declares (the ATD's "common edges", §7.2.1)
+            transition = f"{state}!{abstract or AbstractEvent.ERROR}"
+
         if p.kind is ProgressKind.EDGE and p.edge in self.labels and p.event is not None:
             for ab, groups in self.labels[p.edge].items():
                 if any(t.event == p.event for g in groups for t in g):

@@ -18,7 +18,11 @@ from contactflow.embodiments.control.cartesian import CartesianController, Carte
 from contactflow.embodiments.control.ik import IKParams, VelocityIK
 from contactflow.embodiments.control.kinematics import Kinematics
 from contactflow.embodiments.control.mixer import JointCommandMixer
-from contactflow.embodiments.control.trajectory import TrajectoryFollower, TrajectoryParams
+from contactflow.embodiments.control.trajectory import (
+    ForceWatch,
+    TrajectoryFollower,
+    TrajectoryParams,
+)
 from contactflow.embodiments.faults import Fault, FaultMonitor, FaultParams
 from contactflow.embodiments.registry import ArmSpec, HandSpec, RobotSpec
 from contactflow.embodiments.sensors.camera import DepthFrame, RaycastCamera
@@ -36,7 +40,7 @@ class SimRobotParams:
     seed: int = 0
     settle_time: float = 0.1  # s simulated before the F/T sensors are tared
     mixer_timeout: float = 0.1  # s a command stays fresh
-    hand_tolerance: float = 0.01  # rad or m, finger target reached
+    hand_tolerance: float = 0.02  # fraction of each finger joint's range: target reached
     faults: FaultParams = FaultParams()
 
 
@@ -50,15 +54,14 @@ class ArmHandle:
         self.home = spec.home
         self._sidx = robot.art.indices(spec.joints)
         self._kidx = robot.kin.q_index(spec.joints)
-        self.ik = VelocityIK(robot.kin, spec.joints, spec.ee_frame, posture=np.asarray(spec.home), params=IKParams())
-        self.cart = CartesianController(robot.kin, self.ik, CartesianParams())
+        self.ik = VelocityIK(robot._ctl_kin, spec.joints, spec.ee_frame, posture=np.asarray(spec.home), params=IKParams())
+        self.cart = CartesianController(robot._ctl_kin, self.ik, CartesianParams())
         self.traj: TrajectoryFollower | None = None
         self.q_cmd = robot.art.qpos()[self._sidx].copy()
         self.mode = "idle"  # idle | joint | cartesian | guarded
         self.status = Status.IDLE
         self.abort_reason = ""
-        self._guard: tuple[float, np.ndarray | None] | None = None
-        self._submit = False
+        self._guard: ForceWatch | None = None
 
     # -- state -----------------------------------------------------------------------------
     def q(self) -> np.ndarray:
@@ -87,7 +90,7 @@ class ArmHandle:
             self.status = Status.FAILURE
             self.abort_reason = "hardware_failure"
             return
-        self.mode, self.status, self.abort_reason, self._submit = mode, Status.RUNNING, "", True
+        self.mode, self.status, self.abort_reason = mode, Status.RUNNING, ""
 
     def stop(self) -> None:
         """Hold the current commanded position."""
@@ -105,10 +108,16 @@ class ArmHandle:
         q = np.asarray(q, dtype=np.float64)
         if q.shape != (len(self.joints),):
             raise ValueError(f"arm {self.name}: move_joints needs {len(self.joints)} values, got shape {q.shape}")
-        self.execute_waypoints(np.stack([self.q_cmd, q]), speed=speed, abort_force=np.inf)
+        self.execute_waypoints(q[None], speed=speed, abort_force=np.inf)
+
+    def _resync(self) -> None:
+        """Start a new command from the joints' current target (other sources may have moved it)."""
+        if self.mode == "idle":
+            self.q_cmd = self.robot.mixer.q[self._sidx].copy()
 
     def execute_waypoints(self, waypoints: np.ndarray, speed: float | None = None, abort_force: float = 8.0) -> None:
         """Follow joint waypoints; abort when the F/T force changes by more than ``abort_force`` N."""
+        self._resync()
         w = np.asarray(waypoints, dtype=np.float64)
         if np.linalg.norm(w[0] - self.q_cmd) > 1e-6:
             w = np.vstack([self.q_cmd, w])
@@ -120,9 +129,10 @@ class ArmHandle:
         self.execute_waypoints(getattr(plan, "waypoints", plan), speed=speed, abort_force=abort_force)
 
     def _cart_start(self) -> None:
+        self._resync()
         self.traj = None
         self.cart.reset(self.q_cmd)
-        self.robot._sync_kin(self._kidx, self.q_cmd)
+        self.robot._ctl_sync(self._kidx, self.q_cmd)
 
     def move_pose(self, T: np.ndarray, frame: str = "world", speed: float = 0.1) -> None:
         self._cart_start()
@@ -148,7 +158,7 @@ class ArmHandle:
             raise ValueError(f"arm {self.name} has no F/T sensor for a guarded move")
         self._cart_start()
         self.cart.set_twist(twist, frame, duration)
-        self._guard = (max_force, None)
+        self._guard = ForceWatch(max_force)
         self._start("guarded")
 
     def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal"):
@@ -161,8 +171,7 @@ class ArmHandle:
     def _tick(self, dt: float) -> None:
         r = self.robot
         if self.mode == "idle":
-            if self._submit:
-                r.mixer.submit(f"arm/{self.name}", self.joints, self.q_cmd, None, 1.0, r.time)
+            # an idle arm sends nothing: the mixer holds the last target and other sources may drive it
             return
         force = r.ft(self.name).force if self.spec.ft else None
         if self.mode == "joint" and self.traj is not None:
@@ -182,10 +191,7 @@ class ArmHandle:
             q, qd = self.cart.update(full, dt, wrench)
             self.q_cmd = q
             if self.mode == "guarded" and force is not None and self._guard is not None:
-                limit, f0 = self._guard
-                if f0 is None:
-                    self._guard = (limit, force.copy())
-                elif np.linalg.norm(force - f0) > limit:
+                if self._guard.update(force, dt):
                     self.cart.stop()
                     self.q_cmd = r._q_s[self._sidx].copy()
                     qd = np.zeros_like(qd)
@@ -216,6 +222,7 @@ class HandHandle:
         self._still = 0.0
         self._submit = False
         self._lim = robot.art.force_limit[self._sidx].copy()
+        self._tol = robot.params.hand_tolerance * (robot.art.upper[self._sidx] - robot.art.lower[self._sidx])
 
     def positions(self) -> np.ndarray:
         return self.encoders.read()[0]
@@ -264,6 +271,8 @@ class HandHandle:
         r = self.robot
         if not self._submit:
             return
+        if self.status != Status.RUNNING and np.array_equal(self.q_cmd, self.goal):
+            return  # reached: the mixer holds the target
         step = self.spec.max_velocity * dt
         self.q_cmd = self.q_cmd + np.clip(self.goal - self.q_cmd, -step, step)
         names = list(self.joints)
@@ -275,7 +284,7 @@ class HandHandle:
         if self.status == Status.RUNNING and np.allclose(self.q_cmd, self.goal):
             q = r._q_s[self._sidx]
             qd = r._qd_s[self._sidx]
-            if np.abs(q - self.goal).max() < r.params.hand_tolerance:
+            if np.all(np.abs(q - self.goal) < self._tol):
                 self.status = Status.SUCCESS
             elif np.abs(qd).max() < 0.01:
                 self._still += dt
@@ -296,10 +305,11 @@ class SimRobot:
         self.spec: RobotSpec = self.art.spec
         self.name = self.art.name
         self.kin = Kinematics(self.spec.urdf(), self.art.base)
+        self._ctl_kin = Kinematics(self.spec.urdf(), self.art.base)  # the controllers' model, at commanded joints
         self._s2k = self.kin.q_index(self.art.joint_names)
         self._q_s = self.art.qpos()
         self._qd_s = self.art.qvel()
-        self._kin_stamp = -1.0
+        self._kin_stamp = -1
         self.mixer = JointCommandMixer(self.art.joint_names, timeout=self.params.mixer_timeout)
         self.mixer.hold(self._q_s)
         self._arms = {a.name: ArmHandle(self, a) for a in self.spec.arms}
@@ -399,6 +409,11 @@ class SimRobot:
         """Object poses and true contacts — evaluation only."""
         return read_ground_truth(self.world)
 
+    def submit_joint_command(self, source: str, names: list[str], q: np.ndarray, qd: np.ndarray | None = None,
+                             weight: float = 1.0) -> None:
+        """An external joint command mixed with the arm/hand controllers' commands (§6.3.1)."""
+        self.mixer.submit(source, names, q, qd, weight, self.time)
+
     def joint_state(self) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
         """(names, positions, velocities, efforts) of every active joint."""
         return list(self.art.joint_names), self._q_s.copy(), self._qd_s.copy(), self.art.drive_efforts()
@@ -415,20 +430,30 @@ class SimRobot:
             q[a._kidx] = a.q_cmd
         return q
 
-    def _sync_kin(self, kidx: np.ndarray | None = None, values: np.ndarray | None = None) -> None:
+    def _sync_kin(self) -> None:
+        """Bring ``kin`` to the measured joint state (once per physics step)."""
+        if self._kin_stamp == self.world.steps:
+            return
+        if not self._nan_injected:
+            self._q_s = self.art.qpos()
+        self.kin.update(self._kin_q())
+        self._kin_stamp = self.world.steps
+
+    def _ctl_sync(self, kidx: np.ndarray, values: np.ndarray) -> None:
+        """Put the control model at the measured state with ``values`` commanded on ``kidx``."""
         q = self._kin_q()
-        if kidx is not None:
-            q[kidx] = values
-        self.kin.update(q)
-        self._kin_stamp = self.time if kidx is None else -1.0
+        q[kidx] = values
+        self._ctl_kin.update(q)
 
     def frame_pose(self, frame: str, relative_to: str = "world") -> np.ndarray:
-        self._q_s = self.art.qpos() if not self._nan_injected else self._q_s
+        """Pose of any link, fixed frame or task frame at the measured joint state."""
         self._sync_kin()
         return self.kin.frame_pose(frame, relative_to)
 
     def add_task_frame(self, name: str, parent: str, T: np.ndarray) -> None:
+        """A named frame at ``T`` (4x4) relative to ``parent``, usable in every ``frame=`` argument."""
         self.kin.add_task_frame(name, parent, T)
+        self._ctl_kin.add_task_frame(name, parent, T)
 
     @property
     def spherical(self):

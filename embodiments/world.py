@@ -11,7 +11,7 @@ physics step, as a real arm controller does. Stepping is deterministic in lockst
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import sapien
@@ -273,7 +273,7 @@ class SimArticulation:
 
     def link_pose(self, name: str) -> np.ndarray:
         try:
-            return pose_to_matrix(self.links[name].get_pose())
+            return pose_to_matrix(self.links[name].get_entity_pose())
         except KeyError:
             raise WorldError(f"robot {self.name}: no link {name!r}") from None
 
@@ -288,10 +288,10 @@ class World:
     def __init__(self, params: WorldParams | None = None) -> None:
         self.params = params or WorldParams()
         sapien.physx.set_body_config(sleep_threshold=0.0)
+        sapien.physx.set_scene_config(gravity=np.array(self.params.gravity, dtype=np.float32))
         sapien.physx.set_default_material(self.params.default_friction, self.params.default_friction, 0.0)
         self.scene = sapien.Scene([sapien.physx.PhysxCpuSystem()])
         self.scene.set_timestep(self.params.timestep)
-        self.scene.get_physx_system().config  # touch: the system exists before entities are added
         self.scene.add_ground(self.params.floor_z, render=False)
         self.robots: dict[str, SimArticulation] = {}
         self.objects: dict[str, SimObject] = {}
@@ -299,9 +299,6 @@ class World:
         self.steps = 0
         self._hooks: list = []
         self._t0_wall: float | None = None
-        if tuple(self.params.gravity) != (0.0, 0.0, -9.81):
-            cfg = sapien.physx.get_scene_config()
-            cfg.gravity = np.array(self.params.gravity)
 
     # -- building ------------------------------------------------------------------------
     def add_table(self, size: tuple[float, float, float] = (0.8, 1.4, 0.75), xyz: tuple[float, float] = (0.65, 0.0),
@@ -388,16 +385,3 @@ class World:
 
     def contacts(self) -> list:
         return self.scene.get_contacts()
-
-
-@dataclass
-class ContactPoint:
-    """A true contact between two named bodies (world frame), for evaluation."""
-
-    body_a: str
-    body_b: str
-    position: np.ndarray
-    normal: np.ndarray
-    impulse: float
-    separation: float = 0.0
-    extra: dict = field(default_factory=dict)

@@ -16,6 +16,7 @@ from enum import StrEnum
 
 import numpy as np
 import open3d as o3d
+
 from contactflow.fusion.hypotheses import normalise
 from contactflow.fusion.integrator import Fused
 

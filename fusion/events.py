@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from contactflow.fusion.condensation import Contact
 from contactflow.nodes.status import Event
 

@@ -80,3 +80,21 @@ def capsules_bounds(caps: np.ndarray, margin: float = 0.0) -> tuple[np.ndarray, 
     r = np.concatenate([caps[:, 3], caps[:, 7]])[:, None]
     c = np.concatenate([caps[:, 0:3], caps[:, 4:7]])
     return (c - r).min(axis=0) - margin, (c + r).max(axis=0) + margin
+
+
+def interior_points(caps: np.ndarray, step: float, depth: float) -> np.ndarray:
+    """Grid points (cell ``step``) deeper than ``depth`` inside the bi-spheres, gridding each
+    part's own bounding box so a long arm costs no more than its volume."""
+    caps = check_capsules(caps)
+    out = []
+    for cap in caps:
+        r = max(cap[3], cap[7])
+        if r <= depth:
+            continue
+        lo = np.minimum(cap[0:3], cap[4:7]) - r
+        hi = np.maximum(cap[0:3], cap[4:7]) + r
+        # Snap to the global grid so that cells of neighbouring parts coincide.
+        lo = np.floor(lo / step) * step
+        pts = grid_points(lo, hi, step)
+        out.append(pts[capsule_distance(pts, cap[None]) < -depth])
+    return np.unique(np.concatenate(out), axis=0) if out else np.zeros((0, 3))

@@ -174,6 +174,11 @@ def voxelize(h: Hypotheses, voxel_size: float = VOXEL_SIZE, reduce: str = "max")
     return Hypotheses(voxel_centers(keys, voxel_size), lik, kind, force, direction, h.stamp)
 
 
+def rows_unique(rows: np.ndarray, n: int) -> bool:
+    """True when no row number repeats (rows lie in [0, n))."""
+    return bool(np.bincount(rows, minlength=n).max() <= 1)
+
+
 def normalise(v: np.ndarray) -> np.ndarray:
     """Unit vectors along the last axis; zero vectors stay zero."""
     norm = np.sqrt(np.einsum("...i,...i->...", v, v))[..., None]
@@ -306,6 +311,7 @@ class HypothesisSpace:
         self.cap = 0
         self.ncol = 0
         self.center = np.zeros((3, 0))
+        self.oldest = np.zeros(0)
         self._alloc_rows(max(capacity, 16), columns)
 
     def _alloc_rows(self, cap: int, ncol: int) -> None:
@@ -326,6 +332,10 @@ class HypothesisSpace:
             direction[:c, :, :n] = self.direction[:, :, :n]
         self.lik, self.stamp, self.kind, self.force, self.direction = lik, stamp, kind, force, direction
         self.center = center
+        oldest = np.full(ncol, np.inf)
+        oldest[:c] = self.oldest[:c]
+        self.oldest = oldest
+        """Lower bound of the live stamps of each column."""
         self.cap, self.ncol = cap, ncol
 
     def ensure_column(self, col: int) -> None:
@@ -348,10 +358,13 @@ class HypothesisSpace:
             self.n = n_new
         return rows
 
-    def put(self, col: int, rows: np.ndarray, h: Hypotheses) -> None:
-        """Write one source's hypotheses into its column (the newest reading of a source wins)."""
+    def put(self, col: int, rows: np.ndarray, h: Hypotheses, unique: bool = False) -> None:
+        """Write one source's hypotheses into its column (the newest reading of a source wins).
+
+        ``unique`` promises that ``rows`` holds no duplicate (skips the check).
+        """
         self.ensure_column(col)
-        if rows.size and np.bincount(rows).max() > 1:
+        if not unique and rows.size and not rows_unique(rows, self.n):
             # Several hypotheses of one cloud in one voxel: keep the most likely of them.
             order = np.lexsort((h.likelihood, rows))
             last = np.ones(order.size, dtype=bool)
@@ -361,25 +374,39 @@ class HypothesisSpace:
         # Assigning through the 1-D row views is several times faster than [col, rows].
         self.lik[col][rows] = h.likelihood
         self.stamp[col][rows] = h.stamp
-        self.kind[col][rows] = h.kind
+        self.oldest[col] = min(self.oldest[col], h.stamp)
+        kind = h.kind
+        self.kind[col][rows] = kind[0] if kind.size and kind.min() == kind.max() else kind
         self.force[col][rows] = h.force
+        direction = np.ascontiguousarray(h.direction.T)
         for a in range(3):
-            self.direction[col, a][rows] = h.direction[:, a]
+            self.direction[col, a][rows] = direction[a]
 
     def clear_column(self, col: int) -> None:
         if col < self.ncol:
             self.lik[col] = 0.0
             self.stamp[col] = -np.inf
+            self.oldest[col] = np.inf
 
     def expire(self, older_than: float) -> int:
-        """Empty every column entry stamped before ``older_than``; returns how many."""
+        """Empty every column entry stamped before ``older_than``; returns how many.
+
+        A column is scanned only when its oldest live stamp (kept as a lower bound) is older
+        than the limit, so sources that refresh all their voxels cost nothing here.
+        """
         n = self.n
-        stamp = self.stamp[:, :n]
-        old = (stamp < older_than) & (stamp > -np.inf)
-        count = int(np.count_nonzero(old))
-        if count:
-            self.lik[:, :n][old] = 0.0
-            stamp[old] = -np.inf
+        count = 0
+        for c in range(self.ncol):
+            if self.oldest[c] >= older_than:
+                continue
+            st = self.stamp[c, :n]
+            old = (st < older_than) & (st > -np.inf)
+            k = int(np.count_nonzero(old))
+            if k:
+                self.lik[c, :n][old] = 0.0
+                st[old] = -np.inf
+                count += k
+            self.oldest[c] = float(np.min(st, initial=np.inf, where=st > -np.inf))
         return count
 
     def live(self) -> np.ndarray:

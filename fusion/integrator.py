@@ -15,14 +15,27 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from contactflow.fusion.hypotheses import (
     VOXEL_SIZE,
     Hypotheses,
     HypothesisSpace,
     HypothesisType,
-    normalise,
+    rows_unique,
     voxel_keys,
 )
+
+_BYTE_WEIGHTS = (np.uint8(1) << np.arange(8, dtype=np.uint8))[:, None]
+
+
+def source_bits(valid: np.ndarray) -> np.ndarray:
+    """uint64 bitmask per row of a (columns, rows) validity array, 8 columns at a time."""
+    out = np.zeros(valid.shape[1], dtype=np.uint64)
+    for g in range(0, valid.shape[0], 8):
+        part = valid[g:g + 8].view(np.uint8)
+        byte = (part * _BYTE_WEIGHTS[: part.shape[0]]).sum(axis=0, dtype=np.uint8)
+        out |= byte.astype(np.uint64) << np.uint64(g)
+    return out
 
 
 @dataclass(frozen=True)
@@ -53,6 +66,7 @@ class Source:
     _cache_loc: np.ndarray | None = None
     _cache_rows: np.ndarray | None = None
     _cache_gen: int = -1
+    _cache_unique: bool = False
 
 
 @dataclass
@@ -92,8 +106,6 @@ class Integrator:
         self.space = HypothesisSpace(self.params.voxel_size)
         self.sources: dict[str, Source] = {}
         self.cycles = 0
-        self._work: dict[str, np.ndarray] = {}
-        self._work_cap = 0
 
     # -- sources -----------------------------------------------------------------------
     def plug(self, name: str, robot: str = "", link: str = "", now: float | None = None) -> Source:
@@ -165,22 +177,25 @@ class Integrator:
             src.pending, src.pending_since = None, np.inf
             if len(cloud) == 0:
                 continue
-            rows = self._rows(src, cloud)
-            space.put(src.col, rows, cloud)
+            rows, unique = self._rows(src, cloud)
+            space.put(src.col, rows, cloud, unique)
         space.expire(now - self.params.timeout)
         space.compact()
         self.cycles += 1
         return self.fuse(now)
 
-    def _rows(self, src: Source, cloud: Hypotheses) -> np.ndarray:
+    def _rows(self, src: Source, cloud: Hypotheses) -> tuple[np.ndarray, bool]:
+        """Rows of a cloud's voxels and whether they are all distinct."""
         # Generators at fixed places (taxels, predictions) resend the same voxels: reuse rows.
         loc = src._cache_loc
         if (loc is not None and src._cache_gen == self.space.index.generation
                 and loc.shape == cloud.location.shape and np.array_equal(loc, cloud.location)):
-            return src._cache_rows  # type: ignore[return-value]
+            return src._cache_rows, src._cache_unique  # type: ignore[return-value]
         rows = self.space.rows_for(voxel_keys(cloud.location, self.space.voxel_size))
+        unique = rows_unique(rows, self.space.n)
         src._cache_loc, src._cache_rows, src._cache_gen = cloud.location, rows, self.space.index.generation
-        return rows
+        src._cache_unique = unique
+        return rows, unique
 
     def fuse(self, now: float) -> Fused:
         """Noisy-OR fusion (eq. 4.14) of the space as it is, applying the type rules."""
@@ -192,74 +207,36 @@ class Integrator:
             names[s.col], robots[s.col], links[s.col] = s.name, s.robot, s.link
         if n == 0 or ncol == 0:
             return Fused.empty(now, ncol)
-        # Whole-row passes over contiguous views into preallocated scratch (fresh temporaries
-        # of this size cost page faults), one Python iteration per source column; selecting
-        # the kept voxels comes last (gathering first makes strided copies).
-        w = self._scratch(n)
-        valid, regular, null, live, flag = w["valid"], w["regular"], w["null"], w["live"], w["flag"]
-        miss, wsum, fsum, dsum, tmp, tmp3, sources, bit = (
-            w["miss"], w["wsum"], w["fsum"], w["dsum"], w["tmp"], w["tmp3"], w["sources"], w["bit"])
-        miss.fill(1.0)
-        wsum.fill(0.0)
-        fsum.fill(0.0)
-        dsum.fill(0.0)
-        sources.fill(0)
-        regular.fill(False)
-        null.fill(False)
-        live.fill(False)
-        for c in range(ncol):
-            np.greater(space.stamp[c, :n], -np.inf, out=valid)
-            np.logical_or(live, valid, out=live)
-            kind = space.kind[c, :n]
-            np.equal(kind, int(HypothesisType.REGULAR), out=flag)
-            np.logical_and(flag, valid, out=flag)
-            np.logical_or(regular, flag, out=regular)
-            np.equal(kind, int(HypothesisType.NULL), out=flag)
-            np.logical_and(flag, valid, out=flag)
-            np.logical_or(null, flag, out=null)
-            np.left_shift(valid, np.uint64(c), out=bit, dtype=np.uint64, casting="unsafe")
-            np.bitwise_or(sources, bit, out=sources)
-            lc = space.lik[c, :n]
-            np.subtract(1.0, lc, out=tmp)
-            np.multiply(miss, tmp, out=miss)
-            np.add(wsum, lc, out=wsum)
-            np.multiply(lc, space.force[c, :n], out=tmp)
-            np.add(fsum, tmp, out=fsum)
-            np.multiply(lc, space.direction[c, :, :n], out=tmp3)
-            np.add(dsum, tmp3, out=dsum)
-        np.logical_not(null, out=flag)
-        np.logical_and(flag, regular, out=flag)
-        np.logical_and(flag, miss < 1.0, out=flag)
-        keep = np.flatnonzero(flag)
+        # Whole-array passes over the (columns, rows) views; selecting the kept voxels comes
+        # last (gathering first makes strided copies).
+        lik = space.lik[:ncol, :n]
+        valid = space.stamp[:ncol, :n] > -np.inf
+        kind = space.kind[:ncol, :n]
+        regular = ((kind == int(HypothesisType.REGULAR)) & valid).any(axis=0)
+        null = ((kind == int(HypothesisType.NULL)) & valid).any(axis=0)
+        live = valid.any(axis=0)
+        miss = np.prod(1.0 - lik, axis=0)
+        wsum = lik.sum(axis=0)
+        fsum = np.einsum("cn,cn->n", lik, space.force[:ncol, :n])
+        dsum = np.einsum("cn,can->an", lik, space.direction[:ncol, :, :n])
+        keep = np.flatnonzero(regular & ~null & (miss < 1.0))
         if keep.size == n:
-            keep = slice(0, n)  # type: ignore[assignment]
-            take = lambda a: a[..., :n].copy()  # noqa: E731
+            def take(a: np.ndarray) -> np.ndarray:
+                return a[..., :n].copy()
         else:
-            take = lambda a: np.take(a, keep, axis=-1)  # noqa: E731
-        wk = take(wsum)
-        n_null = int(np.count_nonzero(null & live))
-        unsupported = int(np.count_nonzero(live & ~regular & ~null))
+            def take(a: np.ndarray) -> np.ndarray:
+                return np.take(a, keep, axis=-1)
+        # Arrays of rows come out as transposed views of contiguous (3, k) / (S, k) copies.
+        d = take(dsum)
+        norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        np.divide(d, norm, out=d, where=norm > 1e-12)
+        d[:, norm <= 1e-12] = 0.0
         return Fused(
-            location=take(space.center).T, likelihood=1.0 - take(miss), force=take(fsum) / wk,
-            direction=normalise(take(dsum).T), sources=take(sources),
-            per_source=take(space.lik[:ncol]).T, columns=names, robots=robots, links=links, stamp=now,
-            vetoed=n_null, unsupported=unsupported,
+            location=take(space.center).T, likelihood=1.0 - take(miss), force=take(fsum) / take(wsum),
+            direction=d.T, sources=source_bits(take(valid)), per_source=take(lik).T,
+            columns=names, robots=robots, links=links, stamp=now,
+            vetoed=int(np.count_nonzero(null & live)), unsupported=int(np.count_nonzero(live & ~regular & ~null)),
         )
-
-    def _scratch(self, n: int) -> dict[str, np.ndarray]:
-        cap = self._work_cap
-        if n > cap:
-            cap = max(n, 2 * cap, 1024)
-            self._work = {
-                "valid": np.zeros(cap, dtype=bool), "regular": np.zeros(cap, dtype=bool),
-                "null": np.zeros(cap, dtype=bool), "live": np.zeros(cap, dtype=bool),
-                "flag": np.zeros(cap, dtype=bool), "miss": np.zeros(cap), "wsum": np.zeros(cap),
-                "fsum": np.zeros(cap), "dsum": np.zeros((3, cap)), "tmp": np.zeros(cap),
-                "tmp3": np.zeros((3, cap)), "sources": np.zeros(cap, dtype=np.uint64),
-                "bit": np.zeros(cap, dtype=np.uint64),
-            }
-            self._work_cap = cap
-        return {k: v[..., :n] for k, v in self._work.items()}
 
     def reset(self) -> None:
         """Empty the space; sources stay plugged."""

@@ -8,12 +8,20 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
+
 from contactflow.fusion.condensation import Contact
 from contactflow.fusion.events import ContactEvent
 from contactflow.fusion.hypotheses import Hypotheses, HypothesisType
 from contactflow.fusion.integrator import Fused
 from contactflow.nodes.status import Event
 from contactflow.nodes.wire import Message, NDArray, WireError
+
+
+def nd(a: np.ndarray) -> NDArray:
+    """``NDArray.of`` that also accepts arrays with a zero-length dimension."""
+    if a.size == 0:
+        return NDArray(dtype=np.dtype(a.dtype).name, shape=list(a.shape), data=memoryview(b""))
+    return NDArray.of(a)
 
 
 def _arr(msg_name: str, field: str, a: NDArray, shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -53,11 +61,11 @@ class HypothesisCloud(Message, tag="hypothesis_cloud"):
         has_force = bool(len(h)) and bool(np.any(h.force) or np.any(h.direction))
         return cls(
             robot=robot, generator=generator, stamp=h.stamp, link=link,
-            location=NDArray.of(h.location.astype(np.float32)),
-            likelihood=NDArray.of(h.likelihood.astype(np.float32)),
-            kind=NDArray.of(h.kind.astype(np.uint8)),
-            force=NDArray.of(h.force.astype(np.float32) if has_force else np.zeros(0, np.float32)),
-            direction=NDArray.of(h.direction.astype(np.float32) if has_force else np.zeros((0, 3), np.float32)),
+            location=nd(h.location.astype(np.float32)),
+            likelihood=nd(h.likelihood.astype(np.float32)),
+            kind=nd(h.kind.astype(np.uint8)),
+            force=nd(h.force.astype(np.float32) if has_force else np.zeros(0, np.float32)),
+            direction=nd(h.direction.astype(np.float32) if has_force else np.zeros((0, 3), np.float32)),
         )
 
     def hypotheses(self) -> Hypotheses:
@@ -104,9 +112,9 @@ class FusedCloud(Message, tag="fused_cloud"):
     @classmethod
     def of(cls, f: Fused) -> FusedCloud:
         return cls(
-            stamp=f.stamp, location=NDArray.of(f.location.astype(np.float32)),
-            likelihood=NDArray.of(f.likelihood.astype(np.float32)), force=NDArray.of(f.force.astype(np.float32)),
-            direction=NDArray.of(f.direction.astype(np.float32)), sources=NDArray.of(f.sources.astype(np.uint64)),
+            stamp=f.stamp, location=nd(f.location.astype(np.float32)),
+            likelihood=nd(f.likelihood.astype(np.float32)), force=nd(f.force.astype(np.float32)),
+            direction=nd(f.direction.astype(np.float32)), sources=nd(f.sources.astype(np.uint64)),
             columns=list(f.columns), vetoed=f.vetoed, unsupported=f.unsupported,
         )
 

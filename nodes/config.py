@@ -175,7 +175,8 @@ def _parse_module(doc: YamlDoc, path: tuple, robot_default: str) -> ModuleConfig
         if not 0.0 < weight <= 1.0:
             raise doc.error(path + ("mix", res), f"weight {weight} is not in (0, 1]")
         mix[res] = weight
-    autostart = doc.get(path + ("autostart",), bool, cls.layer in (Layer.INTERFACE, Layer.SERVICE))
+    default_start = cls.autostart if cls.autostart is not None else cls.layer in (Layer.INTERFACE, Layer.SERVICE)
+    autostart = doc.get(path + ("autostart",), bool, default_start)
     return ModuleConfig(name, type_name, cls, params, robot, inputs, outputs, autostart, mix)
 
 

@@ -19,7 +19,14 @@ from typing import Any
 from contactflow.nodes.clock import SimClock, WallClock
 from contactflow.nodes.config import ModuleConfig, NodeConfig
 from contactflow.nodes.keys import KeySpace, ModuleAddr
-from contactflow.nodes.messages import Command, ControlReply, ControlRequest, EventMsg, ParamValue, StatusMsg
+from contactflow.nodes.messages import (
+    Command,
+    ControlReply,
+    ControlRequest,
+    EventMsg,
+    ParamValue,
+    StatusMsg,
+)
 from contactflow.nodes.module import LayerError, Module
 from contactflow.nodes.params import ParamError, params_dict
 from contactflow.nodes.status import STATUS_EVENT, Event, Status
@@ -53,6 +60,19 @@ class HostedIO:
     @property
     def now(self) -> float:
         return self._host.clock.now()
+
+    @property
+    def transport(self) -> Transport:
+        """The node's transport, for infrastructure modules (broker, robot agent) only."""
+        return self._host.transport
+
+    @property
+    def keyspace(self) -> KeySpace:
+        return self._host.ks
+
+    @property
+    def node(self) -> str:
+        return self._host.config.node
 
     def deliver(self, port: str, msg: Message) -> None:
         with self._lock:

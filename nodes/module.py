@@ -15,7 +15,7 @@ from typing import Any, ClassVar, Protocol
 
 import yaml
 
-from contactflow.nodes.messages import ControlReply, Command, ParamValue
+from contactflow.nodes.messages import Command, ControlReply, ParamValue
 from contactflow.nodes.params import ParamError, params_dict, replace_params
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.wire import Message, MsgId
@@ -84,6 +84,8 @@ class Module:
     events: ClassVar[tuple[Event, ...]] = ()
     resources: ClassVar[tuple[str, ...]] = ()
     """Shared resources the module commands (e.g. ``arm_left``); see thesis §6.6."""
+    autostart: ClassVar[bool | None] = None
+    """Run when the node starts; None: interface and service modules do, the others wait."""
 
     @dataclass(frozen=True)
     class Params:

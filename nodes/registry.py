@@ -11,7 +11,7 @@ import importlib
 
 from contactflow.nodes.module import Module
 
-AREAS = ("nodes", "embodiments", "fusion", "recognition", "abstraction", "deploy")
+AREAS = ("nodes", "embodiments", "embodiments.primitives", "fusion", "recognition", "abstraction", "deploy")
 
 
 class UnknownModuleType(LookupError):

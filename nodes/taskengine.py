@@ -33,6 +33,7 @@ from contactflow.nodes.taskgraph import (
     Until,
     bind_plan,
     resolve,
+    validate,
 )
 
 MAX_TRANSITIONS_PER_TICK = 10_000
@@ -160,7 +161,7 @@ class TaskEngine:
         self._results: dict[str, RunResult] = {}
         self._queue: deque[_Post] = deque()
         self._ids = itertools.count(1)
-        self._budget = MAX_TRANSITIONS_PER_TICK
+        self._spent: dict[str, int] = {}  # transitions per run in the current tick
         self.history: deque[Progress] = deque(maxlen=10_000)
         self.stale_events = 0
 
@@ -170,7 +171,8 @@ class TaskEngine:
 
     def launch(self, task: TaskGraph, params: Mapping[str, Any] | None = None,
                run_id: str | None = None) -> str:
-        """Bind ``task`` into a plan and start it; returns the run id."""
+        """Validate ``task``, bind it into a plan and start it; returns the run id."""
+        validate(task, primitives=None, tasks=self.library)
         plan = bind_plan(task, params)
         run = run_id or f"run{next(self._ids)}"
         if run in self._roots:
@@ -179,14 +181,14 @@ class TaskEngine:
         self._roots[run] = frame
         self._frames.append(frame)
         self._report(ProgressKind.STARTED, frame, label=plan.label or plan.name)
-        self._budget = MAX_TRANSITIONS_PER_TICK
+        self._spent[run] = 0
         self._enter(frame, plan.start)
         self._drain()
         return run
 
     def tick(self) -> None:
         """Process runner events and timeouts; call this at the task layer's rate."""
-        self._budget = MAX_TRANSITIONS_PER_TICK
+        self._spent.clear()
         for ev in self.runner.poll():
             route = self._routes.get(ev.instance)
             if route is None:
@@ -258,11 +260,11 @@ class TaskEngine:
         return f"{frame.run}/{'/'.join(frame.path[1:] + (node,))}{suffix}#{frame.activation}"
 
     def _enter(self, frame: _Frame, node_id: str, cause: Event | None = None) -> None:
-        self._budget -= 1
-        if self._budget < 0:
-            root = frame
-            while root.parent is not None:
-                root = root.parent
+        spent = self._spent[frame.run] = self._spent.get(frame.run, 0) + 1
+        if spent > MAX_TRANSITIONS_PER_TICK:
+            root = self._roots[frame.run]
+            if root.finished:
+                return
             self._close(root)
             self._finish_root(root, Event.ERROR, node_id,
                               f"more than {MAX_TRANSITIONS_PER_TICK} transitions in one tick: "
@@ -285,7 +287,10 @@ class TaskEngine:
                 self._start_primitive(frame, self._instance(frame, node.id, f".{h.name}"),
                                       h.name, h.type, params)
             if node.kind is NodeKind.PARALLEL:
+                act = frame.activation
                 for b in node.branches:
+                    if frame.finished or frame.activation != act:
+                        return  # the run was stopped while starting (transition budget)
                     self._start_activity(frame, b, b.id, f".{b.id}")
             else:
                 self._start_activity(frame, node, "", "")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,7 +43,9 @@ class FakeRunner:
 
     ``script(key, run1, run2, ...)`` gives the steps a primitive plays on its first, second,
     ... start (the last one repeats). ``key`` is a node path as :func:`node_of` returns it
-    (most specific) or a primitive type. Unscripted primitives run silently until stopped.
+    (most specific) or a primitive type. ``rule(fn)`` adds a fallback that computes the
+    steps from ``(instance, type, params)`` (None: no opinion). Unscripted primitives run
+    silently until stopped.
     The runner records every start (with its parameters) and stop.
     """
 
@@ -55,6 +57,11 @@ class FakeRunner:
         self.active: dict[str, tuple[float, list[Step]]] = {}
         self._count: dict[str, int] = defaultdict(int)
         self._manual: list[RunnerEvent] = []
+        self._rules: list[Callable[[str, str, Mapping[str, Any]], Sequence[Step] | None]] = []
+
+    def rule(self, fn: Callable[[str, str, Mapping[str, Any]], Sequence[Step] | None]) -> FakeRunner:
+        self._rules.append(fn)
+        return self
 
     def script(self, key: str, *runs: Sequence[Step]) -> FakeRunner:
         self.scripts[key] = [list(r) for r in runs]
@@ -65,10 +72,15 @@ class FakeRunner:
             raise AssertionError(f"instance {instance!r} started twice")
         self.starts.append((instance, type, dict(params)))
         key = node_of(instance) if node_of(instance) in self.scripts else type
-        runs = self.scripts.get(key, [[]])
         n = self._count[key]
         self._count[key] += 1
-        self.active[instance] = (self.clock(), sorted(runs[min(n, len(runs) - 1)], key=lambda s: s.after))
+        if key in self.scripts:
+            runs = self.scripts[key]
+            steps = list(runs[min(n, len(runs) - 1)])
+        else:
+            found = (fn(instance, type, params) for fn in self._rules)
+            steps = list(next((s for s in found if s is not None), []))
+        self.active[instance] = (self.clock(), sorted(steps, key=lambda s: s.after))
 
     def stop(self, instance: str) -> None:
         if instance not in self.active:

@@ -104,7 +104,8 @@ class ZenohTransport:
     def queryable(self, key: str, handler: Handler) -> Handle:
         def on_query(q: zenoh.Query) -> None:
             payload = q.payload.to_bytes() if q.payload is not None else b""
-            q.reply(q.key_expr, handler(str(q.key_expr), payload))
+            # reply on the declared key: a wildcard query then tells the answerers apart
+            q.reply(key, handler(key, payload))
 
         qbl = self._s.declare_queryable(key, on_query)
         return _Closer(qbl.undeclare)

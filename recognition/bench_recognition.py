@@ -20,13 +20,25 @@ from contactflow.recognition.classifiers import (
     NearestMeanClassifier,
     NormalDensityClassifier,
     NSigmaClassifier,
+    knowledge,
     outcomes,
 )
 from contactflow.recognition.features import FEATURE_SETS, FEATURES, object_features, select
 from contactflow.recognition.geometry import intrinsics
-from contactflow.recognition.objects import RECOGNITION_BOXES, TEST_SHAPES, TRAINING_SHAPES, ShapeObject
+from contactflow.recognition.objects import (
+    RECOGNITION_BOXES,
+    TEST_SHAPES,
+    TRAINING_SHAPES,
+    ShapeObject,
+)
 from contactflow.recognition.pipeline import PipelineParams, SegmentationPipeline
-from contactflow.recognition.shape import SHAPES, UNKNOWN, ShapeClassifier, curvedness, silhouette_contour
+from contactflow.recognition.shape import (
+    SHAPES,
+    UNKNOWN,
+    ShapeClassifier,
+    curvedness,
+    silhouette_contour,
+)
 from contactflow.recognition.synthetic import Scene, orbit_pose
 from contactflow.recognition.testing import Placed, TableScene
 
@@ -36,7 +48,7 @@ WIDTH, HEIGHT = 640, 480
 WEIGHT_NOISE = 0.08  # N, std of the wrist F/T weight estimate after lifting
 DEPTH_NOISE = 0.002  # m at 1 m, grows with z² (structured-light sensor)
 CONTOUR_JITTER = 0.35  # px, segmentation noise on the silhouette contour
-RECOGNITION_PIPELINE = PipelineParams(stride=1, voxel=0.003, cluster_eps=0.009, cluster_min_size=40,
+RECOGNITION_PIPELINE = PipelineParams(stride=2, voxel=0.003, cluster_eps=0.009, cluster_min_size=40,
                                       roi_min_height=0.008)
 
 
@@ -230,6 +242,8 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
     rec = recognition_tables(X, y, rng)
     rec["segmentation_failures"] = failures
     (out_dir / "recognition.md").write_text(_markdown(shape, rec))
+    # the knowledge base the recognize-object primitive loads: every sample, all features
+    (out_dir / "recognition_knowledge.json").write_text(json.dumps(knowledge(NormalDensityClassifier().fit(X, y), FEATURES)))
     _plot(X, y, out_dir / "recognition_sos_aos.png")
     summary = {"shape": shape, "recognition": rec,
                "samples": {"features": list(FEATURES), "X": np.where(np.isfinite(X), X, None).tolist(),

@@ -66,9 +66,14 @@ def depth_to_points(depth: np.ndarray, K: np.ndarray, world_T_cam: np.ndarray, s
     z = d[::stride, ::stride].astype(np.float32, copy=False)
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(z) & (z >= min_range) & (z <= max_range)
-    z = z[ok]
-    cam = np.stack((gx[ok] * z, gy[ok] * z, z), axis=1)
-    return cam.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    z, rx, ry = z[ok], gx[ok], gy[ok]
+    R = T[:3, :3].astype(np.float32)
+    out = np.empty((len(z), 3))
+    # p = z * R [x/z, y/z, 1] + t, one row of R at a time to stay in float32 temporaries
+    for k in range(3):
+        out[:, k] = z * (R[k, 0] * rx + R[k, 1] * ry + R[k, 2])
+        out[:, k] += T[k, 3]
+    return out
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -97,7 +102,7 @@ def orthonormal_frame(z: np.ndarray, hint: np.ndarray | None = None) -> np.ndarr
     return np.column_stack((x, np.cross(z, x), z))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Box:
     """An oriented box: centre, rotation (columns are the box axes) and full extents (m)."""
 
@@ -129,6 +134,10 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     if len(xy) < 3:
         lo, hi = xy.min(axis=0), xy.max(axis=0)
         return (lo + hi) / 2, 0.0, hi - lo
+    if len(xy) > 2000:
+        # the extreme points along 64 directions span the hull to within 0.12 %
+        a = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
+        xy = xy[np.unique(np.argmax(xy @ np.stack((np.cos(a), np.sin(a))), axis=0))]
     try:
         hull = xy[ConvexHull(xy).vertices]
     except QhullError:

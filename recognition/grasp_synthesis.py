@@ -16,9 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
+from scipy.spatial import cKDTree
+
 from contactflow.recognition.geometry import Box, as_points, orthonormal_frame, pca_box
 from contactflow.recognition.pipeline import DistanceFn, Plane
-from scipy.spatial import cKDTree
 
 IkFn = Callable[[np.ndarray], object | None]
 """Inverse kinematics: a 4x4 hand pose → a joint solution, or None when unreachable."""
@@ -26,7 +27,11 @@ IkFn = Callable[[np.ndarray], object | None]
 
 @dataclass(frozen=True, eq=False)
 class ApproachVector:
-    """Where the hand starts (``position``) and the unit direction it then moves in."""
+    """Where the hand starts (``position``) and the unit direction it then moves in.
+
+    ``score`` ranks approach vectors: for PCA ones the sum of the box extents across the
+    approach (a larger face is easier to reach and to centre the hand on).
+    """
 
     position: np.ndarray
     direction: np.ndarray

@@ -1,4 +1,7 @@
-"""Wire messages of the recognition area: depth frames, clouds, plane/ROI, objects, grasps, labels.
+"""Wire messages of the recognition area: clouds, plane/ROI, objects, grasps, labels.
+
+The pipeline's input is the camera's ``DepthImage`` of the embodiments area (depth in
+metres along the optical axis, 0 = no return, intrinsics ``K`` and ``T_world_cam``).
 
 Every message derived from a depth frame names that frame in ``depth_frame`` and lists it
 in its header provenance (``hdr.inputs``), so a segmented object can be traced back to the
@@ -9,6 +12,8 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
+
+from contactflow.embodiments.messages import DepthImage
 from contactflow.nodes.wire import Message, MsgId, NDArray
 from contactflow.recognition.geometry import Box
 from contactflow.recognition.pipeline import Cluster, Plane
@@ -16,27 +21,30 @@ from contactflow.recognition.pipeline import Cluster, Plane
 NO_FRAME = MsgId(source="", seq=0)
 
 
-class DepthFrame(Message, tag="vision_depth_frame"):
-    """A depth image (float32, metres along the optical axis; NaN/inf where nothing was seen)."""
+def nd(array: np.ndarray) -> NDArray:
+    """``NDArray.of`` that also takes empty arrays (an empty cloud is a valid result)."""
+    a = np.ascontiguousarray(array)
+    if a.size == 0:
+        return NDArray(dtype=a.dtype.name, shape=list(a.shape), data=memoryview(b""))
+    return NDArray.of(a)
 
-    max_bytes = 16 << 20
-    depth: NDArray
-    intrinsics: list[float]  # row-major 3x3 pinhole matrix
-    world_T_cam: list[float]  # row-major 4x4 pose of the optical frame (x right, y down, z fwd)
-    camera: str = "camera"
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(depth, K, world_T_cam); raises ValueError naming the bad field."""
-        if len(self.intrinsics) != 9:
-            raise ValueError(f"DepthFrame.intrinsics: expected 9 numbers, got {len(self.intrinsics)}")
-        if len(self.world_T_cam) != 16:
-            raise ValueError(f"DepthFrame.world_T_cam: expected 16 numbers, got {len(self.world_T_cam)}")
-        return self.depth.numpy(), np.reshape(self.intrinsics, (3, 3)), np.reshape(self.world_T_cam, (4, 4))
+def depth_image(depth: np.ndarray, K: np.ndarray, world_T_cam: np.ndarray, camera: str = "camera") -> DepthImage:
+    """The camera's wire message (``embodiments.messages.DepthImage``) from plain arrays."""
+    return DepthImage(camera=camera, depth=nd(np.asarray(depth, np.float32)),
+                      K=[float(v) for v in np.ravel(K)], T_world_cam=[float(v) for v in np.ravel(world_T_cam)])
 
-    @classmethod
-    def of(cls, depth: np.ndarray, K: np.ndarray, world_T_cam: np.ndarray, camera: str = "camera") -> DepthFrame:
-        return cls(depth=NDArray.of(np.asarray(depth, np.float32)), intrinsics=[float(v) for v in np.ravel(K)],
-                   world_T_cam=[float(v) for v in np.ravel(world_T_cam)], camera=camera)
+
+def depth_arrays(msg: DepthImage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(depth, K, world_T_cam) of a depth image; raises ValueError naming the bad field."""
+    if len(msg.K) != 9:
+        raise ValueError(f"DepthImage.K: expected 9 numbers, got {len(msg.K)}")
+    if len(msg.T_world_cam) != 16:
+        raise ValueError(f"DepthImage.T_world_cam: expected 16 numbers, got {len(msg.T_world_cam)}")
+    depth = msg.depth.numpy()
+    if depth.ndim != 2:
+        raise ValueError(f"DepthImage.depth: expected an (H, W) image, got shape {depth.shape}")
+    return depth, np.reshape(msg.K, (3, 3)), np.reshape(msg.T_world_cam, (4, 4))
 
 
 class PointCloud(Message, tag="vision_cloud"):
@@ -57,7 +65,7 @@ class PointCloud(Message, tag="vision_cloud"):
 
     @classmethod
     def of(cls, points: np.ndarray, depth_frame: MsgId = NO_FRAME) -> PointCloud:
-        return cls(points=NDArray.of(np.asarray(points, np.float32).reshape(-1, 3)), depth_frame=depth_frame)
+        return cls(points=nd(np.asarray(points, np.float32).reshape(-1, 3)), depth_frame=depth_frame)
 
 
 class PlaneMsg(Message, tag="vision_plane"):
@@ -138,7 +146,7 @@ class SegmentedObjects(Message, tag="vision_objects"):
 
     @classmethod
     def of(cls, clusters: list[Cluster], depth_frame: MsgId = NO_FRAME) -> SegmentedObjects:
-        objs = [SegmentedObject(points=NDArray.of(c.points.astype(np.float32)), centroid=c.centroid.tolist(),
+        objs = [SegmentedObject(points=nd(c.points.astype(np.float32)), centroid=c.centroid.tolist(),
                                 box=BoxMsg.of(c.box)) for c in clusters]
         return cls(objects=objs, depth_frame=depth_frame)
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
+
 from contactflow.recognition.geometry import (
     EMPTY,
     Box,
@@ -35,7 +36,7 @@ def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Plane:
     """Plane ``normal · p + offset = 0``; ``frame`` has the normal as z, ``origin`` lies on it."""
 
@@ -159,7 +160,7 @@ def self_filter(points: np.ndarray, distance_fn: DistanceFn | None, margin: floa
     return pts[~(d < margin)]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Cluster:
     """One segmented object: its points, centroid and oriented box."""
 

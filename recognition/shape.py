@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import contourpy
 import numpy as np
+
 from contactflow.recognition.geometry import Box, check_intrinsics, check_pose, depth_to_points
 
 BOX, CYLINDER, SPHERE = "box", "cylinder", "sphere"
@@ -183,6 +184,17 @@ class ShapeClassifier:
     min_sigma: float = 0.01  # floor of σK, so one clean training view does not make σ = 0
     classes: tuple[str, ...] = SHAPES
     samples: dict[str, list[float]] = field(default_factory=dict)
+    prior_mu: tuple[float, ...] = ()  # class centres used until a class has 2 samples of its own
+    prior_sigma: tuple[float, ...] = ()
+
+    @classmethod
+    def from_stats(cls, mu, sigma, confidence: float = 0.70, classes: tuple[str, ...] = SHAPES) -> ShapeClassifier:
+        """A classifier from stored µK, σK (e.g. a primitive's parameters)."""
+        if len(mu) != len(classes) or len(sigma) != len(classes):
+            raise ValueError(f"ShapeClassifier.from_stats: need {len(classes)} means and sigmas, "
+                             f"got {len(mu)} and {len(sigma)}")
+        return cls(confidence=confidence, classes=classes, prior_mu=tuple(float(v) for v in mu),
+                   prior_sigma=tuple(float(v) for v in sigma))
 
     def fit(self, values: np.ndarray, labels: list[str]) -> ShapeClassifier:
         self.samples = {k: [] for k in self.classes}
@@ -198,12 +210,18 @@ class ShapeClassifier:
             self.samples.setdefault(label, []).append(float(value))
 
     def stats(self) -> tuple[np.ndarray, np.ndarray]:
-        missing = [k for k in self.classes if len(self.samples.get(k, [])) == 0]
-        if missing:
-            raise ValueError(f"ShapeClassifier: no training samples for {missing}")
-        mu = np.array([np.mean(self.samples[k]) for k in self.classes])
-        sd = np.array([max(np.std(self.samples[k]), self.min_sigma) for k in self.classes])
-        return mu, sd
+        mu, sd = [], []
+        for i, k in enumerate(self.classes):
+            v = self.samples.get(k, [])
+            if len(v) >= 2 or (len(v) == 1 and not self.prior_mu):
+                mu.append(np.mean(v))
+                sd.append(max(float(np.std(v)), self.min_sigma))
+            elif self.prior_mu:
+                mu.append(self.prior_mu[i])
+                sd.append(max(self.prior_sigma[i], self.min_sigma))
+            else:
+                raise ValueError(f"ShapeClassifier: no training samples for {k!r}")
+        return np.array(mu), np.array(sd)
 
     def probabilities(self, value: float) -> np.ndarray:
         """Class percentages p_iK (eq. 8.4) as fractions; NaN input gives all NaN."""

@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
-from contactflow.recognition.geometry import check_intrinsics, check_pose
+
+from contactflow.recognition.geometry import check_intrinsics, check_pose, look_at
 
 
 def box_mesh(size: tuple[float, float, float], center=(0.0, 0.0, 0.0), yaw: float = 0.0) -> o3d.geometry.TriangleMesh:
@@ -109,8 +110,6 @@ class Scene:
 
 def orbit_pose(target: np.ndarray, distance: float, elevation_deg: float, azimuth_deg: float) -> np.ndarray:
     """World-from-camera pose on a sphere around ``target``, looking at it (z is up)."""
-    from contactflow.recognition.geometry import look_at
-
     el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
     eye = np.asarray(target, float) + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     up = np.array([0.0, 0.0, 1.0]) if elevation_deg < 89.0 else np.array([-np.cos(az), -np.sin(az), 0.0])

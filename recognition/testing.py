@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from contactflow.recognition.geometry import intrinsics, look_at
 from contactflow.recognition.synthetic import Scene, box_mesh, cylinder_mesh, sphere_mesh
 

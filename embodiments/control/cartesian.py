@@ -12,11 +12,10 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from contactflow.embodiments.control.ik import VelocityIK
 from contactflow.embodiments.control.kinematics import Kinematics
-from contactflow.embodiments.transforms import rotvec_error
+from contactflow.embodiments.transforms import rotvec_error, so3_exp
 from contactflow.nodes.status import Status
 
 
@@ -34,6 +33,8 @@ class CartesianParams:
     angular_speed: float = 0.8  # rad/s
     pos_tol: float = 0.001  # m, pose move done
     rot_tol: float = 0.01  # rad
+    settle_tol: float = 0.003  # m, measured position error at which a pose move succeeds
+    settle_timeout: float = 2.0  # s after the reference ends before a pose move fails
     admittance: float = 0.004  # m/s per N in wrench mode
     admittance_rot: float = 0.05  # rad/s per N m
     max_speed: float = 0.25  # m/s, bound on any commanded linear speed
@@ -70,7 +71,7 @@ class CartesianController:
         ang = float(np.linalg.norm(rotvec_error(goal[:3, :3], start[:3, :3])))
         self._duration = 1.5 * max(dist / speed, ang / self.params.angular_speed, 1e-3)  # smoothstep peak is 1.5x mean
         self._start, self._goal = start, goal
-        self._slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([start[:3, :3], goal[:3, :3]])))
+        self._rot = rotvec_error(goal[:3, :3], start[:3, :3])  # world-frame rotation start -> goal
         self._t = 0.0
         self.mode, self.status = Mode.POSE, Status.RUNNING
 
@@ -101,10 +102,10 @@ class CartesianController:
         ds = 6.0 * tau * (1.0 - tau) / self._duration
         ref = np.eye(4)
         ref[:3, 3] = (1 - s) * self._start[:3, 3] + s * self._goal[:3, 3]
-        ref[:3, :3] = self._slerp([s]).as_matrix()[0]
+        ref[:3, :3] = so3_exp(s * self._rot) @ self._start[:3, :3]
         v = np.zeros(6)
         v[:3] = (self._goal[:3, 3] - self._start[:3, 3]) * ds
-        v[3:] = rotvec_error(self._goal[:3, :3], self._start[:3, :3]) * ds
+        v[3:] = self._rot * ds
         return ref, v
 
     def update(self, q_full: np.ndarray, dt: float, wrench: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -126,10 +127,20 @@ class CartesianController:
             if self._t >= self._duration:
                 gerr = np.concatenate([self._goal[:3, 3] - cur[:3, 3], rotvec_error(self._goal[:3, :3], cur[:3, :3])])
                 if np.linalg.norm(gerr[:3]) < p.pos_tol and np.linalg.norm(gerr[3:]) < p.rot_tol:
-                    self.status = Status.SUCCESS
-                    self.mode = Mode.IDLE
+                    # done when the measured arm, not only the command, is there
+                    self.kin.update(np.asarray(q_full, dtype=np.float64))
+                    real = self.kin.frame_pose(self.frame)
+                    self.kin.update(q)
+                    rerr = np.linalg.norm(self._goal[:3, 3] - real[:3, 3])
+                    if rerr < p.settle_tol:
+                        self.status = Status.SUCCESS
+                        self.mode = Mode.IDLE
+                    elif self._t > self._duration + p.settle_timeout:
+                        self.status = Status.FAILURE
+                        self.mode = Mode.IDLE
         elif self.mode == Mode.TWIST:
-            twist = self._twist.copy()
+            # ramp up over 0.1 s: a velocity step would jerk the arm (and the F/T)
+            twist = self._twist * min(1.0, self._t / 0.1)
             if self._duration is not None and self._t >= self._duration:
                 self.status, self.mode = Status.SUCCESS, Mode.IDLE
                 return self.q_cmd.copy(), np.zeros(len(self.q_cmd))

@@ -26,6 +26,15 @@ from contactflow.embodiments.transforms import inv, rotvec_error
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
 
 PLANNERS = {"KPIECE1": og.KPIECE1, "RRTConnect": og.RRTConnect}
+_seeded = False
+
+
+def seed_ompl(seed: int) -> None:
+    """Seed OMPL's RNG; OMPL accepts this only before its first sample, so later calls are ignored."""
+    global _seeded
+    if not _seeded:
+        ou.RNG.setSeed(seed)
+        _seeded = True
 
 
 @dataclass(frozen=True)
@@ -127,20 +136,35 @@ def sample_surface(o: Obstacle, spacing: float = 0.01) -> np.ndarray:
 
 
 class SphericalChecker:
-    """The spherical model (App. B) vs. points sampled on the obstacles."""
+    """The spherical model (App. B) vs. points sampled on the obstacles (KD-tree pre-selection per s-tope)."""
 
     def __init__(self, kin: Kinematics, model, obstacles: list[Obstacle], margin: float = 0.005, spacing: float = 0.015) -> None:
+        from scipy.spatial import cKDTree
+
         self.kin, self.model, self.margin = kin, model, margin
         self.points = np.vstack([sample_surface(o, spacing) for o in obstacles]) if obstacles else np.zeros((0, 3))
+        self.tree = cKDTree(self.points) if len(self.points) else None
+        self._reach = np.linalg.norm(model._c2 - model._c1, axis=1) / 2 + np.maximum(model.r1, model.r2) + margin
         self.checks = 0
 
     def valid(self, q: np.ndarray) -> bool:
         self.checks += 1
-        if len(self.points) == 0:
+        if self.tree is None:
             return True
         self.kin.update(q)
         self.model.update(self.kin)
-        return bool(self.model.distance(self.points).min() > self.margin)
+        mid = (self.model.C1 + self.model.C2) / 2
+        for m, near in enumerate(self.tree.query_ball_point(mid, self._reach)):
+            if not near:
+                continue
+            P = self.points[near]
+            D = self.model.C2[m] - self.model.C1[m]
+            lam = np.clip(((P - self.model.C1[m]) @ D) / max(D @ D, 1e-12), 0.0, 1.0)
+            d = np.linalg.norm(P - (self.model.C1[m] + lam[:, None] * D), axis=1) - (
+                self.model.r1[m] + lam * (self.model.r2[m] - self.model.r1[m]))
+            if d.min() <= self.margin:
+                return False
+        return True
 
 
 @dataclass(frozen=True)
@@ -186,7 +210,7 @@ class ArmPlanner:
             fail.planning_time = time.perf_counter() - t0
             return fail
         if seed is not None:
-            ou.RNG.setSeed(seed)
+            seed_ompl(seed)
         space = ob.RealVectorStateSpace(n)
         bounds = ob.RealVectorBounds(n)
         for i in range(n):

@@ -9,6 +9,36 @@ import numpy as np
 from contactflow.nodes.status import Status
 
 
+class ForceWatch:
+    """Detects an unexpected contact: the low-passed wrist force leaves its baseline by more than ``limit`` N.
+
+    The baseline is the mean over the first ``baseline_time`` s; the filter (time constant
+    ``tau``) keeps sensor noise (Baxter's estimated wrench) and motion transients from
+    tripping it.
+    """
+
+    def __init__(self, limit: float, tau: float = 0.03, baseline_time: float = 0.05) -> None:
+        self.limit, self.tau, self.baseline_time = limit, tau, baseline_time
+        self.t = 0.0
+        self._sum = np.zeros(3)
+        self._n = 0
+        self.baseline: np.ndarray | None = None
+        self.filtered: np.ndarray | None = None
+
+    def update(self, force: np.ndarray, dt: float) -> bool:
+        f = np.asarray(force, dtype=np.float64)[:3]
+        self.t += dt
+        a = min(1.0, dt / self.tau)
+        self.filtered = f.copy() if self.filtered is None else (1 - a) * self.filtered + a * f
+        if self.baseline is None:
+            self._sum += f
+            self._n += 1
+            if self.t >= self.baseline_time:
+                self.baseline = self._sum / self._n
+            return False
+        return bool(np.linalg.norm(self.filtered - self.baseline) > self.limit)
+
+
 @dataclass(frozen=True)
 class TrajectoryParams:
     max_velocity: float = 1.0  # rad/s, per joint
@@ -32,7 +62,7 @@ class TrajectoryFollower:
         self.t = 0.0
         self.status = Status.RUNNING
         self.abort_reason = ""
-        self._f0: np.ndarray | None = None
+        self.watch = ForceWatch(self.params.abort_force) if np.isfinite(self.params.abort_force) else None
 
     @property
     def duration(self) -> float:
@@ -51,14 +81,10 @@ class TrajectoryFollower:
         """Advance by ``dt``; ``force`` is the wrist force (world axes) used by the watchdog."""
         if self.status != Status.RUNNING:
             return self.sample(self.t)[0], np.zeros(self.waypoints.shape[1])
-        if force is not None:
-            f = np.asarray(force, dtype=np.float64)[:3]
-            if self._f0 is None:
-                self._f0 = f.copy()
-            elif np.linalg.norm(f - self._f0) > self.params.abort_force:
-                self.status = Status.FAILURE
-                self.abort_reason = "contact"
-                return self.sample(self.t)[0], np.zeros(self.waypoints.shape[1])
+        if force is not None and self.watch is not None and self.watch.update(force, dt):
+            self.status = Status.FAILURE
+            self.abort_reason = "contact"
+            return self.sample(self.t)[0], np.zeros(self.waypoints.shape[1])
         self.t += dt
         if self.t >= self.duration + self.params.settle:
             self.status = Status.SUCCESS

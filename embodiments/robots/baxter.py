@@ -6,7 +6,14 @@ it is noisy and biased, as the virtual F/T of the real robot (App. A.4.2).
 
 from __future__ import annotations
 
-from contactflow.embodiments.registry import ArmSpec, Capabilities, Computer, FTSpec, HandSpec, RobotSpec
+from contactflow.embodiments.registry import (
+    ArmSpec,
+    Capabilities,
+    Computer,
+    FTSpec,
+    HandSpec,
+    RobotSpec,
+)
 from contactflow.embodiments.urdf_compose import Composition, Part
 
 

@@ -9,8 +9,20 @@ forward. Wrist F/T sensors sit at the fixed joint between ``panda_link8`` and th
 
 from __future__ import annotations
 
-from contactflow.embodiments.registry import ArmSpec, CameraSpec, Capabilities, Computer, FTSpec, RobotSpec
-from contactflow.embodiments.robots.parts import PANDA_HOME, PANDA_JOINTS, allegro_hand, panda_arm_with_allegro
+from contactflow.embodiments.registry import (
+    ArmSpec,
+    CameraSpec,
+    Capabilities,
+    Computer,
+    FTSpec,
+    RobotSpec,
+)
+from contactflow.embodiments.robots.parts import (
+    PANDA_HOME,
+    PANDA_JOINTS,
+    allegro_hand,
+    panda_arm_with_allegro,
+)
 from contactflow.embodiments.urdf_compose import Composition, ExtraLink, Mount
 
 _left_parts, _left_extra = panda_arm_with_allegro("left_", Mount("torso", xyz=(0.0, 0.3, 0.0)))

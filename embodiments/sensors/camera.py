@@ -95,7 +95,7 @@ class RaycastCamera:
     def pose(self) -> np.ndarray:
         if self.link is None:
             return np.asarray(self.fixed_pose, dtype=np.float64)
-        return pose_to_matrix(self.link.get_pose()) @ self.offset
+        return pose_to_matrix(self.link.get_entity_pose()) @ self.offset
 
     def _bodies(self) -> list:
         system = self.world.scene.get_physx_system()
@@ -117,7 +117,7 @@ class RaycastCamera:
             _, local, name = self._cache[key]
             if not local:
                 continue
-            T = pose_to_matrix(body.get_pose())
+            T = pose_to_matrix(body.get_entity_pose())
             label = len(names)
             names.append(name)
             for L, v, t in local:
@@ -137,8 +137,12 @@ class RaycastCamera:
         scene.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
         Twc = self.pose()
         extrinsic = np.linalg.inv(Twc)
+        # open3d shoots through pixel corners + 0.5; our K uses pixel centres (cx = 319.5)
+        K = self.K.copy()
+        K[0, 2] += 0.5
+        K[1, 2] += 0.5
         rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
-            o3d.core.Tensor(self.K), o3d.core.Tensor(extrinsic), s.width, s.height)
+            o3d.core.Tensor(K), o3d.core.Tensor(extrinsic), s.width, s.height)
         ans = scene.cast_rays(rays)
         r = rays.numpy().reshape(s.height, s.width, 6)
         th = ans["t_hit"].numpy().reshape(s.height, s.width)

@@ -27,6 +27,7 @@ class WrenchReading:
     torque: np.ndarray
     frame: str  # sensor link
     R_world_sensor: np.ndarray  # rotation of the sensor frame (for sensor-frame values)
+    estimated: bool = False  # True when solved from joint efforts rather than measured
 
     @property
     def vector(self) -> np.ndarray:
@@ -66,7 +67,7 @@ class WristFT:
         return -np.concatenate([R @ fw[:3], R @ fw[3:]])
 
     def _pose(self) -> np.ndarray:
-        return pose_to_matrix(self.link.get_pose())
+        return pose_to_matrix(self.link.get_entity_pose())
 
     def tare(self) -> None:
         """Zero the sensor at the current (noise-free) reading."""
@@ -81,5 +82,5 @@ class WristFT:
         s = self.spec
         noise = np.concatenate([self.rng.normal(0, s.force_noise, 3), self.rng.normal(0, s.torque_noise, 3)])
         w = w + noise + np.asarray(s.bias, dtype=np.float64)
-        self._last = WrenchReading(t, w[:3], w[3:], s.link, self._pose()[:3, :3])
+        self._last = WrenchReading(t, w[:3], w[3:], s.link, self._pose()[:3, :3], s.estimated)
         return self._last

@@ -41,8 +41,9 @@ def taxel_positions(pad: PadSpec) -> np.ndarray:
         return o + gu[..., None] * u + gv[..., None] * v
     c = o - pad.radius * n
     au, av = gu / pad.radius, gv / pad.radius
-    d = np.cos(au)[..., None] * np.cos(av)[..., None] * n + np.sin(au)[..., None] * u + np.sin(av)[..., None] * v
-    return c + pad.radius * d
+    # inverse of surface_coords: tan(angle) = tangential / normal component
+    d = n + np.tan(au)[..., None] * u + np.tan(av)[..., None] * v
+    return c + pad.radius * d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
 def surface_coords(pad: PadSpec, p_local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -108,7 +109,7 @@ class TactileSensor:
             if key not in pts:
                 out[pad.name] = np.zeros((pad.rows, pad.cols))
                 continue
-            T = pose_to_matrix(link.get_pose())
+            T = pose_to_matrix(link.get_entity_pose())
             P = np.asarray(pts[key], dtype=np.float64)
             local = (P - T[:3, 3]) @ T[:3, :3]
             out[pad.name] = pressure(pad, local, np.asarray(frc[key]))

@@ -5,8 +5,8 @@
    down to the table are occluded (P = 0.5), the rest was seen free (P = 0).
 2. Every frame the virtual contact sensor (eq. 4.10) evaluates the posed spherical robot model:
    P(z|c) = 0 inside the model, 0.9 on its surface (within ``surface_band``), 0.5 outside.
-   The object is tracked with open3d point-to-point ICP between consecutive object clouds.
-3. Without object motion the voxels inside or on the model become free (P = 0). With motion
+   The object is tracked with open3d (point-to-plane) ICP between consecutive object clouds.
+3. Without object motion the voxels inside the model become free (P = 0). With motion
    (the object centroid moved >= ``motion_translation`` or rotated >= ``motion_angle``) the OGM
    is carried along with the ICP motion, the surface voxels get the binary Bayes update of eq. 4.11 and the surface voxels with P >= ``hypothesis_p`` become
    hypotheses with likelihood 1/n. When motion stops the OGM is rebuilt from the new cloud.
@@ -69,9 +69,12 @@ def icp_motion(prev: np.ndarray, curr: np.ndarray, params: RangeParams) -> tuple
         return 0.0, 0.0, 0.0, np.eye(4)
     src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(prev)).voxel_down_sample(params.icp_voxel)
     dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(curr)).voxel_down_sample(params.icp_voxel)
+    # Point-to-plane: faces sliding along themselves (a box top) do not hold the motion back.
+    dst.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=3 * params.icp_voxel, max_nn=20))
     res = o3d.pipelines.registration.registration_icp(
         src, dst, params.icp_distance, np.eye(4),
-        o3d.pipelines.registration.TransformationEstimationPointToPoint())
+        o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+        o3d.pipelines.registration.ICPConvergenceCriteria(1e-9, 1e-9, params.icp_iterations))
     T = np.asarray(res.transformation).copy()
     angle = float(np.arccos(np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
     c = prev.mean(axis=0)
@@ -150,7 +153,8 @@ class OccupancyGrid:
         surface = np.flatnonzero(np.abs(d) <= params.surface_band)
         inside = np.flatnonzero(d < -params.surface_band)
         if not moved:
-            flat[surface] = 0.0
+            # The thesis also clears the surface voxels here; a touch that has not moved the
+            # object yet would then erase the very layer the contact is in, so they are kept.
             flat[inside] = 0.0
             return surface
         # Eq. 4.11 normalised over the two states of the voxel (occupied / free).

@@ -12,7 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.fusion.generators.base import GeneratorModule, array_of
-from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType, normalise, voxelize
+from contactflow.fusion.hypotheses import (
+    VOXEL_SIZE,
+    Hypotheses,
+    HypothesisType,
+    normalise,
+    voxelize,
+)
 from contactflow.nodes.messages import Array
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status

@@ -4,17 +4,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from contactflow.embodiments.messages import DepthImage
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Status
 from contactflow.recognition.geometry import depth_to_points, voxel_downsample
-from contactflow.recognition.messages import DepthFrame, PointCloud, provenance
+from contactflow.recognition.messages import PointCloud, depth_arrays, provenance
 
 
 class CloudBuilder(Module):
     """Back-projects each new depth frame and downsamples it early (the pipeline's cost driver)."""
 
     layer = Layer.SERVICE
-    inputs = (Port("depth", DepthFrame, "depth image with intrinsics and camera pose"),)
+    inputs = (Port("depth", DepthImage, "depth image with intrinsics and camera pose"),)
     outputs = (Port("cloud", PointCloud, "world-frame cloud"),)
 
     @dataclass(frozen=True)
@@ -30,7 +31,7 @@ class CloudBuilder(Module):
         if not frames:
             return Status.RUNNING
         frame = frames[-1]
-        depth, K, T = frame.arrays()
+        depth, K, T = depth_arrays(frame)
         p = self.params
         pts = voxel_downsample(depth_to_points(depth, K, T, p.stride, p.min_range, p.max_range), p.voxel)
         self.io.publish("cloud", PointCloud.of(pts, frame.hdr.id), inputs=provenance(frame.hdr.id, frame))

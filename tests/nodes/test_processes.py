@@ -12,7 +12,14 @@ from hypothesis import strategies as st
 
 from contactflow.deploy.pipeline_demo import pipeline_configs
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.messages import Command, ControlReply, ControlRequest, EventMsg, StatusMsg, Vector
+from contactflow.nodes.messages import (
+    Command,
+    ControlReply,
+    ControlRequest,
+    EventMsg,
+    StatusMsg,
+    Vector,
+)
 from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport

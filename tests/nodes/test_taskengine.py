@@ -254,20 +254,38 @@ def test_hardware_failure_propagates_from_helper_and_cancel_stops_all():
     assert runner.active == {} and eng.result(run).event is Event.ERROR
 
 
-def test_cycle_that_never_waits_is_stopped():
-    text = """
+def test_invalid_graph_is_refused_at_launch_and_spinning_cycle_is_stopped():
+    bad = """
 nodes:
   a: {primitive: hold, params: {x: "${nothing.value}"}}
   b: {terminal: success}
 edges:
-  - {from: a, to: a, on: error}
   - {from: a, to: b, on: success}
 """
+    eng, runner, clock, tasks, main, log = engine_for(bad)
     with pytest.raises(TaskError, match="names no node"):
-        from contactflow.nodes.taskgraph import validate
-        tasks, main = parse_tasks(text, "spin.yaml")
-        validate(tasks[main])
-    eng, runner, clock, tasks, main, log = engine_for(text)
-    run = eng.launch(tasks[main])
-    res = eng.result(run)
+        eng.launch(tasks[main])
+    assert runner.starts == []
+    spin = """
+nodes:
+  w: {primitive: touch}
+  a: {primitive: hold, params: {x: "${c.value}"}}
+  c: {primitive: touch}
+  b: {terminal: success}
+edges:
+  - {from: w, to: a, on: success}
+  - {from: a, to: a, on: error}
+  - {from: a, to: c, on: contact}
+  - {from: c, to: b, on: success}
+"""
+    calm_text = "nodes:\n  t: {primitive: touch}\n  b: {terminal: success}\nedges: [{from: t, to: b, on: success}]\n"
+    eng, runner, clock, tasks, main, log = engine_for(spin)
+    runner.script("touch", [Step(0.1, S)])
+    spinning = eng.launch(tasks[main], run_id="spinning")
+    calm = eng.launch(parse_tasks(calm_text)[0]["task"], run_id="calm")
+    clock.advance(0.1)
+    eng.tick()  # both touches succeed in this tick; the spinning run starts its cycle first
+    res = eng.result(spinning)
     assert res is not None and res.event is Event.ERROR and "never waits" in res.detail
+    assert eng.result(calm).status is Status.SUCCESS, "the spin does not use up another run's budget"
+    assert runner.active == {}

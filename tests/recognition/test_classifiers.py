@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from contactflow.recognition.classifiers import (
     ClassStats,
     IncrementalRecognizer,

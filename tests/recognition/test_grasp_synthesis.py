@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from contactflow.recognition.grasp_synthesis import (
     ApproachVector,
     collision_filter,
@@ -131,3 +132,32 @@ def test_collision_filter_rejects_hands_in_the_table_or_obstacles():
     wall = np.column_stack((np.full(500, 0.3), rng.uniform(-0.1, 0.1, 500), rng.uniform(0, 0.3, 500)))
     assert avs[1] not in collision_filter(avs, obstacles=wall, plane=plane)
     assert collision_filter([], plane=plane) == []
+
+
+def test_grasp_generator_service_filters_through_the_plane_and_orientation():
+    from contactflow.nodes.testing import FakeIO, run_module
+    from contactflow.recognition.messages import PlaneMsg, SegmentedObjects
+    from contactflow.recognition.pipeline import SegmentationPipeline
+    from contactflow.recognition.services.grasp_generator import GraspGenerator
+    from contactflow.recognition.testing import three_objects
+
+    s = three_objects()
+    res = SegmentationPipeline().process_depth(s.render(), s.K, s.pose)
+    objs, plane = SegmentedObjects.of(res.clusters), PlaneMsg.of(res.plane)
+
+    def run(params, ik=None):
+        io = FakeIO()
+        io.feed("objects", objs)
+        io.feed("plane", plane)
+        run_module(GraspGenerator("grasps", params, ik), io, steps=1)
+        return io.published["approach_vectors"][-1]
+
+    avs = run(GraspGenerator.Params())
+    dirs, pos = avs.directions.numpy(), avs.positions.numpy()
+    assert 3 <= len(dirs) <= 5
+    assert not np.any(dirs[:, 2] > 0.9)  # nothing from under the table
+    assert np.all(pos[:, 2] > 0.0)
+    top = run(GraspGenerator.Params(direction=(0.0, 0.0, -1.0), max_angle_deg=10.0))
+    assert len(top.directions.numpy()) == 1
+    assert top.positions.numpy()[0, 2] > res.clusters[0].box.extent[2]
+    assert len(run(GraspGenerator.Params(), ik=lambda T: None).directions.numpy()) == 0

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from contactflow.nodes.testing import FakeIO, run_module
-from contactflow.nodes.wire import MsgId, NDArray, stamp
+from contactflow.nodes.wire import MsgId, stamp
 from contactflow.recognition.geometry import depth_to_points, look_at
-from contactflow.recognition.messages import DepthFrame, RobotSpheres
+from contactflow.recognition.messages import RobotSpheres, depth_image, nd
 from contactflow.recognition.pipeline import (
     SegmentationPipeline,
     detect_plane,
@@ -137,7 +138,7 @@ def test_bad_intrinsics_are_named():
 
 def test_service_chain_carries_the_depth_frame_id(scene):
     s, depth = scene
-    frame = stamp(DepthFrame.of(depth, s.K, s.pose), "site/cam/camera/depth", 42, 0.0)
+    frame = stamp(depth_image(depth, s.K, s.pose), "site/cam/camera/depth", 42, 0.0)
     fid = MsgId(source="site/cam/camera/depth", seq=42)
 
     def run(module, feeds):
@@ -154,7 +155,7 @@ def test_service_chain_carries_the_depth_frame_id(scene):
     assert len(roi.vertices) == 24 and plane.normal[2] > 0.999
     inside = run(RoiFilter("roi"), [("cloud", cloud), ("roi", roi)]).published["cloud"][-1]
     assert 0 < len(inside.xyz()) < len(cloud.xyz())
-    spheres = RobotSpheres(centers=NDArray.of(np.array([[0.45, 0.10, 0.06]])), radii=NDArray.of(np.array([0.1])))
+    spheres = RobotSpheres(centers=nd(np.array([[0.45, 0.10, 0.06]])), radii=nd(np.array([0.1])))
     free = run(SelfFilter("self"), [("cloud", inside), ("spheres", spheres)]).published["cloud"][-1]
     assert len(free.xyz()) < len(inside.xyz())
     objs = run(ClusterExtractor("clusters"), [("cloud", free), ("plane", plane)]).published["objects"][-1]
@@ -171,3 +172,26 @@ def test_table_wins_over_a_larger_floor():
     plane, mask = detect_plane(np.vstack((floor, table, box_top)))
     assert plane is not None and abs(plane.offset + 0.75) < 0.005
     assert mask[6000:8500].mean() > 0.95
+
+
+def test_service_chain_on_a_nan_frame_publishes_empty_results():
+    s = three_objects()
+    frame = stamp(depth_image(np.full((480, 640), np.nan, np.float32), s.K, s.pose), "site/cam/camera/depth", 1, 0.0)
+    io = FakeIO()
+    io.feed("depth", frame)
+    run_module(CloudBuilder("cloud"), io, steps=1)
+    cloud = io.published["cloud"][-1]
+    assert cloud.xyz().shape == (0, 3)
+    io = FakeIO()
+    io.feed("cloud", cloud)
+    run_module(PlaneDetector("plane"), io, steps=1)
+    assert not io.published["plane"] and not io.published["roi"]
+    io = FakeIO()
+    io.feed("cloud", cloud)
+    run_module(RoiFilter("roi"), io, steps=1)
+    assert io.published["cloud"][-1].xyz().shape == (0, 3)
+    io = FakeIO()
+    io.feed("cloud", cloud)
+    run_module(ClusterExtractor("clusters"), io, steps=1)
+    objs = io.published["objects"][-1]
+    assert objs.objects == [] and objs.depth_frame == frame.hdr.id

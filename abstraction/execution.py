@@ -1,0 +1,64 @@
+"""Run a translated task (ESTD) on the task engine, in lockstep with a robot or a fake."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from contactflow.abstraction.translator import AbstractProgress, Translation
+from contactflow.nodes.status import Event
+from contactflow.nodes.taskengine import PrimitiveRunner, TaskEngine
+
+
+@dataclass
+class SimTime:
+    """Simulated seconds, advanced by the executor loop."""
+
+    t: float = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+class EngineExecutor:
+    """An :class:`~contactflow.abstraction.agent.Executor` over a :class:`TaskEngine`.
+
+    ``make`` builds, per run, the primitive runner and the function that advances the
+    robot (a simulated world steps ``dt`` s; a fake does nothing). ``realtime`` > 0 paces
+    the loop against the wall clock (1 = real time), so a deployment looks like a robot.
+    """
+
+    def __init__(self, make: Callable[[SimTime], tuple[PrimitiveRunner, Callable[[float], None]]],
+                 dt: float = 0.02, max_time: float = 600.0, realtime: float = 0.0) -> None:
+        self.make = make
+        self.dt = dt
+        self.max_time = max_time
+        self.realtime = realtime
+
+    def __call__(self, translation: Translation, report: Callable[[AbstractProgress], None],
+                 cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
+        clock = SimTime()
+        runner, advance = self.make(clock)
+        engine = TaskEngine(runner, clock, on_progress=lambda p: report(translation.abstract(p)))
+        declared = translation.estd.params
+        run = engine.launch(translation.estd, {k: v for k, v in (params or {}).items() if k in declared})
+        wall0 = time.monotonic()
+        while not engine.done(run):
+            if cancel.is_set():
+                engine.cancel(run, "cancelled")
+                break
+            if clock.t >= self.max_time:
+                engine.cancel(run, f"gave up after {self.max_time:g} s")
+                break
+            advance(self.dt)
+            clock.t += self.dt
+            engine.tick()
+            if self.realtime > 0:
+                lag = clock.t / self.realtime - (time.monotonic() - wall0)
+                if lag > 0:
+                    cancel.wait(lag)
+        result = engine.result(run)
+        return result.event if result is not None else Event.ERROR

@@ -1,0 +1,300 @@
+"""Deployment manifests (YAML): hosts, the nodes on each host, robots and sensors, topology, security.
+
+Example (``deploy/manifests/default.yaml`` is the full thesis layout)::
+
+    site: lab
+    zenoh: {topology: mesh, port: 7450, lease_ms: 1000}   # mesh | routers (routers: [host])
+    security: {transport: mtls, auth: usrpwd, certs: certs,
+               broker: [control], dispatch_clients: [control], observers: [viewer]}
+    hosts:
+      control:
+        address: 10.0.0.1
+        roles: [control, broker]
+        nodes:
+          control:
+            robot: tombatossals
+            sensors: [arm_left, arm_right]       # checked against robots.<r>.sensors
+            modules:                             # same schema as a node configuration
+              - {name: source, type: signal_source, params: {rate_hz: 50}}
+    robots:
+      tombatossals:
+        control: control                         # the host that alone may command the joints
+        command_ports: [command, joint_command]  # output ports that carry joint commands
+        sensors: {arm_left: control, kinect: vision3d}
+
+High-bandwidth sources stay on the host that owns them (thesis App. A.1.4): a node that
+lists a sensor must run on the host the robot entry gives for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from contactflow.nodes.config import NodeConfig, parse_node_config
+from contactflow.nodes.keys import KeyExprError, segment
+from contactflow.nodes.yamldoc import ConfigError, PathKey, YamlDoc
+
+_TOP = {"site", "zenoh", "security", "hosts", "robots"}
+_ZENOH = {"topology", "routers", "port", "lease_ms"}
+_SECURITY = {"transport", "auth", "certs", "broker", "dispatch_clients", "observers"}
+_HOST = {"address", "roles", "nodes"}
+_NODE = {"robot", "clock", "port", "sensors", "modules"}
+_ROBOT = {"control", "command_ports", "sensors"}
+TRANSPORTS = ("tcp", "tls", "mtls")
+AUTHS = ("none", "usrpwd")
+TOPOLOGIES = ("mesh", "routers")
+ROUTER_NODE = "router"
+"""Name of the router node the launcher adds on each router host (topology ``routers``)."""
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    host: str
+    name: str
+    robot: str
+    clock: str
+    port: int
+    sensors: tuple[str, ...]
+    modules: tuple[dict[str, Any], ...]  # module entries as written (validated)
+    line: int = 1
+    router: bool = False
+
+    @property
+    def id(self) -> str:
+        return f"{self.host}/{self.name}"
+
+
+@dataclass(frozen=True)
+class HostSpec:
+    name: str
+    address: str
+    roles: tuple[str, ...]
+    nodes: tuple[NodeSpec, ...]
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    name: str
+    control: str
+    command_ports: tuple[str, ...]
+    sensors: dict[str, str]
+
+
+@dataclass(frozen=True)
+class Topology:
+    kind: str = "mesh"
+    routers: tuple[str, ...] = ()
+    port: int = 7450
+    lease_ms: int = 1000
+
+
+@dataclass(frozen=True)
+class Security:
+    transport: str = "tcp"
+    auth: str = "none"
+    certs: Path | None = None
+    broker: tuple[str, ...] = ()
+    dispatch_clients: tuple[str, ...] = ()
+    observers: tuple[str, ...] = ()
+
+    @property
+    def enabled(self) -> bool:
+        return self.transport != "tcp" or self.auth != "none"
+
+    @property
+    def acl(self) -> bool:
+        """Access control needs every link's peer identified: mTLS certificates (both ways)."""
+        return self.transport == "mtls"
+
+
+@dataclass(frozen=True)
+class Manifest:
+    site: str
+    hosts: dict[str, HostSpec]
+    robots: dict[str, RobotSpec]
+    topology: Topology
+    security: Security
+    file: str = "<manifest>"
+
+    def host(self, name: str) -> HostSpec:
+        if name not in self.hosts:
+            raise ConfigError(f"{self.file}: no host {name!r} (hosts: {', '.join(self.hosts)})")
+        return self.hosts[name]
+
+    def nodes(self, host: str | None = None) -> list[NodeSpec]:
+        hosts = [self.host(host)] if host else list(self.hosts.values())
+        return [n for h in hosts for n in h.nodes]
+
+    def hosts_with_role(self, role: str) -> list[str]:
+        return [h.name for h in self.hosts.values() if role in h.roles]
+
+
+def _keys(doc: YamlDoc, path: PathKey, allowed: set[str]) -> dict:
+    data = doc.get(path, dict) if path else doc.data
+    if not isinstance(data, dict):
+        raise doc.error(path, "expected a mapping")
+    for k in data:
+        if k not in allowed:
+            raise doc.error(path + (k,), f"unknown field (allowed: {', '.join(sorted(allowed))})")
+    return data
+
+
+def _name(doc: YamlDoc, path: PathKey, value: str, what: str) -> str:
+    try:
+        return segment(value, what)
+    except KeyExprError as exc:
+        raise doc.error(path, str(exc)) from None
+
+
+def _strs(doc: YamlDoc, path: PathKey) -> tuple[str, ...]:
+    items = doc.get(path, list, [])
+    return tuple(doc.get(path + (i,), str) for i in range(len(items)))
+
+
+def _choice(doc: YamlDoc, path: PathKey, options: tuple[str, ...], default: str) -> str:
+    value = doc.get(path, str, default)
+    if value not in options:
+        raise doc.error(path, f"{value!r} is not one of {', '.join(options)}")
+    return value
+
+
+def _port(doc: YamlDoc, path: PathKey, default: int) -> int:
+    port = doc.get(path, int, default)
+    if not 1024 <= port <= 65535:
+        raise doc.error(path, f"port {port} is not in 1024..65535")
+    return port
+
+
+def _check_node_modules(doc: YamlDoc, path: PathKey, site: str, host: str, node: str, robot: str, clock: str) -> NodeConfig:
+    """Validate a node's modules with the node-configuration parser, errors at manifest lines."""
+    prefix_len = len(path)
+    lines = {p[prefix_len:]: ln for p, ln in doc.lines.items() if p[:prefix_len] == path}
+    data = {"site": site, "node": node, "host": host, "robot": robot, "clock": clock,
+            "modules": doc.get(path + ("modules",), list, [])}
+    sub = YamlDoc(data=data, file=doc.file, lines=lines)
+    try:
+        return parse_node_config(sub)
+    except ConfigError as exc:
+        where, sep, rest = str(exc).partition(": ")
+        dotted = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in path).lstrip(".")
+        raise ConfigError(f"{where}{sep}{dotted}.{rest}") from None
+
+
+def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, port: int) -> NodeSpec:
+    _keys(doc, path, _NODE)
+    robot = _name(doc, path + ("robot",), doc.get(path + ("robot",), str, "site"), "robot")
+    clock = _choice(doc, path + ("clock",), ("wall", "sim"), "wall")
+    port = _port(doc, path + ("port",), port)
+    _check_node_modules(doc, path, site, host, name, robot, clock)
+    modules = tuple(doc.get(path + ("modules",), list, []))
+    return NodeSpec(host, name, robot, clock, port, _strs(doc, path + ("sensors",)), modules, doc.line(path))
+
+
+def parse_manifest(doc: YamlDoc) -> Manifest:
+    _keys(doc, (), _TOP)
+    site = _name(doc, ("site",), doc.get(("site",), str, "default"), "site")
+    topo = Topology()
+    if doc.get(("zenoh",), dict, None) is not None:
+        _keys(doc, ("zenoh",), _ZENOH)
+        lease = doc.get(("zenoh", "lease_ms"), int, 1000)
+        if not 200 <= lease <= 60000:
+            raise doc.error(("zenoh", "lease_ms"), f"{lease} ms is not in 200..60000")
+        topo = Topology(_choice(doc, ("zenoh", "topology"), TOPOLOGIES, "mesh"),
+                        _strs(doc, ("zenoh", "routers")), _port(doc, ("zenoh", "port"), 7450), lease)
+
+    hosts: dict[str, HostSpec] = {}
+    addresses: dict[str, str] = {}
+    node_names: dict[str, str] = {}
+    for hname in doc.get(("hosts",), dict):
+        hp: PathKey = ("hosts", hname)
+        _name(doc, hp, hname, "host")
+        _keys(doc, hp, _HOST)
+        address = doc.get(hp + ("address",), str, "127.0.0.1")
+        if address in addresses and address != "127.0.0.1":
+            raise doc.error(hp + ("address",), f"address {address} is already host {addresses[address]!r}")
+        addresses[address] = hname
+        nodes = []
+        next_port = topo.port + (1 if hname in topo.routers else 0)
+        for nname in doc.get(hp + ("nodes",), dict, {}):
+            np_: PathKey = hp + ("nodes", nname)
+            _name(doc, np_, nname, "node")
+            if nname in node_names:
+                raise doc.error(np_, f"node {nname!r} is already defined on host {node_names[nname]!r} (node names are site-wide)")
+            if nname == ROUTER_NODE:
+                raise doc.error(np_, f"node name {ROUTER_NODE!r} is reserved for the routers the launcher adds")
+            node_names[nname] = hname
+            spec = _parse_node(doc, np_, site, hname, nname, next_port)
+            if any(n.port == spec.port for n in nodes):
+                raise doc.error(np_ + ("port",), f"port {spec.port} is used by another node of host {hname!r}")
+            nodes.append(spec)
+            next_port = max(next_port, spec.port) + 1
+        if hname in topo.routers:
+            nodes.insert(0, NodeSpec(hname, ROUTER_NODE, "site", "wall", topo.port, (), (), doc.line(hp), router=True))
+        hosts[hname] = HostSpec(hname, address, _strs(doc, hp + ("roles",)), tuple(nodes))
+    if not hosts:
+        raise doc.error(("hosts",), "a manifest needs at least one host")
+    for i, r in enumerate(topo.routers):
+        if r not in hosts:
+            raise doc.error(("zenoh", "routers", i), f"router host {r!r} is not in hosts")
+    if topo.kind == "routers" and not topo.routers:
+        raise doc.error(("zenoh", "routers"), "topology routers needs at least one router host")
+
+    robots: dict[str, RobotSpec] = {}
+    for rname in doc.get(("robots",), dict, {}):
+        rp: PathKey = ("robots", rname)
+        _name(doc, rp, rname, "robot")
+        _keys(doc, rp, _ROBOT)
+        control = doc.get(rp + ("control",), str)
+        if control not in hosts:
+            raise doc.error(rp + ("control",), f"host {control!r} is not in hosts")
+        sensors: dict[str, str] = {}
+        for sname in doc.get(rp + ("sensors",), dict, {}):
+            owner = doc.get(rp + ("sensors", sname), str)
+            if owner not in hosts:
+                raise doc.error(rp + ("sensors", sname), f"host {owner!r} is not in hosts")
+            sensors[sname] = owner
+        ports = _strs(doc, rp + ("command_ports",)) or ("command", "joint_command")
+        for i, p in enumerate(ports):
+            _name(doc, rp + ("command_ports", i), p, "port")
+        robots[rname] = RobotSpec(rname, control, ports, sensors)
+
+    for h in hosts.values():
+        for n in h.nodes:
+            np_ = ("hosts", h.name, "nodes", n.name)
+            if n.router:
+                continue
+            for i, s in enumerate(n.sensors):
+                r = robots.get(n.robot)
+                if r is None or s not in r.sensors:
+                    raise doc.error(np_ + ("sensors", i), f"robot {n.robot!r} declares no sensor {s!r} under robots.{n.robot}.sensors")
+                if r.sensors[s] != h.name:
+                    raise doc.error(np_ + ("sensors", i), f"sensor {s!r} is attached to host {r.sensors[s]!r}; "
+                                    f"high-bandwidth sources must be read on the host that has them")
+
+    sec = Security()
+    if doc.get(("security",), dict, None) is not None:
+        sp: PathKey = ("security",)
+        _keys(doc, sp, _SECURITY)
+        certs = doc.get(sp + ("certs",), str, "certs")
+        certs_path = Path(certs) if Path(certs).is_absolute() else Path(doc.file).parent / certs
+        lists = {}
+        for fld in ("broker", "dispatch_clients", "observers"):
+            lists[fld] = _strs(doc, sp + (fld,))
+            for i, hname in enumerate(lists[fld]):
+                if hname not in hosts:
+                    raise doc.error(sp + (fld, i), f"host {hname!r} is not in hosts")
+        sec = Security(_choice(doc, sp + ("transport",), TRANSPORTS, "tcp"), _choice(doc, sp + ("auth",), AUTHS, "none"),
+                       certs_path.resolve(), lists["broker"], lists["dispatch_clients"], lists["observers"])
+    return Manifest(site, hosts, robots, topo, sec, doc.file)
+
+
+def load_manifest(path: str | Path) -> Manifest:
+    return parse_manifest(YamlDoc.load(path))
+
+
+DEFAULT_MANIFEST = Path(__file__).parent / "manifests" / "default.yaml"
+
+__all__ = ["DEFAULT_MANIFEST", "ConfigError", "HostSpec", "Manifest", "NodeSpec", "RobotSpec", "Security",
+           "Topology", "load_manifest", "parse_manifest"]

@@ -1,0 +1,247 @@
+"""Benchmark ``sim``: real-time factor of each embodiment's interface stack, kinematics overhead, OMPL planners.
+
+1. Real-time factor (sim seconds per wall second) of each robot's full interface stack:
+   physics, gravity compensation, the 200 Hz controllers and mixer, fault monitor, and the
+   interface modules (joint state publisher, joint command subscriber, F/T and tactile
+   publishers at 200 Hz, ground truth at 50 Hz; messages round-trip through the wire codec
+   via FakeIO), while one arm follows a Cartesian line back and forth. Each robot runs in
+   its own process pinned to one core; then two robots together: two processes on the two
+   cores (separate worlds, lockstep each) and both robots in one world on one core. The
+   camera (ray casting, ~40 ms a frame) is measured separately at 5 Hz.
+2. Our kinematics wrapper (update + frame pose + Jacobian) vs. the same raw pinocchio calls.
+3. KPIECE1 vs. RRTConnect on a fixed set of 7-DoF table problems (tombatossals' left panda
+   arm, table with three box obstacles, seeded start/goal pairs, coal collision checking):
+   median planning time and success rate.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import pathlib
+import platform
+import time
+
+import numpy as np
+import pinocchio as pin
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+ROBOTS = ("tombatossals", "melfa", "baxter")
+
+
+def _pin(core: int | None) -> None:
+    if core is not None and hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {core % (os.cpu_count() or 1)})
+
+
+def _stack(robot, with_camera: bool):
+    """The interface modules of one robot, set up on FakeIOs."""
+    from contactflow.embodiments.modules.camera_publisher import CameraPublisher
+    from contactflow.embodiments.modules.ft_publisher import FTPublisher
+    from contactflow.embodiments.modules.ground_truth_publisher import GroundTruthPublisher
+    from contactflow.embodiments.modules.joint_command_subscriber import JointCommandSubscriber
+    from contactflow.embodiments.modules.joint_state_publisher import JointStatePublisher
+    from contactflow.embodiments.modules.tactile_publisher import TactilePublisher
+    from contactflow.nodes.testing import FakeIO
+
+    mods = [JointStatePublisher("joint_state", robot), JointCommandSubscriber("joint_command", robot),
+            GroundTruthPublisher("ground_truth", robot)]
+    mods += [FTPublisher(f"ft_{a}", robot, FTPublisher.Params(arm=a)) for a in robot.arms if robot.spec.arm(a).ft]
+    mods += [TactilePublisher(f"tactile_{h.name}", robot, TactilePublisher.Params(hand=h.name)) for h in robot.spec.hands if h.pads]
+    if with_camera and robot.spec.cameras:
+        mods.append(CameraPublisher("camera", robot, CameraPublisher.Params(camera=robot.spec.cameras[0].name)))
+    out = []
+    for m in mods:
+        io = FakeIO(module=m)
+        m.setup(io)
+        m.start()
+        out.append((m, io, 1.0 / m.params.rate_hz))
+    return out
+
+
+def _run_stack(robots, sim_time: float, with_camera: bool = False, warmup: float = 0.3) -> float:
+    """Advance the shared world of ``robots`` for ``sim_time`` s with every module; returns the RTF.
+
+    The first ``warmup`` s are not timed (lazy imports, first camera geometry build).
+    """
+    world = robots[0].world
+    stacks = [(r, _stack(r, with_camera)) for r in robots]
+    lines = []
+    for r in robots:
+        arm = r.arm(r.arms[0])
+        p0 = arm.ee_pose()
+        lines.append((arm, p0))
+    due: dict[int, float] = {}
+    dt = 1.0 / robots[0].params.control_rate
+    t_start = world.time + warmup
+    t_end = t_start + sim_time
+    k = 0
+    t0 = None
+    while world.time < t_end:
+        if t0 is None and world.time >= t_start:
+            t0 = time.perf_counter()
+        for arm, p0 in lines:
+            if arm.status != arm.status.RUNNING:
+                goal = p0.copy()
+                goal[1, 3] += 0.1 if k % 2 == 0 else 0.0
+                arm.move_pose(goal, speed=0.1)
+                k += 1
+        world.run(dt)
+        for _r, mods in stacks:
+            for m, io, period in mods:
+                key = id(m)
+                if world.time + 1e-9 >= due.get(key, 0.0):
+                    io.t = world.time
+                    m.step()
+                    due[key] = due.get(key, 0.0) + period
+                    for port in io.published:
+                        del io.published[port][:-1]
+    return sim_time / (time.perf_counter() - t0)
+
+
+def _rtf_job(args) -> dict:
+    names, sim_time, core, with_camera = args
+    _pin(core)
+    from contactflow.embodiments.sim_robot import SimRobot
+    from contactflow.embodiments.world import World, box
+
+    world = World()
+    world.add_table()
+    world.add_object(box("cube", (0.05, 0.05, 0.05), (0.6, 0.35, 0.775), mass=0.2))
+    robots = []
+    for i, n in enumerate(names):
+        base = None
+        if len(names) > 1:
+            from contactflow.embodiments.registry import get
+            from contactflow.embodiments.transforms import xyz_rpy_to_matrix
+
+            spec = get(n)
+            base = xyz_rpy_to_matrix((spec.base_xyz[0], spec.base_xyz[1] + 1.6 * i, spec.base_xyz[2]))
+        robots.append(SimRobot(world, n, name=f"{n}{i}" if len(names) > 1 else None, base=base))
+    rtf = _run_stack(robots, sim_time, with_camera)
+    return {"robots": list(names), "rtf": rtf, "dof": sum(r.art.articulation.dof for r in robots),
+            "failed": any(r.failed for r in robots)}
+
+
+def _kinematics(n_calls: int) -> dict:
+    from contactflow.embodiments.control.kinematics import Kinematics
+    from contactflow.embodiments.registry import get
+
+    urdf = str(get("tombatossals").urdf())
+    kin = Kinematics(urdf)
+    model = pin.buildModelFromUrdf(urdf)
+    data = model.createData()
+    fid = model.getFrameId("left_grasp")
+    rng = np.random.default_rng(0)
+    qs = np.clip(rng.uniform(-1, 1, (n_calls, model.nq)), model.lowerPositionLimit, model.upperPositionLimit)
+    t0 = time.perf_counter()
+    for q in qs:
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        _ = data.oMf[fid].homogeneous
+        _ = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL_WORLD_ALIGNED)
+    raw = (time.perf_counter() - t0) / n_calls
+    t0 = time.perf_counter()
+    for q in qs:
+        kin.update(q)
+        _ = kin.frame_pose("left_grasp")
+        _ = kin.jacobian("left_grasp")
+    wrapped = (time.perf_counter() - t0) / n_calls
+    return {"raw_us": raw * 1e6, "wrapper_us": wrapped * 1e6, "overhead": wrapped / raw, "dof": model.nq}
+
+
+def planning_problems(n: int, seed: int = 7):
+    """Fixed 7-DoF table problems: (kin, checker, planner, list of (start, goal))."""
+    from contactflow.embodiments.control.kinematics import Kinematics
+    from contactflow.embodiments.control.planning import ArmPlanner, CoalChecker, Obstacle
+    from contactflow.embodiments.registry import get
+    from contactflow.embodiments.transforms import xyz_rpy_to_matrix
+
+    spec = get("tombatossals")
+    base = xyz_rpy_to_matrix(spec.base_xyz, spec.base_rpy)
+    kin = Kinematics(spec.urdf(), base)
+    obstacles = [Obstacle("table", "box", (0.8, 1.4, 0.75), xyz_rpy_to_matrix((0.65, 0.0, 0.375))),
+                 Obstacle("wall", "box", (0.3, 0.04, 0.3), xyz_rpy_to_matrix((0.55, 0.3, 0.9))),
+                 Obstacle("post", "box", (0.06, 0.06, 0.4), xyz_rpy_to_matrix((0.45, 0.45, 0.95))),
+                 Obstacle("shelf", "box", (0.3, 0.3, 0.02), xyz_rpy_to_matrix((0.6, 0.3, 1.2)))]
+    checker = CoalChecker(kin, str(spec.urdf()), obstacles)
+    arm = spec.arm("left")
+    q_fixed = np.clip(np.zeros(kin.nq), kin.lower, kin.upper)
+    q_fixed[kin.q_index(arm.joints)] = arm.home
+    planner = ArmPlanner(kin, arm.joints, checker.valid, q_fixed)
+    rng = np.random.default_rng(seed)
+    problems = []
+    while len(problems) < n:
+        pair = []
+        while len(pair) < 2:
+            q = rng.uniform(planner.lower, planner.upper)
+            kin.update(planner.full(q))
+            p = kin.frame_pose(arm.ee_frame)[:3, 3]
+            if 0.78 < p[2] < 1.3 and 0.3 < p[0] < 0.8 and planner.valid(q):
+                pair.append(q)
+        if np.linalg.norm(pair[0] - pair[1]) > 1.0:
+            problems.append((pair[0], pair[1]))
+    return planner, problems
+
+
+def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    console = Console()
+    sim_time = 1.0 if quick else 5.0
+    n_problems = 3 if quick else 20
+    timeout = 1.0 if quick else 5.0
+    summary: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+                     "sim_time_s": sim_time, "single": {}, "pair": {}}
+    ctx = mp.get_context("spawn")
+    with Progress(console=console, transient=True) as progress:
+        task = progress.add_task("sim bench", total=len(ROBOTS) + 4 + 2 * n_problems)
+        with ctx.Pool(1) as pool:
+            for name in ROBOTS:
+                summary["single"][name] = pool.apply(_rtf_job, (((name,), sim_time, 0, False),))
+                progress.advance(task)
+            summary["camera"] = pool.apply(_rtf_job, ((("tombatossals",), sim_time / 2, 0, True),))
+            progress.advance(task)
+            summary["pair"]["one_world_one_core"] = pool.apply(_rtf_job, ((("tombatossals", "baxter"), sim_time, 0, False),))
+            progress.advance(task)
+        with ctx.Pool(2) as pool:
+            res = pool.map(_rtf_job, [(("tombatossals",), sim_time, 0, False), (("baxter",), sim_time, 1, False)])
+            summary["pair"]["two_processes_two_cores"] = {"robots": ["tombatossals", "baxter"],
+                                                          "rtf": min(r["rtf"] for r in res),
+                                                          "each": [r["rtf"] for r in res]}
+            progress.advance(task)
+        summary["kinematics"] = _kinematics(500 if quick else 5000)
+        progress.advance(task)
+        planner, problems = planning_problems(n_problems)
+        plans: dict[str, dict] = {}
+        for name in ("KPIECE1", "RRTConnect"):
+            times, ok = [], []
+            for k, (a, b) in enumerate(problems):
+                p = planner.plan(a, b, planner=name, timeout=timeout, seed=100 + k)
+                ok.append(p.success)
+                times.append(p.planning_time)
+                progress.advance(task)
+            plans[name] = {"success_rate": float(np.mean(ok)), "median_time_s": float(np.median(times)),
+                           "median_time_success_s": float(np.median([t for t, s in zip(times, ok, strict=True) if s])) if any(ok) else None,
+                           "problems": len(problems), "timeout_s": timeout}
+        summary["planning"] = plans
+    table = Table(title="contactflow bench sim")
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    for name, r in summary["single"].items():
+        table.add_row(f"RTF {name} ({r['dof']} DoF, stack, 1 core)", f"{r['rtf']:.1f}x")
+    table.add_row("RTF tombatossals + camera 5 Hz (1 core)", f"{summary['camera']['rtf']:.1f}x")
+    table.add_row("RTF tombatossals+baxter, one world, 1 core", f"{summary['pair']['one_world_one_core']['rtf']:.1f}x")
+    table.add_row("RTF tombatossals | baxter, 2 processes, 2 cores (min)", f"{summary['pair']['two_processes_two_cores']['rtf']:.1f}x")
+    k = summary["kinematics"]
+    table.add_row(f"FK+Jacobian raw pinocchio ({k['dof']} DoF)", f"{k['raw_us']:.1f} us")
+    table.add_row("FK+Jacobian our wrapper", f"{k['wrapper_us']:.1f} us ({k['overhead']:.2f}x)")
+    for name, r in plans.items():
+        med = r["median_time_success_s"]
+        table.add_row(f"{name}: success / median time", f"{100 * r['success_rate']:.0f}% / {1000 * med:.0f} ms" if med else "0%")
+    console.print(table)
+    (out_dir / "sim.json").write_text(json.dumps(summary, indent=2))
+    return summary

@@ -1,0 +1,285 @@
+"""Primitive base: a reactive controller (thesis §3.3) bound to a robot facade, stepped at its rate."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+
+from contactflow.nodes.module import Layer, Module
+from contactflow.nodes.status import Event, Status
+
+
+class ArmLike(Protocol):
+    name: str
+    spec: Any
+
+    def ee_pose(self, frame: str = "world") -> np.ndarray: ...
+    def q(self) -> np.ndarray: ...
+    def move_pose(self, T: np.ndarray, frame: str = "world", speed: float = 0.1) -> None: ...
+    def move_joints(self, q: np.ndarray, speed: float | None = None) -> None: ...
+    def set_twist(self, twist: np.ndarray, frame: str = "world", duration: float | None = None) -> None: ...
+    def set_wrench(self, wrench: np.ndarray, frame: str = "world") -> None: ...
+    def guarded_move(self, twist: np.ndarray, frame: str = "world", max_force: float = 5.0,
+                     duration: float | None = None) -> None: ...
+    def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0) -> Any: ...
+    def execute(self, plan: Any, abort_force: float = 8.0, speed: float | None = None) -> None: ...
+    def stop(self) -> None: ...
+    def done(self) -> bool: ...
+
+    @property
+    def status(self) -> Status: ...
+
+
+class HandLike(Protocol):
+    name: str
+    kind: str
+    joints: tuple[str, ...]
+    spec: Any
+
+    def open(self) -> None: ...
+    def close(self, effort: float = 1.0) -> None: ...
+    def preshape(self, name: str, effort: float = 1.0) -> None: ...
+    def set_fingers(self, q: np.ndarray, effort: float = 1.0) -> None: ...
+    def positions(self) -> np.ndarray: ...
+    def done(self) -> bool: ...
+
+
+class Robot(Protocol):
+    """What primitives use of a robot; :class:`~contactflow.embodiments.sim_robot.SimRobot` satisfies it."""
+
+    spec: Any
+    failed: bool
+
+    @property
+    def time(self) -> float: ...
+    @property
+    def arms(self) -> list[str]: ...
+    def arm(self, name: str) -> ArmLike: ...
+    def hand(self, name: str) -> HandLike: ...
+    def ft(self, arm: str) -> Any: ...
+    def tare_ft(self, arm: str) -> None: ...
+    def tactile(self, hand: str) -> dict[str, np.ndarray]: ...
+    def camera(self, name: str = "kinect") -> Any: ...
+    def frame_pose(self, frame: str, relative_to: str = "world") -> np.ndarray: ...
+
+
+class PrimitiveError(ValueError):
+    """A primitive was misconfigured or bound to a robot that lacks what it needs."""
+
+
+@dataclass(frozen=True)
+class Capability:
+    """What a primitive requires of the embodiment (Table 3.2 "control and sensor requirements")."""
+
+    ft: bool = False  # wrist force-torque sensor
+    tactile: bool = False  # tactile pads on the hand
+    hand: bool = False  # a hand on the arm
+    camera: bool = False  # an RGBD camera
+
+
+TACTILE_CONTACT = 0.05
+"""N per taxel: a pad with a taxel above this is in contact (above the simulated noise floor)."""
+
+
+class Primitive(Module):
+    """Base of every manipulation primitive: arm/hand selection, timing, result events.
+
+    Subclasses implement :meth:`begin` (first command) and :meth:`update` (one control
+    step) and finish with :meth:`succeed` / :meth:`fail`, which emit the outcome event with
+    numeric result ``values`` that later task nodes can bind.
+    """
+
+    abstract = True
+    layer = Layer.PRIMITIVE
+    events = (Event.SUCCESS, Event.FAILURE, Event.ERROR)
+    requires: ClassVar[Capability] = Capability()
+    hand_kinds: ClassVar[tuple[str, ...]] = ("multi_finger", "parallel")
+    """Hand kinds the primitive supports; per-embodiment differences (§3.3) are declared here."""
+
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 50.0  # Hz, control loop rate
+        arm: str = ""  # arm to command ("" = the robot's first arm)
+
+    def __init__(self, name: str, params: Any = None) -> None:
+        super().__init__(name, params)
+        self.robot: Robot | None = None
+        self.arm_name = ""
+        self.hand_name = ""
+        self.t0 = 0.0
+        self.result: dict[str, float] = {}
+        self._outcome: Status = Status.RUNNING
+        self._twist_cmd: tuple[tuple[float, ...], str] | None = None
+
+    # -- binding -------------------------------------------------------------------------
+    def bind(self, robot: Robot) -> Primitive:
+        """Attach the robot facade; checks the embodiment has what the primitive requires."""
+        self.robot = robot
+        arm = getattr(self.params, "arm", "")
+        arms = list(robot.arms)
+        if arm and arm not in arms:
+            raise PrimitiveError(f"{self.name}: params.arm={arm!r} is not an arm of {robot.spec.name} ({arms})")
+        self.arm_name = arm or arms[0]
+        spec = robot.spec.arm(self.arm_name)
+        self.hand_name = spec.hand
+        req = self.requires
+        if req.ft and not spec.ft:
+            raise PrimitiveError(f"{self.name}: {type(self).__name__} needs a wrist F/T on arm {self.arm_name!r}")
+        if (req.hand or req.tactile) and not self.hand_name:
+            raise PrimitiveError(f"{self.name}: {type(self).__name__} needs a hand on arm {self.arm_name!r}")
+        if self.hand_name:
+            kind = robot.hand(self.hand_name).kind
+            if (req.hand or req.tactile) and kind not in self.hand_kinds:
+                raise PrimitiveError(f"{self.name}: {type(self).__name__} does not support {kind} hands "
+                                     f"(supports {list(self.hand_kinds)})")
+        if req.tactile and self.hand_name and not robot.spec.hand(self.hand_name).pads:
+            raise PrimitiveError(f"{self.name}: {type(self).__name__} needs tactile pads on {self.hand_name!r}")
+        if req.camera and not robot.spec.cameras:
+            raise PrimitiveError(f"{self.name}: {type(self).__name__} needs a camera on {robot.spec.name}")
+        return self
+
+    @property
+    def r(self) -> Robot:
+        if self.robot is None:
+            raise PrimitiveError(f"{self.name}: primitive is not bound to a robot (call bind first)")
+        return self.robot
+
+    @property
+    def arm(self) -> ArmLike:
+        return self.r.arm(self.arm_name)
+
+    @property
+    def hand(self) -> HandLike:
+        return self.r.hand(self.hand_name)
+
+    @property
+    def ee_frame(self) -> str:
+        return self.r.spec.arm(self.arm_name).ee_frame
+
+    @property
+    def elapsed(self) -> float:
+        return self.r.time - self.t0
+
+    # -- commands ------------------------------------------------------------------------
+    def twist(self, v6: np.ndarray, frame: str = "world") -> None:
+        """Cartesian velocity of the controlled frame; re-sent only when it changes.
+
+        Re-issuing a twist restarts the arm's Cartesian controller from rest, so a loop that
+        sends the same velocity every step would crawl.
+        """
+        key = (tuple(np.round(np.asarray(v6, dtype=np.float64), 6)), frame)
+        if key == self._twist_cmd:
+            return
+        self._twist_cmd = key
+        if not np.any(key[0]):
+            self.arm.stop()
+            return
+        self.arm.set_twist(np.asarray(v6, dtype=np.float64), frame=frame)
+
+    def halt(self) -> None:
+        self._twist_cmd = None
+        self.arm.stop()
+
+    # -- sensing helpers -----------------------------------------------------------------
+    def wrench_in(self, frame: str) -> np.ndarray:
+        """Wrist wrench (reaction of the environment on the hand) with axes of ``frame``."""
+        reading = self.r.ft(self.arm_name)
+        spec = self.r.spec.ft(self.r.spec.arm(self.arm_name).ft)
+        R = self.r.frame_pose(frame)[:3, :3].T @ self.r.frame_pose(spec.link)[:3, :3]
+        w = np.asarray(reading.vector, dtype=np.float64)
+        return np.concatenate([R @ w[:3], R @ w[3:]])
+
+    def pad_forces(self) -> dict[str, float]:
+        """Total pressure per tactile pad of the hand (0 for a hand without pads)."""
+        if not self.hand_name:
+            return {}
+        return {k: float(v.sum()) for k, v in self.r.tactile(self.hand_name).items()}
+
+    def pads_in_contact(self) -> list[str]:
+        if not self.hand_name:
+            return []
+        return [k for k, v in self.r.tactile(self.hand_name).items() if float(v.max(initial=0.0)) > TACTILE_CONTACT]
+
+    # -- lifecycle -----------------------------------------------------------------------
+    def start(self) -> None:
+        self.t0 = self.r.time
+        self.result = {}
+        self._outcome = Status.RUNNING
+        self.state = Status.RUNNING
+        self.begin()
+
+    def step(self) -> Status:
+        if self._outcome is not Status.RUNNING:
+            return self._outcome
+        if self.r.failed:
+            self.emit_once(Event.HARDWARE_FAILURE, "robot stopped by a hardware fault")
+            return self.fail("hardware failure")
+        self.update()
+        return self._outcome
+
+    def stop(self) -> None:
+        """Hold the arm where it is; the hand keeps its last command (a grasp stays closed)."""
+        if self.robot is not None:
+            self.halt()
+        self.state = Status.STOPPED
+
+    def begin(self) -> None:
+        """First command of the primitive (override)."""
+
+    def update(self) -> None:
+        """One control step (override); call :meth:`succeed` or :meth:`fail` to finish."""
+
+    # -- outcome -------------------------------------------------------------------------
+    def emit_once(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
+        if self.io is not None:
+            self.io.emit(event, detail, values)
+
+    def succeed(self, detail: str = "", **values: float) -> Status:
+        return self._finish(Status.SUCCESS, Event.SUCCESS, detail, values)
+
+    def fail(self, detail: str = "", event: Event = Event.FAILURE, **values: float) -> Status:
+        return self._finish(Status.FAILURE, event, detail, values)
+
+    def _finish(self, status: Status, event: Event, detail: str, values: dict[str, float]) -> Status:
+        if self._outcome is not Status.RUNNING:
+            return self._outcome
+        self.result.update({k: float(v) for k, v in values.items()})
+        self.result.setdefault("duration", float(self.elapsed))
+        self.halt()
+        self._outcome = status
+        self.state = status
+        self.emit_once(event, detail, dict(self.result))
+        return status
+
+
+def pose6(T: np.ndarray) -> dict[str, float]:
+    """A 4x4 pose as result values ``x, y, z, roll, pitch, yaw`` (m, rad; fixed-axis xyz)."""
+    from scipy.spatial.transform import Rotation
+
+    r, p, y = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")
+    return {"x": float(T[0, 3]), "y": float(T[1, 3]), "z": float(T[2, 3]),
+            "roll": float(r), "pitch": float(p), "yaw": float(y)}
+
+
+def matrix6(v: tuple[float, ...] | list[float], where: str) -> np.ndarray:
+    """``[x, y, z, roll, pitch, yaw]`` (m, rad) as a 4x4 pose; ``where`` names the parameter."""
+    from scipy.spatial.transform import Rotation
+
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (6,) or not np.all(np.isfinite(a)):
+        raise PrimitiveError(f"{where}: expected [x, y, z, roll, pitch, yaw], got {list(v)!r}")
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", a[3:]).as_matrix()
+    T[:3, 3] = a[:3]
+    return T
+
+
+def top_grasp_pose(xyz: np.ndarray | tuple[float, ...], yaw: float = np.pi / 2) -> np.ndarray:
+    """Grasp-frame pose above ``xyz`` with the approach axis (z) pointing down, rotated ``yaw`` about world z."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.diag([1.0, -1.0, -1.0])
+    T[:3, 3] = xyz
+    return T

@@ -1,0 +1,78 @@
+"""Explore (Table 3.1): move the hand along a direction or a sweep of waypoints and stop at the first contact."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
+from contactflow.nodes.status import Event
+
+
+class Explore(Primitive):
+    """Guarded sweep: straight along ``direction`` (world) or through ``sweep`` points; contact ends it with the pose.
+
+    The result says whether the contact was reached below ``floor_z`` (a known support such
+    as a box bottom, by proprioception, §3.4.3) via ``on_floor``.
+    """
+
+    requires = Capability(ft=True)
+    events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.CONTACT)
+
+    @dataclass(frozen=True)
+    class Params(Primitive.Params):
+        direction: tuple[float, ...] = (0.0, 0.0, -1.0)  # world, used when no sweep is given
+        sweep: tuple[float, ...] = ()  # flat [x, y, z, ...] points (world) to visit in order
+        force_threshold: float = 2.0  # N, contact threshold
+        velocity: float = 0.03  # m/s
+        max_distance: float = 0.3  # m, along ``direction``
+        floor_z: float = -1.0  # m, contacts at or below this height are on the known support
+        floor_margin: float = 0.015  # m
+
+    def begin(self) -> None:
+        p = self.params
+        pts = np.asarray(p.sweep, dtype=np.float64)
+        if pts.size % 3:
+            raise ValueError(f"{self.name}.params.sweep: expected a multiple of 3 values, got {pts.size}")
+        self.points = list(pts.reshape(-1, 3))
+        d = np.asarray(p.direction, dtype=np.float64)
+        if not self.points and (d.shape != (3,) or np.linalg.norm(d) < 1e-9):
+            raise ValueError(f"{self.name}: params.direction must be a non-zero 3-vector, got {p.direction}")
+        self.d = d / max(np.linalg.norm(d), 1e-9)
+        self.r.tare_ft(self.arm_name)
+        self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
+        self.k = 0
+        self._dir: np.ndarray | None = None
+
+    def update(self) -> None:
+        p = self.params
+        T = self.r.frame_pose(self.ee_frame)
+        pos = T[:3, 3]
+        f = self.wrench_in("world")[:3]
+        if np.linalg.norm(f) > p.force_threshold or self.pads_in_contact():
+            self.halt()
+            on_floor = float(pos[2] <= p.floor_z + p.floor_margin)
+            self.emit_once(Event.CONTACT, "explored into a contact", {"on_floor": on_floor})
+            self.succeed(on_floor=on_floor, waypoint=float(self.k), **pose6(T))
+            return
+        if self.points:
+            goal = self.points[self.k]
+            err = goal - pos
+            if np.linalg.norm(err) < 0.005:
+                self.k += 1
+                if self.k >= len(self.points):
+                    self.fail("sweep finished without a contact", waypoint=float(self.k))
+                    return
+                goal = self.points[self.k]
+                err = goal - pos
+            d = err / max(np.linalg.norm(err), 1e-9)
+            speed = min(p.velocity, 2.0 * float(np.linalg.norm(err)) + 0.005)
+        else:
+            if float((pos - self.p0) @ self.d) >= p.max_distance:
+                self.fail(f"no contact within {p.max_distance} m")
+                return
+            d, speed = self.d, p.velocity
+        if self._dir is None or float(d @ self._dir) < 0.95 or abs(speed - self._speed) > 0.3 * self._speed:
+            self._dir, self._speed = d, speed
+            self.twist(np.concatenate([d * speed, np.zeros(3)]))

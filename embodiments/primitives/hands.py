@@ -1,0 +1,63 @@
+"""Finger bookkeeping shared by the grasp primitives: joint groups per finger, closing ramps, stall detection."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def finger_groups(spec) -> dict[str, np.ndarray]:
+    """Indices of the actuated joints of each finger, keyed by its tactile pad name.
+
+    A multi-finger hand with four joints per pad (allegro: index, middle, ring, thumb) maps
+    each pad to its four joints; otherwise every pad shares all joints (parallel gripper).
+    """
+    n = len(spec.joints)
+    pads = [p.name for p in spec.pads]
+    if spec.kind == "multi_finger" and pads and n % len(pads) == 0:
+        k = n // len(pads)
+        return {p: np.arange(i * k, (i + 1) * k) for i, p in enumerate(pads)}
+    return {p: np.arange(n) for p in pads} or {"all": np.arange(n)}
+
+
+class ClosingRamp:
+    """Finger targets moving from their start toward ``goal`` at ``speed`` (rad/s or m/s).
+
+    Fingers can be frozen (naive grasp: stop each finger that touches); stall detection tells
+    when the measured fingers stopped moving although their targets still lead.
+    """
+
+    def __init__(self, start: np.ndarray, goal: np.ndarray, speed: float, stall_window: float = 0.2,
+                 stall_motion: float = 0.01) -> None:
+        self.target = np.asarray(start, dtype=np.float64).copy()
+        self.goal = np.asarray(goal, dtype=np.float64)
+        self.speed = speed
+        self.frozen = np.zeros(len(self.target), bool)
+        self._window, self._motion = stall_window, stall_motion
+        self._ref: tuple[float, np.ndarray] | None = None
+        self.stalled = False
+
+    def freeze(self, idx: np.ndarray, at: np.ndarray) -> None:
+        self.target[idx] = at[idx]
+        self.frozen[idx] = True
+
+    def advance(self, dt: float) -> np.ndarray:
+        step = self.speed * dt
+        move = np.clip(self.goal - self.target, -step, step)
+        move[self.frozen] = 0.0
+        self.target = self.target + move
+        return self.target
+
+    @property
+    def reached(self) -> bool:
+        return bool(np.all(self.frozen | (np.abs(self.goal - self.target) < 1e-6)))
+
+    def observe(self, t: float, q: np.ndarray) -> bool:
+        """Feed measured positions; True once they moved less than ``stall_motion`` over the window."""
+        if self._ref is None:
+            self._ref = (t, q.copy())
+            return False
+        t0, q0 = self._ref
+        if t - t0 >= self._window:
+            self.stalled = bool(np.abs(q - q0).max() < self._motion)
+            self._ref = (t, q.copy())
+        return self.stalled

@@ -1,0 +1,68 @@
+"""Move arm to (§6.3.6): planned (OMPL) or inverse-kinematics move to a pose, stopping on a collision."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
+from contactflow.embodiments.primitives.motion import pose_error, target_pose
+from contactflow.nodes.status import Event, Status
+
+
+class MoveTo(Primitive):
+    """Move the controlled frame to ``target``, optionally stopping ``standoff`` m back along the target's z axis."""
+
+    requires = Capability()
+    events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.CONTACT)
+
+    @dataclass(frozen=True)
+    class Params(Primitive.Params):
+        target: tuple[float, ...] = ()  # [x, y, z, roll, pitch, yaw] m, rad (world)
+        standoff: float = 0.0  # m, stop this far back along the target z (approach) axis
+        planning: bool = True  # use the OMPL planner (False: straight Cartesian line)
+        planner: str = "KPIECE1"  # OMPL planner (thesis §3.3.2)
+        planning_timeout: float = 2.0  # s
+        speed: float = 0.1  # m/s Cartesian (rad/s joint speed when planned: 5x this)
+        abort_force: float = 15.0  # N, unexpected contact
+        tolerance: float = 0.01  # m, final position error accepted
+        timeout: float = 20.0  # s
+
+    def begin(self) -> None:
+        p = self.params
+        self.goal = target_pose(self, p.target, "target")
+        if p.standoff:
+            self.goal[:3, 3] -= self.goal[:3, 2] * p.standoff
+        if self.r.spec.arm(self.arm_name).ft:
+            self.r.tare_ft(self.arm_name)
+        self.planned = False
+        if p.planning:
+            plan = self.arm.plan(self.goal, planner=p.planner, timeout=p.planning_timeout)
+            if plan is not None:
+                self.arm.execute(plan, abort_force=p.abort_force, speed=5 * p.speed)
+                self.planned = True
+        if not self.planned:
+            self.arm.move_pose(self.goal, speed=p.speed)
+        self.stage = "move"
+
+    def update(self) -> None:
+        p = self.params
+        if self.elapsed > p.timeout:
+            self.fail(f"not at the target after {p.timeout} s", event=Event.TIMEOUT)
+            return
+        if not self.arm.done():
+            return
+        if self.arm.status is Status.FAILURE:
+            if getattr(self.arm, "abort_reason", "") == "contact":
+                self.emit_once(Event.CONTACT, "unexpected contact while moving")
+            self.fail(f"motion aborted ({getattr(self.arm, 'abort_reason', '')})")
+            return
+        cur = self.r.frame_pose(self.ee_frame)
+        dp, dr = pose_error(cur, self.goal)
+        if self.stage == "move" and self.planned and (dp > 0.002 or dr > 0.02):
+            self.arm.move_pose(self.goal, speed=p.speed)
+            self.stage = "refine"
+            return
+        if dp <= p.tolerance:
+            self.succeed(position_error=dp, rotation_error=dr, planned=float(self.planned), **pose6(cur))
+        else:
+            self.fail(f"ended {dp:.3f} m from the target", position_error=dp)

@@ -1,0 +1,230 @@
+"""Robust grasp (thesis §3.3.1, Fig. 3.2): alignment by wrist torque (eq. 3.1), sliding grasp (eq. 3.2), finger-lost correction, force adaptation."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+from contactflow.embodiments.primitives.base import Capability, Primitive
+from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups
+from contactflow.nodes.status import Event
+
+
+class Phase(StrEnum):
+    PRESHAPE = "preshape"
+    ALIGN = "align"
+    SLIDE = "slide"
+    REOPEN = "reopen"
+    SHIFT = "shift"
+    ADAPT = "adapt"
+
+
+def alignment_velocity(torque_y: float, contact: bool, torque_threshold: float, vx: float, vz: float,
+                       v_approach: float) -> tuple[np.ndarray, bool]:
+    """Eq. 3.1 in the hand frame: (velocity, aligned). Before a contact the hand approaches at ``v_approach``."""
+    if not contact:
+        return np.array([0.0, 0.0, v_approach]), False
+    if torque_y > torque_threshold:
+        return np.array([vx, 0.0, -vz]), False
+    if torque_y < -torque_threshold:
+        return np.array([-vx, 0.0, -vz]), False
+    return np.zeros(3), True
+
+
+def sliding_velocity(fz: float, force_threshold: float, vz: float) -> float:
+    """Eq. 3.2: velocity along the hand z axis from the sensed z force (reaction on the hand)."""
+    if fz <= -force_threshold:
+        return -vz
+    if fz >= force_threshold:
+        return vz
+    return 0.0
+
+
+class RobustGrasp(Primitive):
+    """Reactive grasp: approach along the grasp direction, centre on the object, close while sliding, adapt force.
+
+    Per embodiment: the finger-lost correction needs a multi-finger hand with tactile pads
+    on its two external fingers (F1, F3 of Fig. 3.2); a parallel gripper skips it.
+    """
+
+    requires = Capability(ft=True, hand=True)
+    events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.CONTACT, Event.GRASP_STABLE)
+
+    @dataclass(frozen=True)
+    class Params(Primitive.Params):
+        pregrasp_type: str = ""  # hand preshape before the grasp ("" = current configuration)
+        pregrasp_size: float = -1.0  # 0..1 hand opening before the grasp (< 0: not set)
+        force_threshold: float = 2.0  # N, contact detection with the F/T
+        torque_threshold: float = 5.0  # N m, alignment torque threshold (sensor dependent, §3.3.1)
+        grasp_direction: tuple[float, ...] = (0.0, 0.0, 1.0)  # hand frame, approach direction
+        max_distance: float = 0.2  # m, travel along the grasp direction looking for a contact
+        correction_velocity: float = 0.005  # m/s, alignment and sliding corrections (Vx, Vz)
+        approach_velocity: float = 0.04  # m/s, forward motion before the first contact (not given in the thesis)
+        max_alignment: float = 0.08  # m, lateral travel of the alignment before giving up on it
+        closing_velocity: float = 0.8  # rad/s (m/s for a gripper), finger closing during the sliding grasp
+        grasp_effort: float = 0.5  # 0..1 finger force limit while closing
+        final_effort: float = 1.0  # 0..1 finger force limit after force adaptation
+        finger_lost_shift: float = 0.05  # m, shift of the finger-lost correction (Fig. 3.2)
+        max_regrasps: int = 2  # finger-lost corrections before accepting the grasp
+        min_contacts: int = 2  # pads in contact for a grasp to count as holding the object
+        alignment: bool = True  # enable the alignment phase (eq. 3.1)
+        sliding: bool = True  # enable the sliding correction (eq. 3.2)
+        finger_lost: bool = True  # enable the finger-lost correction
+
+    def begin(self) -> None:
+        p = self.params
+        d = np.asarray(p.grasp_direction, dtype=np.float64)
+        if d.shape != (3,) or np.linalg.norm(d) < 1e-9:
+            raise ValueError(f"{self.name}: params.grasp_direction must be a non-zero 3-vector, got {p.grasp_direction}")
+        self.dir = d / np.linalg.norm(d)
+        # x of eq. 3.1: the hand x axis made orthogonal to the grasp direction
+        x = np.array([1.0, 0.0, 0.0]) - self.dir[0] * self.dir
+        self.xdir = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-6 else np.array([0.0, 1.0, 0.0])
+        self.spec = self.r.spec.hand(self.hand_name)
+        self.groups = finger_groups(self.spec)
+        self.closed = np.asarray(self.spec.preshapes["closed"], dtype=np.float64)
+        self.regrasps = 0
+        self.aligns = 0
+        self.slides = 0
+        self.lateral = 0.0
+        self._ramp: ClosingRamp | None = None
+        self._contact_seen = False
+        self._t_phase = self.r.time
+        if p.pregrasp_type:
+            self.hand.preshape(p.pregrasp_type)
+        elif p.pregrasp_size >= 0.0:
+            opened = np.asarray(self.spec.preshapes["open"], dtype=np.float64)
+            s = float(np.clip(p.pregrasp_size, 0.0, 1.0))
+            self.hand.set_fingers(self.closed + s * (opened - self.closed))
+        self.phase = Phase.PRESHAPE
+
+    # -- helpers -------------------------------------------------------------------------
+    def _to(self, phase: Phase) -> None:
+        self.phase, self._t_phase = phase, self.r.time
+
+    def _twist(self, v_hand: np.ndarray) -> None:
+        self.twist(np.concatenate([v_hand, np.zeros(3)]), frame=self.ee_frame)
+
+    def _start_align(self) -> None:
+        self.r.tare_ft(self.arm_name)
+        self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
+        self.x0 = self.p0.copy()
+        self._to(Phase.ALIGN)
+
+    def _start_slide(self) -> None:
+        self.halt()
+        q = self.hand.positions()
+        self._ramp = ClosingRamp(q, self.closed, self.params.closing_velocity)
+        self._to(Phase.SLIDE)
+
+    # -- control -------------------------------------------------------------------------
+    def update(self) -> None:
+        p = self.params
+        dt = 1.0 / p.rate_hz
+        if self.phase is Phase.PRESHAPE:
+            if self.hand.done() or self.r.time - self._t_phase > 1.0:
+                self._start_align()
+            return
+        if self.phase is Phase.ALIGN:
+            w = self.wrench_in(self.ee_frame)
+            f = w[:3]
+            contact = bool(np.linalg.norm(f) > p.force_threshold) or bool(self.pads_in_contact())
+            if contact and not self._contact_seen:
+                self._contact_seen = True
+                self.emit_once(Event.CONTACT, "grasp approach touched")
+            pos = self.r.frame_pose(self.ee_frame)[:3, 3]
+            R = self.r.frame_pose(self.ee_frame)[:3, :3]
+            travelled = float((pos - self.p0) @ (R @ self.dir))
+            self.lateral = float(np.linalg.norm((pos - self.x0) - ((pos - self.x0) @ (R @ self.dir)) * (R @ self.dir)))
+            ty = float(w[3:] @ np.cross(self.dir, self.xdir))
+            if not p.alignment:
+                if contact or travelled >= p.max_distance:
+                    self._start_slide()
+                else:
+                    self._twist(self.dir * p.approach_velocity)
+                return
+            v, aligned = alignment_velocity(ty, contact, p.torque_threshold, p.correction_velocity,
+                                            p.correction_velocity, p.approach_velocity)
+            if aligned or travelled >= p.max_distance or self.lateral >= p.max_alignment:
+                self._start_slide()
+                return
+            if v[0] != 0.0:
+                self.aligns += 1
+            self._twist(v[0] * self.xdir + v[2] * self.dir)
+            return
+        if self.phase is Phase.SLIDE:
+            assert self._ramp is not None
+            target = self._ramp.advance(dt)
+            self.hand.set_fingers(target, effort=p.grasp_effort)
+            if p.sliding:
+                fz = float(self.wrench_in(self.ee_frame)[:3] @ self.dir)
+                vz = sliding_velocity(fz, p.force_threshold, p.correction_velocity)
+                if vz != 0.0:
+                    self.slides += 1
+                self._twist(self.dir * vz)
+            stalled = self._ramp.observe(self.r.time, self.hand.positions())
+            if (stalled and self.r.time - self._t_phase > 0.3) or self.r.time - self._t_phase > 6.0:
+                self.halt()
+                if self._finger_lost():
+                    return
+                self.hand.close(effort=p.final_effort)
+                self._to(Phase.ADAPT)
+            return
+        if self.phase is Phase.REOPEN:
+            if self.hand.done() or self.r.time - self._t_phase > 1.0:
+                self.arm.move_pose(self.shift_goal, speed=0.05)
+                self._to(Phase.SHIFT)
+            return
+        if self.phase is Phase.SHIFT:
+            if self.arm.done() or self.r.time - self._t_phase > 3.0:
+                self._contact_seen = False
+                self._start_align()
+            return
+        if self.phase is Phase.ADAPT:
+            if self.hand.done() or self.r.time - self._t_phase > 1.0:
+                pads = self.pads_in_contact()
+                held = len(pads) >= min(p.min_contacts, len(self.groups)) if self.spec.pads else \
+                    bool(np.abs(self.hand.positions() - self.closed).max() > 0.05)
+                vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides,
+                            regrasps=self.regrasps, lateral=self.lateral)
+                if held:
+                    self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
+                    self.succeed(f"grasped with {pads}", **vals)
+                else:
+                    self.fail(f"hand closed without holding (pads in contact: {pads})", **vals)
+
+    def _finger_lost(self) -> bool:
+        """Fig. 3.2 F1/F3: one external finger without contact → open, shift toward the contacts, retry."""
+        p = self.params
+        pads = [pd.name for pd in self.spec.pads]
+        if not (p.finger_lost and self.spec.kind == "multi_finger" and len(pads) >= 3
+                and self.regrasps < p.max_regrasps):
+            return False
+        touching = set(self.pads_in_contact())
+        f1, f2, f3 = pads[0], pads[1], pads[2]
+        # the object sits under one external finger only: the middle finger missed it too
+        if (f1 in touching) == (f3 in touching) or f2 in touching:
+            return False
+        lost, kept = (f1, f3) if f3 in touching else (f3, f1)
+        tips = dict(zip(pads, self.spec.fingertips, strict=False))
+        a = self.r.frame_pose(tips[kept])[:3, 3]
+        b = self.r.frame_pose(tips[lost])[:3, 3]
+        T = self.r.frame_pose(self.ee_frame)
+        d = T[:3, :3].T @ (a - b)
+        d -= (d @ self.dir) * self.dir
+        if np.linalg.norm(d) < 1e-6:
+            return False
+        shift = T[:3, :3] @ (d / np.linalg.norm(d) * p.finger_lost_shift - self.dir * 0.02)
+        self.shift_goal = T.copy()
+        self.shift_goal[:3, 3] += shift
+        self.regrasps += 1
+        if self.io is not None:
+            self.io.log(f"finger lost: {lost} without contact, shifting toward {kept}")
+        if p.pregrasp_type:
+            self.hand.preshape(p.pregrasp_type)
+        else:
+            self.hand.open()
+        self._to(Phase.REOPEN)
+        return True

@@ -1,0 +1,97 @@
+"""Motion estimation support generator (thesis §4.5.1, eq. 4.12-4.13): multi-contact, binary law.
+
+The next joint configuration is extrapolated from the last two, q(t+1) = q(t) + (q(t) -
+q(t-1)); the robot model at q(t+1) gives the surface the robot is about to occupy, where
+support hypotheses of fixed likelihood ``weight`` (0.3 in the thesis) are placed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType, voxelize
+from contactflow.nodes.messages import Array
+from contactflow.nodes.module import Port
+from contactflow.nodes.status import Status
+
+SurfaceAt = Callable[[np.ndarray], np.ndarray]
+"""Robot surface samples (k, 3), world frame, at a joint configuration."""
+
+
+@dataclass(frozen=True)
+class MotionParams:
+    rate_hz: float = 30.0  # Hz
+    robot: str = "robot"
+    weight: float = 0.3  # likelihood of every support hypothesis (thesis §4.5.1)
+    voxel_size: float = VOXEL_SIZE  # m
+
+
+def predict(q: np.ndarray, q_prev: np.ndarray) -> np.ndarray:
+    """Eq. 4.12-4.13."""
+    q = np.asarray(q, dtype=float)
+    return q + (q - np.asarray(q_prev, dtype=float))
+
+
+class MotionSupportGenerator:
+    def __init__(self, params: MotionParams | None = None) -> None:
+        self.params = params or MotionParams()
+        if not 0.0 <= self.params.weight <= 1.0:
+            raise ValueError(f"motion_support: weight={self.params.weight} must lie in [0, 1]")
+        self.q_prev: np.ndarray | None = None
+
+    def update(self, q: np.ndarray, surface_at: SurfaceAt, stamp: float) -> Hypotheses:
+        q = np.asarray(q, dtype=float).ravel()
+        if self.q_prev is None or self.q_prev.shape != q.shape:
+            self.q_prev = q
+            return Hypotheses.empty(stamp)
+        q_next = predict(q, self.q_prev)
+        self.q_prev = q
+        pts = np.asarray(surface_at(q_next), dtype=float).reshape(-1, 3)
+        if pts.shape[0] == 0:
+            return Hypotheses.empty(stamp)
+        h = Hypotheses.make(pts, self.params.weight, HypothesisType.SUPPORT, stamp=stamp, where="motion_support")
+        return voxelize(h, self.params.voxel_size, reduce="max")
+
+
+class MotionSupportHypothesesGenerator(GeneratorModule):
+    """Support hypotheses where the robot will be next (eq. 4.12-4.13).
+
+    The robot model lives in the embodiment, which publishes surface samples attached to the
+    links; the shell applies eq. 4.12-4.13 to each sample (exact for translations, first order
+    for rotations). The core :class:`MotionSupportGenerator` extrapolates the joints instead.
+    """
+
+    Params = MotionParams
+    inputs = (
+        Port("surface", Array, "(k, 3) robot surface samples at the current configuration, world"),
+    )
+
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        self._prev: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._prev = None
+
+    def step(self) -> Status:
+        assert self.io is not None
+        frames = self.io.take("surface")
+        if not frames:
+            return Status.RUNNING
+        msg = frames[-1]
+        pts = array_of(msg, "surface", 3, self.name)
+        assert pts is not None
+        prev, self._prev = self._prev, pts
+        if prev is None or prev.shape != pts.shape:
+            return Status.RUNNING
+        # Samples are attached to the links, so the same extrapolation applies per sample.
+        nxt = predict(pts, prev)
+        h = Hypotheses.make(nxt, self.params.weight, HypothesisType.SUPPORT, stamp=self.stamp_of(msg),
+                            where=self.name)
+        self.publish_cloud(voxelize(h, self.params.voxel_size, reduce="max"))
+        return Status.RUNNING
+

@@ -1,0 +1,94 @@
+"""Null hypotheses generator (thesis §4.2.1): where contacts cannot be.
+
+Two sources of certainty that a voxel holds no contact: the space the robot's volume swept
+in the last ``memory`` seconds (shrunk by ``margin`` so the surface, where contacts are, is
+never vetoed) and known free boxes of the workspace. Any hypothesis fused with a null one is
+discarded by the integrator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.fusion.geometry import grid_points, interior_points
+from contactflow.fusion.hypotheses import (
+    VOXEL_SIZE,
+    Hypotheses,
+    HypothesisType,
+    voxel_centers,
+    voxel_keys,
+)
+from contactflow.nodes.messages import Array
+from contactflow.nodes.module import Port
+from contactflow.nodes.status import Status
+
+
+@dataclass(frozen=True)
+class NullParams:
+    rate_hz: float = 15.0  # Hz
+    robot: str = "robot"
+    margin: float = 0.015  # m, depth under the robot surface from which space counts as swept
+    memory: float = 0.5  # s, how long swept space stays null
+    voxel_size: float = VOXEL_SIZE  # m
+
+
+class NullGenerator:
+    """Keeps the swept voxels (keys and the last time each was swept) and the free boxes."""
+
+    def __init__(self, params: NullParams | None = None, free_boxes: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> None:
+        self.params = params or NullParams()
+        self.keys = np.zeros(0, dtype=np.int64)
+        self.when = np.zeros(0)
+        vs = self.params.voxel_size
+        boxes = [grid_points(lo, hi, vs) for lo, hi in free_boxes]
+        self.free = np.unique(voxel_keys(np.concatenate(boxes), vs)) if boxes else np.zeros(0, dtype=np.int64)
+
+    def update(self, inside: np.ndarray | None, stamp: float) -> Hypotheses:
+        """Add the points now inside the robot (deeper than ``margin``, see
+        :func:`~contactflow.fusion.geometry.interior_points`); null hypotheses of all."""
+        p = self.params
+        if inside is not None:
+            inside = np.asarray(inside, dtype=float).reshape(-1, 3)
+            keys = np.concatenate([self.keys, voxel_keys(inside, p.voxel_size)])
+            when = np.concatenate([self.when, np.full(inside.shape[0], stamp)])
+            order = np.lexsort((-when, keys))  # newest first within a key
+            keys, when = keys[order], when[order]
+            first = np.ones(keys.size, dtype=bool)
+            first[1:] = keys[1:] != keys[:-1]
+            self.keys, self.when = keys[first], when[first]
+        fresh = self.when >= stamp - p.memory
+        self.keys, self.when = self.keys[fresh], self.when[fresh]
+        keys = np.union1d(self.keys, self.free)
+        if keys.size == 0:
+            return Hypotheses.empty(stamp)
+        return Hypotheses.make(voxel_centers(keys, p.voxel_size), 1.0, HypothesisType.NULL, stamp=stamp, where="null")
+
+
+class NullHypothesesGenerator(GeneratorModule):
+    """Swept robot volume to null hypotheses."""
+
+    Params = NullParams
+    inputs = (Port("robot_model", Array, "(m, 8) posed bi-spheres [c1, r1, c2, r2], world"),)
+
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        self.core = NullGenerator(self.params)
+
+    def reset(self) -> None:
+        self.core = NullGenerator(self.params)
+
+    def step(self) -> Status:
+        assert self.io is not None
+        frames = self.io.take("robot_model")
+        if not frames:
+            return Status.RUNNING
+        msg = frames[-1]
+        caps = array_of(msg, "robot_model", 8, self.name)
+        assert caps is not None
+        inside = interior_points(caps, self.params.voxel_size, self.params.margin)
+        self.publish_cloud(self.core.update(inside, self.stamp_of(msg)))
+        return Status.RUNNING

@@ -1,0 +1,146 @@
+"""Contact fusion service: integrator + condensation + event tracker behind one Module shell.
+
+Its ``hypotheses`` input is bound to a key expression over generator clouds, e.g. every
+generator of every robot of the site (``KeySpace.hypotheses("*", "*")``); each
+``robot/generator`` pair is a source, plugged on its first cloud and unplugged after
+``drop_after`` seconds of silence. Each cycle publishes the fused cloud, the condensed
+contacts and the contact events on ``KeySpace.fused(robot, stream)`` (see
+:meth:`ContactFusion.output_keys`) and raises the events for the task engine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from contactflow.fusion.condensation import CondensationParams, Method, condense
+from contactflow.fusion.events import ContactTracker, TrackerParams
+from contactflow.fusion.hypotheses import VOXEL_SIZE
+from contactflow.fusion.integrator import Integrator, IntegratorParams
+from contactflow.fusion.messages import (
+    ContactEventMsg,
+    ContactInfo,
+    ContactList,
+    FusedCloud,
+    HypothesisCloud,
+)
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.module import Layer, Module, Port
+from contactflow.nodes.status import Event, Status
+from contactflow.nodes.wire import WireError
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    rate_hz: float = 200.0  # Hz, how often the integrator checks for a complete cycle
+    robot: str = "site"  # robot segment of the fused keys ("site" for a shared integrator)
+    sources: str = "*/*"  # robot/generator pattern of the clouds to fuse
+    voxel_size: float = VOXEL_SIZE  # m
+    timeout: float = 0.5  # s, hypothesis lifetime
+    wait_timeout: float = 0.25  # s, longest wait for a late source
+    source_timeout: float = 2.0  # s, silence after which a source is not waited for
+    drop_after: float = 10.0  # s, silence after which a source is unplugged
+    method: Method = Method.CLUSTER
+    threshold: float = 0.02  # absolute floor on H(x)
+    relative_threshold: float = 0.1  # floor as a fraction of the cycle's largest H(x)
+    cluster_eps: float = 0.012  # m
+    min_mass: float = 0.3  # likelihood sum that makes a cluster a contact
+    match_radius: float = 0.03  # m, event tracker association distance
+    confirm: int = 1  # cycles before a contact is made
+    hold: float = 0.1  # s, unseen time before a contact is broken
+    publish_hypotheses: bool = True
+
+    def validate(self) -> None:
+        parts = self.sources.split("/")
+        if len(parts) != 2 or not all(parts):
+            raise ValueError(f"sources={self.sources!r} must be '<robot>/<generator>' (either may be '*')")
+        self.integrator().validate()
+        self.condensation().validate()
+        self.tracker().validate()
+
+    def integrator(self) -> IntegratorParams:
+        return IntegratorParams(self.voxel_size, self.timeout, self.wait_timeout, self.source_timeout)
+
+    def condensation(self) -> CondensationParams:
+        return CondensationParams(self.method, self.threshold, self.relative_threshold, self.cluster_eps, 1,
+                                  self.min_mass)
+
+    def tracker(self) -> TrackerParams:
+        return TrackerParams(self.match_radius, self.confirm, self.hold)
+
+
+class ContactFusion(Module):
+    """Fuses contact hypothesis clouds into contacts and contact events (thesis §4.6)."""
+
+    layer = Layer.SERVICE
+    Params = FusionParams
+    inputs = (Port("hypotheses", HypothesisCloud, "clouds of any set of generators, world frame"),)
+    outputs = (
+        Port("hypotheses", FusedCloud, "fused hypotheses H(x)"),
+        Port("contacts", ContactList, "condensed contacts"),
+        Port("events", ContactEventMsg, "contact made / broken"),
+    )
+    events = (Event.CONTACT_MADE, Event.CONTACT_BROKEN)
+
+    @classmethod
+    def input_keys(cls, ks: KeySpace, params: FusionParams) -> dict[str, str]:
+        robot, generator = params.sources.split("/")
+        return {"hypotheses": ks.hypotheses(robot, generator)}
+
+    @classmethod
+    def output_keys(cls, ks: KeySpace, params: FusionParams) -> dict[str, str]:
+        return {stream: ks.fused(params.robot, stream) for stream in ("hypotheses", "contacts", "events")}
+
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        self.params.validate()
+        self.reset()
+
+    def reset(self) -> None:
+        self.integrator = Integrator(self.params.integrator())
+        self.tracker = ContactTracker(self.params.tracker())
+        self.rejected = 0
+
+    def on_params(self, old) -> None:  # type: ignore[no-untyped-def]
+        self.params.validate()
+        if (old.voxel_size, old.timeout, old.wait_timeout, old.source_timeout) != (
+                self.params.voxel_size, self.params.timeout, self.params.wait_timeout, self.params.source_timeout):
+            sources = self.integrator.sources
+            self.integrator = Integrator(self.params.integrator())
+            for s in sources.values():
+                self.integrator.plug(s.name, s.robot, s.link, s.last_rx)
+        self.tracker.params = self.params.tracker()
+
+    def step(self) -> Status:
+        assert self.io is not None
+        now = self.io.now
+        integ = self.integrator
+        for msg in self.io.take("hypotheses"):
+            assert isinstance(msg, HypothesisCloud)
+            try:
+                cloud = msg.hypotheses()
+            except WireError as exc:
+                self.rejected += 1
+                self.io.log(f"rejected cloud: {exc}")
+                continue
+            integ.offer(msg.source, cloud, now, robot=msg.robot, link=msg.link)
+        for s in list(integ.sources.values()):
+            if s.pending is None and s.last_rx < now - self.params.drop_after:
+                integ.unplug(s.name)
+        fused = integ.cycle(now)
+        if fused is None:
+            if integ.active(now) or not self.tracker.tracks:
+                return Status.RUNNING
+            fused = integ.integrate(now)  # nobody talks: let hypotheses expire, contacts break
+        contacts = condense(fused, self.params.condensation())
+        if self.params.publish_hypotheses:
+            self.io.publish("hypotheses", FusedCloud.of(fused))
+        self.io.publish("contacts", ContactList(
+            stamp=now, contacts=[ContactInfo.of(c, fused.columns) for c in contacts]))
+        for e in self.tracker.update(contacts, now):
+            self.io.publish("events", ContactEventMsg.of(e))
+            x, y, z = (float(v) for v in np.asarray(e.location))
+            self.io.emit(e.event, f"{e.robot}/{e.link}" if e.link else e.robot,
+                         {"id": float(e.id), "x": x, "y": y, "z": z, "likelihood": float(e.likelihood)})
+        return Status.RUNNING

@@ -1,0 +1,82 @@
+"""Broker, robot agents and a client in separate node processes: dispatch and failover on kill."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from contactflow.abstraction.client import close, dispatch
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
+from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "abstraction" / "examples"
+SITE = "brokerproc"
+KS = KeySpace(SITE)
+
+
+def node_config(name, port, hub, modules):
+    zen = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"], "multicast_scouting": False}
+    if hub is not None:
+        zen["connect"] = [f"tcp/127.0.0.1:{hub}"]
+    return {"site": SITE, "node": name, "zenoh": zen, "modules": modules}
+
+
+def agent(robot, duration):
+    return {"name": f"{robot}_agent", "type": "robot_agent", "robot": robot,
+            "params": {"robot": robot, "executor": "scripted", "primitive_duration": duration, "realtime": 1.0}}
+
+
+@pytest.fixture
+def site(tmp_path):
+    hub = free_port()
+    procs = {"broker": spawn_node(write_config(tmp_path / "broker.yaml", node_config(
+        "broker_node", hub, None, [{"name": "broker", "type": "broker"}])), tmp_path / "broker.log")}
+    for robot in ("tombatossals", "melfa"):
+        cfg = node_config(f"{robot}_control", free_port(), hub, [agent(robot, 0.6)])
+        procs[robot] = spawn_node(write_config(tmp_path / f"{robot}.yaml", cfg), tmp_path / f"{robot}.log")
+    tool = ZenohTransport(ZenohSettings(connect=(f"tcp/127.0.0.1:{hub}",))).open()
+    ready = wait_for(lambda: len(tool.alive(KS.alive_robot(), timeout=0.5)) == 2
+                     and len(tool.alive(KS.alive_module("site"), timeout=0.5)) == 1, timeout=40)
+    assert ready, "\n".join(p.read_text()[-1500:] for p in tmp_path.glob("*.log"))
+    yield procs, tool, hub
+    tool.close()
+    for p in procs.values():
+        stop_process(p)
+
+
+def test_robots_cli_lists_capabilities(site):
+    _, _, hub = site
+    out = subprocess.run([sys.executable, "-m", "contactflow.deploy.cli", "robots", "--site", SITE,
+                          "--connect", f"tcp/127.0.0.1:{hub}"], capture_output=True, text=True, timeout=60,
+                         env={"COLUMNS": "250", "PATH": ""})
+    assert out.returncode == 0, out.stderr
+    assert "tombatossals" in out.stdout and "melfa" in out.stdout and "2 robots" in out.stdout
+
+
+def test_task_completes_on_another_robot_when_the_running_node_is_killed(site):
+    procs, tool, _ = site
+    follow = dispatch(tool, KS, (EXAMPLES / "push_away.xml").read_text(), "push_away.xml", target="any")
+    assert follow.reply.ok, follow.reply.error
+    first = follow.reply.robots[0]
+    assert wait_for(lambda: any(m.kind == "edge" and m.robot == first for m in follow.progress), timeout=15)
+    procs[first].kill()
+    assert follow.done.wait(60), [(m.robot, m.kind, m.state, m.detail) for m in follow.progress]
+    close(follow)
+    assert follow.outcome == "success"
+    failover = [m for m in follow.progress if m.kind == "failover"]
+    assert failover and first in failover[0].detail and "liveliness" in failover[0].detail
+    finals = [m.robot for m in follow.progress if m.final and m.robot != "broker"]
+    assert finals and finals[-1] != first
+
+
+def test_cli_run_refuses_an_invalid_atd_without_dispatching(site, tmp_path):
+    _, _, hub = site
+    bad = tmp_path / "bad.xml"
+    bad.write_text((EXAMPLES / "push_away.xml").read_text().replace('destination="retreat"', 'destination="x"'))
+    out = subprocess.run([sys.executable, "-m", "contactflow.deploy.cli", "run", str(bad), "--site", SITE,
+                          "--connect", f"tcp/127.0.0.1:{hub}"], capture_output=True, text=True, timeout=60,
+                         env={"COLUMNS": "250", "PATH": ""})
+    assert out.returncode == 2
+    assert "not dispatched" in out.stdout and "bad.xml:" in out.stdout

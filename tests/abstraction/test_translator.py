@@ -1,0 +1,244 @@
+"""Translation ATD -> ESTD per robot: the three rules, factory choices, refusals, execution."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from contactflow.abstraction.atd import load_atd, parse_atd
+from contactflow.abstraction.events import AbstractEvent
+from contactflow.abstraction.examples import path
+from contactflow.abstraction.factory import EventChoice, TombatossalsFactory, factory_for
+from contactflow.abstraction.profiles import BAXTER, MELFA, PROFILES, TOMBATOSSALS, Sensor
+from contactflow.abstraction.translator import TranslationError, translate
+from contactflow.nodes.status import Event, Status
+from contactflow.nodes.taskengine import ProgressKind, TaskEngine
+from contactflow.nodes.taskfile import load_tasks
+from contactflow.nodes.taskgraph import REQUIRED, NodeKind, Trigger
+from contactflow.nodes.testing_tasks import FakeClock, FakeRunner, Step, run_until_done
+
+EXAMPLES = ["fig7_2.xml", "fig7_2.yaml", "push_away.xml", "pick_place_behind.xml", "grasp_retry.xml"]
+ROBOTS = sorted(PROFILES)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+@pytest.mark.parametrize("example", EXAMPLES)
+def test_examples_translate_on_every_robot_obeying_the_three_rules(example, robot):
+    atd = load_atd(path(example))
+    tr = translate(atd, factory_for(PROFILES[robot]))
+    estd = tr.estd
+    # rule 1: one node per state; rule 2: one edge per transition
+    assert sorted(tr.states.values()) == sorted(s.name for s in atd.states)
+    assert len(estd.nodes) == len(atd.states) and len(estd.edges) == len(atd.transitions)
+    assert [e.label for e in estd.edges] == [t.name for t in atd.transitions]
+    # rule 3: every abstract label maps to one or more concrete labels
+    for t, e in zip(atd.transitions, estd.edges, strict=True):
+        assert set(tr.labels[e.id]) == {ev.event for ev in t.events}
+        assert all(len(g) >= 1 for groups in tr.labels[e.id].values() for g in groups)
+    # only the robot's primitives; the ESTD survives its YAML form
+    types = {n.type for n in estd.nodes.values() if n.kind is NodeKind.PRIMITIVE}
+    types |= {h.type for n in estd.nodes.values() for h in n.helpers}
+    assert types <= PROFILES[robot].capabilities
+    again, main = load_tasks("estd.yaml", tr.to_yaml(), primitives=PROFILES[robot].capabilities)
+    assert [(e.origin, e.dest, e.when) for e in again[main].edges] == \
+        [(e.origin, e.dest, e.when) for e in estd.edges]
+
+
+def test_factories_choose_their_own_primitives_and_parameters():
+    atd = load_atd(path("pick_place_behind.xml"))
+    tomb = translate(atd, factory_for(TOMBATOSSALS)).estd.nodes
+    melfa = translate(atd, factory_for(MELFA)).estd.nodes
+    baxter = translate(atd, factory_for(BAXTER)).estd.nodes
+    # Table 7.3 / 7.4 mappings
+    assert tomb["grasp_object"].type == "robust_grasp"
+    assert "finger_lost" in tomb["grasp_object"].params["corrections"]
+    assert tomb["approach"].type == "transport" and tomb["put_down"].type == "place"
+    assert melfa["grasp_object"].type == "close_until_force"
+    assert melfa["approach"].type == "move_to" and melfa["put_down"].type == "transport"
+    assert [h.type for h in melfa["carry_behind"].helpers if h.name == "grip"] == ["hold"]
+    assert baxter["grasp_object"].type == "close_until_force" and baxter["put_down"].type == "place"
+    # the noisy wrist wrench raises baxter's contact thresholds and lowers its filter
+    assert baxter["put_down"].params["contact_threshold"] > tomb["put_down"].params["contact_threshold"]
+    assert baxter["preshape_hand"].params["filter_hz"] < tomb["preshape_hand"].params["filter_hz"]
+    # melfa has no wrist F/T: its guarded motions stop on tactile contact
+    assert melfa["preshape_hand"].params["stop_sensor"] == "tactile"
+    # grasp force from the object's mass (0.15 kg) on the grippers
+    assert 5.0 <= melfa["grasp_object"].params["grasp_force"] <= 40.0
+    # hand shapes: kept on the multi-finger hand, approximated on grippers
+    assert tomb["preshape_hand"].params["hand_shape"] == "pinch_grasp_preshape"
+    assert melfa["preshape_hand"].params["hand_shape"] == "open"
+
+
+def test_baxter_needs_gripper_and_wrist_for_stable_grasp_of_a_heavy_object():
+    text = path("pick_place_behind.xml").read_text().replace("<mass>0.15</mass>", "<mass>1.0</mass>")
+    tr = translate(parse_atd(text, "heavy.xml"), factory_for(BAXTER))
+    edge = next(e for e in tr.estd.edges if e.id == "grasp_object__lift_object")
+    assert edge.when == (frozenset({Trigger(Event.SUCCESS)}),
+                         frozenset({Trigger(Event.GRASP_STABLE, "grasp_stable_grip")}),
+                         frozenset({Trigger(Event.GRASP_STABLE, "grasp_stable_load")}))
+    lost = next(e for e in tr.estd.edges if e.id == "lift_object__failed")
+    assert lost.when == (frozenset({Trigger(Event.GRASP_LOST, "grasp_lost_grip"),
+                                    Trigger(Event.GRASP_LOST, "grasp_lost_load")}),)
+
+
+SLIDE = """<statemachine name="wipe">
+  <state name="go" type="move"><target>0.1 0.5 0.2</target></state>
+  <state name="wipe" type="slide"><target>0.3 0.5 0.02</target></state>
+  <state name="done" type="success"/>
+  <transition origin="go" destination="wipe"><success/></transition>
+  <transition origin="wipe" destination="done"><success/></transition>
+</statemachine>"""
+
+
+def test_refusals_name_the_robot_state_and_reason():
+    atd = parse_atd(SLIDE, "wipe.xml")
+    with pytest.raises(TranslationError) as info:
+        translate(atd, factory_for(MELFA))
+    assert info.value.robot == "melfa"
+    assert "wipe.xml:3: state 'wipe' (slide): melfa cannot slide" in str(info.value)
+    assert translate(atd, factory_for(TOMBATOSSALS)).estd.nodes["wipe"].type == "slide"
+
+    far = SLIDE.replace("0.1 0.5 0.2", "3.0 0.5 0.2")
+    with pytest.raises(TranslationError, match=r"wipe.xml:2: state 'go' .*out of tombatossals's reach"):
+        translate(parse_atd(far, "wipe.xml"), factory_for(TOMBATOSSALS))
+
+    heavy = path("grasp_retry.xml").read_text().replace("<mass>0.25</mass>", "<mass>2.5</mass>")
+    for robot, ok in (("tombatossals", False), ("melfa", True), ("baxter", False)):
+        if ok:
+            translate(parse_atd(heavy, "heavy.xml"), factory_for(PROFILES[robot]))
+        else:
+            with pytest.raises(TranslationError, match="exceeds .* payload"):
+                translate(parse_atd(heavy, "heavy.xml"), factory_for(PROFILES[robot]))
+
+    wide = path("grasp_retry.xml").read_text().replace("0.06 0.06 0.12", "0.08 0.08 0.12")
+    with pytest.raises(TranslationError, match="melfa's hand opens to 0.068 m"):
+        translate(parse_atd(wide, "wide.xml"), factory_for(MELFA))
+
+
+def test_missing_sensors_fall_back_or_refuse_grasp_events():
+    blind = dataclasses.replace(TOMBATOSSALS, sensors=TOMBATOSSALS.sensors - {Sensor.TACTILE})
+    with pytest.raises(TranslationError) as info:
+        translate(load_atd(path("fig7_2.xml")), factory_for(blind))
+    msg = str(info.value)
+    assert "event grasp_stable: tombatossals cannot detect grasp_stable" in msg
+    push = translate(load_atd(path("push_away.xml")), factory_for(blind))  # no grasp involved
+    assert push.estd.nodes["push_object"].type == "transport"
+    no_ft = dataclasses.replace(TOMBATOSSALS, sensors=TOMBATOSSALS.sensors - {Sensor.WRIST_FT})
+    tr = translate(load_atd(path("fig7_2.xml")), factory_for(no_ft))
+    assert tr.estd.nodes["grasp_object"].type == "naive_grasp"
+
+
+def test_translator_enforces_rule_three_against_a_broken_factory():
+    class Broken(TombatossalsFactory):
+        def event(self, ev, state, node, atd):
+            if ev.event is AbstractEvent.GRASP_LOST:
+                return EventChoice(())
+            return super().event(ev, state, node, atd)
+
+    with pytest.raises(TranslationError, match="mapped grasp_lost to no concrete label"):
+        translate(load_atd(path("fig7_2.xml")), Broken(TOMBATOSSALS))
+
+
+def _world(runner: FakeRunner, lose_first_lift: bool = False) -> None:
+    """Every primitive succeeds; watchers report what the fake world does."""
+    lifts = {"n": 0}
+
+    def rule(instance, type_, params):
+        if type_ == "wait_event":
+            if params["event"] == "grasp_stable":
+                return [Step(0.05, Event.GRASP_STABLE)]
+            if params["event"] == "grasp_lost" and "lift_object" in instance:
+                lifts["n"] += 1
+                if lose_first_lift and lifts["n"] == 1:
+                    return [Step(0.1, Event.GRASP_LOST)]
+            return []
+        if type_ == "hold":
+            return []
+        return [Step(0.2, Event.SUCCESS)]
+
+    runner.rule(rule)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_fig7_2_estd_runs_and_reports_in_atd_names(robot):
+    atd = load_atd(path("fig7_2.xml"))
+    tr = translate(atd, factory_for(PROFILES[robot]))
+    assert tr.estd.params["object_location"] is REQUIRED  # Fig. 7.2 leaves the object out
+    clock = FakeClock()
+    runner = FakeRunner(clock)
+    _world(runner)
+    reports = []
+    eng = TaskEngine(runner, clock, on_progress=lambda p: reports.append(tr.abstract(p)))
+    run = eng.launch(tr.estd, {"object_location": [0.2, 0.6, 0.1]})
+    res = run_until_done(eng, clock, run)
+    assert res.status is Status.SUCCESS and res.label == "success_end"
+    entered = [r.state for r in reports if r.kind is ProgressKind.ENTERED]
+    assert entered == ["approach", "preshape_hand", "grasp_object", "lift_object", "success_end"]
+    edges = [(r.transition, r.event) for r in reports if r.kind is ProgressKind.EDGE]
+    assert [t for t, _ in edges] == [t.name for t in atd.transitions if t.destination != "fail_end"]
+    assert edges[2][1] in (AbstractEvent.SUCCESS, AbstractEvent.GRASP_STABLE)
+    first_move = runner.starts[0]
+    assert first_move[2]["target"] == [0.2, 0.6, 0.1] and first_move[2]["standoff"] == 0.1
+    assert runner.active == {}
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_cyclic_atd_retries_after_grasp_lost(robot):
+    atd = load_atd(path("grasp_retry.xml"))
+    tr = translate(atd, factory_for(PROFILES[robot]))
+    clock = FakeClock()
+    runner = FakeRunner(clock)
+    _world(runner, lose_first_lift=True)
+    reports = []
+    eng = TaskEngine(runner, clock, on_progress=lambda p: reports.append(tr.abstract(p)))
+    res = run_until_done(eng, clock, eng.launch(tr.estd))
+    assert res.status is Status.SUCCESS and res.label == "lifted"
+    entered = [r.state for r in reports if r.kind is ProgressKind.ENTERED]
+    assert entered.count("approach") == 2 and entered.count("reopen") == 1
+    retry = [r for r in reports if r.kind is ProgressKind.EDGE and r.transition == "retry"]
+    assert len(retry) == 1 and retry[0].event is AbstractEvent.GRASP_LOST
+
+
+def test_timeout_transition_of_the_atd_fires():
+    atd = load_atd(path("grasp_retry.xml"))
+    tr = translate(atd, factory_for(MELFA))
+    assert tr.estd.nodes["grasp_object"].timeout == 15.0
+    clock = FakeClock()
+    runner = FakeRunner(clock)
+    runner.script("move_to", [Step(0.2, Event.SUCCESS)])  # the grasp never closes
+    reports = []
+    eng = TaskEngine(runner, clock, on_progress=lambda p: reports.append(tr.abstract(p)))
+    res = run_until_done(eng, clock, eng.launch(tr.estd))
+    assert res.label == "failed" and res.status is Status.FAILURE and 15.2 <= res.t < 15.4
+    last = [r for r in reports if r.kind is ProgressKind.EDGE][-1]
+    assert last.transition == "grasp_object->failed" and last.event is AbstractEvent.TIMEOUT
+
+
+def test_hardware_failure_is_reported_as_an_abstract_fault_exit():
+    atd = load_atd(path("fig7_2.xml"))
+    tr = translate(atd, factory_for(BAXTER))
+    clock = FakeClock()
+    runner = FakeRunner(clock)
+    runner.script("move_to", [Step(0.3, Event.HARDWARE_FAILURE)])
+    reports = []
+    eng = TaskEngine(runner, clock, on_progress=lambda p: reports.append(tr.abstract(p)))
+    res = run_until_done(eng, clock, eng.launch(tr.estd, {"object_location": [0.2, 0.6, 0.1]}))
+    assert res.event is Event.HARDWARE_FAILURE and res.label == "fail_end"
+    fault = [r for r in reports if r.kind is ProgressKind.EDGE]
+    assert [(r.transition, r.event, r.implicit) for r in fault] == [
+        ("approach!hardware_failure", AbstractEvent.HARDWARE_FAILURE, True)]
+
+
+def test_atd_names_with_spaces_keep_their_names_in_progress():
+    text = path("fig7_2.xml").read_text().replace("preshape_hand", "preshape hand")
+    tr = translate(parse_atd(text, "spaces.xml"), factory_for(MELFA))
+    assert "preshape_hand" in tr.estd.nodes and tr.states["preshape_hand"] == "preshape hand"
+    clock = FakeClock()
+    runner = FakeRunner(clock)
+    _world(runner)
+    seen = []
+    eng = TaskEngine(runner, clock, on_progress=lambda p: seen.append(tr.abstract(p)))
+    run_until_done(eng, clock, eng.launch(tr.estd, {"object_location": [0.2, 0.6, 0.1]}))
+    assert "preshape hand" in [r.state for r in seen if r.kind is ProgressKind.ENTERED]
+    assert "approach->preshape hand" in [r.transition for r in seen if r.kind is ProgressKind.EDGE]

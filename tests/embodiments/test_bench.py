@@ -1,0 +1,18 @@
+"""Smoke test of ``contactflow bench sim`` in its quick form."""
+
+from __future__ import annotations
+
+import json
+
+from contactflow.embodiments.bench_sim import run
+
+
+def test_quick_bench_writes_its_summary(tmp_path):
+    summary = run(tmp_path, quick=True)
+    saved = json.loads((tmp_path / "sim.json").read_text())
+    assert set(saved["single"]) == {"tombatossals", "melfa", "baxter"}
+    assert all(r["rtf"] > 0 and not r["failed"] for r in saved["single"].values())
+    assert saved["pair"]["two_processes_two_cores"]["rtf"] > 0
+    assert summary["kinematics"]["wrapper_us"] > 0
+    assert set(summary["planning"]) == {"KPIECE1", "RRTConnect"}
+    assert all(0.0 <= p["success_rate"] <= 1.0 for p in summary["planning"].values())

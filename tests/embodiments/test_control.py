@@ -1,0 +1,59 @@
+"""Every embodiment holds its home pose and tracks a 10 cm Cartesian line; IK and mixer units."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contactflow.embodiments.control.mixer import JointCommandMixer
+from contactflow.embodiments.testing import line_deviation, make_robot
+from contactflow.nodes.status import Status
+
+
+@pytest.mark.parametrize("name", ["tombatossals", "melfa", "baxter"])
+def test_holds_home_and_tracks_a_cartesian_line(name):
+    robot = make_robot(name, table=False)
+    for arm_name in robot.arms[:1]:
+        arm = robot.arm(arm_name)
+        p0 = arm.ee_pose()
+        robot.step(5.0)
+        assert np.linalg.norm(arm.ee_pose()[:3, 3] - p0[:3, 3]) < 1e-3
+        goal = p0.copy()
+        goal[:3, 3] += np.array([0.0, -0.06, -0.08])  # 10 cm line
+        arm.move_pose(goal, speed=0.1)
+        trace = []
+        while not arm.done() and robot.time < 10.0:
+            robot.step(0.01)
+            trace.append(arm.ee_pose()[:3, 3])
+        assert arm.status == Status.SUCCESS
+        assert line_deviation(np.array(trace), p0[:3, 3], goal[:3, 3]) < 5e-3
+        assert np.linalg.norm(arm.ee_pose()[:3, 3] - goal[:3, 3]) < 5e-3
+        assert np.linalg.norm(arm.ee_pose()[:3, :3] - goal[:3, :3]) < 0.02
+
+
+def test_twist_in_a_task_frame_and_joint_move(melfa):
+    arm = melfa.arm("arm")
+    p0 = arm.ee_pose()
+    # the tcp z axis points down: +z in the tcp frame is a downward motion in the world
+    arm.set_twist(np.array([0.0, 0.0, 0.05, 0.0, 0.0, 0.0]), frame="panda_hand_tcp", duration=1.0)
+    assert arm.wait(3.0) == Status.SUCCESS
+    melfa.step(0.3)
+    moved = arm.ee_pose()[:3, 3] - p0[:3, 3]
+    assert moved[2] == pytest.approx(-0.05, abs=3e-3)
+    assert np.linalg.norm(moved[:2]) < 3e-3
+    arm.move_joints(np.asarray(arm.home))
+    assert arm.wait(5.0) == Status.SUCCESS
+    assert np.abs(arm.q() - np.asarray(arm.home)).max() < 5e-3
+
+
+def test_mixer_weights_concurrent_sources():
+    m = JointCommandMixer(["a", "b", "c"], timeout=0.1)
+    m.hold(np.zeros(3))
+    m.submit("ik", ["a", "b"], np.array([1.0, 1.0]), weight=3.0, t=0.0)
+    m.submit("teleop", ["b", "c"], np.array([3.0, 2.0]), weight=1.0, t=0.0)
+    q, _, mask = m.mix(0.05)
+    assert np.allclose(q, [1.0, 1.5, 2.0]) and mask.all()
+    q, _, mask = m.mix(0.5)  # both stale: hold the last mixed target
+    assert np.allclose(q, [1.0, 1.5, 2.0]) and not mask.any()
+    with pytest.raises(ValueError, match="unknown joint 'z'"):
+        m.submit("x", ["z"], np.zeros(1))

@@ -1,0 +1,54 @@
+"""Injected faults become hardware_failure and a stopped robot, never an exception."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contactflow.embodiments.faults import FaultMonitor
+from contactflow.embodiments.testing import make_robot
+from contactflow.nodes.status import Event, Status
+
+
+def _moving_melfa():
+    robot = make_robot("melfa", table=False)
+    arm = robot.arm("arm")
+    arm.move_joints(np.asarray(arm.home) + np.array([0.0, 0.5, -0.5, 0.0, 0.0, 0.0]), speed=0.5)
+    robot.step(0.2)
+    return robot, arm
+
+
+@pytest.mark.parametrize("kind,kw", [("nan", {}), ("explode", {"joint": "elbow_joint"}),
+                                     ("stuck_joint", {"joint": "shoulder_lift_joint"}),
+                                     ("sensor_loss", {"sensor": "arm"})])
+def test_injected_fault_gives_hardware_failure(kind, kw):
+    robot, arm = _moving_melfa()
+    robot.inject_fault(kind, **kw)
+    robot.step(1.5)
+    assert robot.failed, kind
+    assert [e for _, e, _ in robot.events] == [Event.HARDWARE_FAILURE]
+    assert arm.status == Status.FAILURE and arm.abort_reason == "hardware_failure"
+    q = arm.q()
+    robot.step(0.5)
+    assert np.all(np.isfinite(arm.q()))
+    assert np.abs(arm.q() - q).max() < 0.02  # stopped
+    arm.move_pose(arm.ee_pose(), speed=0.1)  # further commands are refused, not raised
+    assert arm.status == Status.FAILURE
+
+
+def test_monitor_is_quiet_on_a_healthy_robot(melfa):
+    melfa.step(1.0)
+    assert not melfa.failed
+
+
+def test_monitor_unit_rules():
+    m = FaultMonitor(["a", "b"], np.array([-1.0, -1.0]), np.array([1.0, 1.0]))
+    ok = np.zeros(2)
+    assert m.check(0.0, ok, ok, ok) is None
+    assert m.check(0.0, np.array([np.nan, 0.0]), ok, ok).kind == "nan"
+    assert m.check(0.0, ok, np.array([0.0, 100.0]), ok).kind == "explosion"
+    assert m.check(0.0, np.array([2.0, 0.0]), ok, ok).kind == "explosion"
+    target = np.array([0.5, 0.0])
+    assert m.check(0.0, ok, ok, target) is None
+    assert m.check(1.0, ok, ok, target).kind == "stuck_joint"
+    assert m.check(2.0, ok, ok, ok, {"ft": 1.0}).kind == "sensor_loss"

@@ -1,0 +1,103 @@
+"""Interface-layer modules over a SimRobot, run with the in-memory FakeIO."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contactflow.embodiments.messages import JointCommand, JointState, TactileArray, Wrench
+from contactflow.embodiments.modules.camera_publisher import CameraPublisher
+from contactflow.embodiments.modules.ft_publisher import FTPublisher
+from contactflow.embodiments.modules.ground_truth_publisher import GroundTruthPublisher
+from contactflow.embodiments.modules.joint_command_subscriber import JointCommandSubscriber
+from contactflow.embodiments.modules.joint_state_publisher import JointStatePublisher
+from contactflow.embodiments.modules.tactile_publisher import TactilePublisher
+from contactflow.embodiments.modules.world_clock import WorldClock
+from contactflow.embodiments.testing import make_robot
+from contactflow.embodiments.world import box
+from contactflow.nodes.messages import Clock
+from contactflow.nodes.status import Event
+from contactflow.nodes.testing import FakeIO, run_module
+from contactflow.nodes.wire import NDArray
+
+
+@pytest.fixture(scope="module")
+def robot():
+    r = make_robot("melfa")
+    r.world.add_object(box("cube", (0.05, 0.05, 0.05), (0.6, 0.2, 0.775)))
+    return r
+
+
+def test_joint_state_publisher(robot):
+    io = FakeIO()
+    run_module(JointStatePublisher("js", robot), io, steps=3)
+    msgs = io.published["joint_state"]
+    assert len(msgs) == 3 and isinstance(msgs[0], JointState)
+    assert msgs[0].names == robot.art.joint_names
+    assert np.allclose(msgs[-1].position.numpy(), robot.art.qpos(), atol=1e-6)
+
+
+def test_joint_command_subscriber_mixes_weighted_sources(robot):
+    sub = JointCommandSubscriber("jcs", robot)
+    io = FakeIO(module=sub)
+    sub.setup(io)
+    sub.start()
+    clock = WorldClock("clock", robot.world)
+    cio = FakeIO(module=clock)
+    clock.setup(cio)
+    q0 = robot.arm("arm").q()
+    j = ["wrist_3_joint"]
+    for _ in range(200):
+        io.feed("command", JointCommand(names=j, position=NDArray.of(np.array([q0[5] + 0.3])), weight=3.0, source="a"))
+        io.feed("command", JointCommand(names=j, position=NDArray.of(np.array([q0[5] - 0.1])), weight=1.0, source="b"))
+        sub.step()
+        clock.step()
+        io.t = cio.t = robot.time
+    assert robot.arm("arm").q()[5] == pytest.approx(q0[5] + 0.2, abs=5e-3)
+    assert io.published["mixed"][-1].position.numpy()[0] == pytest.approx(q0[5] + 0.2)
+    assert isinstance(cio.published["clock"][-1], Clock)
+    bad = JointCommand(names=["nope"], position=NDArray.of(np.zeros(1)))
+    io.feed("command", bad)
+    sub.step()
+    assert sub.rejected == 1
+
+
+def test_sensor_publishers(robot):
+    io = FakeIO()
+    run_module(FTPublisher("ft", robot, FTPublisher.Params(arm="arm")), io, steps=2)
+    w = io.published["wrench"][-1]
+    assert isinstance(w, Wrench) and len(w.force) == 3
+    io = FakeIO()
+    run_module(TactilePublisher("tac", robot, TactilePublisher.Params(hand="gripper")), io, steps=1)
+    t = io.published["tactile"][-1]
+    assert isinstance(t, TactileArray) and t.pressure.numpy().shape == (2, 5, 8)
+
+
+def test_camera_and_ground_truth_publishers():
+    r = make_robot("tombatossals")
+    r.world.add_object(box("cube", (0.05, 0.05, 0.05), (0.6, 0.0, 0.775)))
+    r.step(0.1)
+    io = FakeIO()
+    run_module(CameraPublisher("cam", r), io, steps=1)
+    assert io.published["depth"][-1].depth.numpy().shape == (480, 640)
+    assert io.published["cloud"][-1].points.numpy().shape[1] == 3
+    io = FakeIO()
+    run_module(GroundTruthPublisher("gt", r), io, steps=1)
+    poses = io.published["object_poses"][-1]
+    assert poses.names == ["cube"]
+    assert np.allclose(poses.poses.numpy()[0][:3, 3], [0.6, 0.0, 0.775], atol=2e-3)
+    contacts = io.published["true_contacts"][-1]
+    assert "cube" in contacts.body_a + contacts.body_b
+
+
+def test_hardware_failure_is_published_as_an_event():
+    r = make_robot("melfa", table=False)
+    pub = JointStatePublisher("js", r)
+    io = FakeIO()
+    run_module(pub, io, steps=1)
+    r.inject_fault("nan")
+    r.step(0.05)
+    pub.step()
+    pub.step()
+    assert io.event_labels() == [Event.HARDWARE_FAILURE]
+    assert "nan" in io.events[0].detail

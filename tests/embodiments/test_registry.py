@@ -1,0 +1,65 @@
+"""Registry and URDF composition: every embodiment is data, composed URDFs load in pinocchio."""
+
+from __future__ import annotations
+
+import pinocchio as pin
+import pytest
+
+from contactflow.embodiments import registry
+from contactflow.embodiments.urdf_compose import Composition, Mount, Part, UrdfError, compose
+
+
+@pytest.mark.parametrize("name", ["tombatossals", "melfa", "baxter"])
+def test_every_robot_is_registered_and_consistent(name, tmp_path):
+    spec = registry.get(name)
+    path = spec.urdf(tmp_path)
+    model = pin.buildModelFromUrdf(str(path))
+    joints = set(model.names)
+    for arm in spec.arms:
+        assert set(arm.joints) <= joints
+        assert model.existFrame(arm.ee_frame)
+    for hand in spec.hands:
+        assert set(hand.joints) <= joints
+        for pad in hand.pads:
+            assert model.existFrame(pad.link)
+    assert spec.capabilities is not None and "grasp" in spec.capabilities.primitives
+
+
+def test_tombatossals_composition_has_two_arms_hands_and_head(tmp_path):
+    spec = registry.get("tombatossals")
+    model = pin.buildModelFromUrdf(str(spec.urdf(tmp_path)))
+    assert model.nq == 2 * 7 + 2 * 16 + 2
+    assert [len(h.pads) for h in spec.hands] == [4, 4]
+    assert all((p.rows, p.cols) == (5, 8) for h in spec.hands for p in h.pads)
+    cam = spec.camera("kinect")
+    assert (cam.width, cam.height) == (640, 480)
+    assert {f.name for f in spec.fts} == {"left_ft", "right_ft"}
+
+
+def test_melfa_is_six_dof_with_parallel_tactile_gripper():
+    spec = registry.get("melfa")
+    assert len(spec.arm("arm").joints) == 6
+    hand = spec.hand("gripper")
+    assert hand.kind == "parallel" and len(hand.pads) == 2
+
+
+def test_baxter_ft_is_estimated():
+    spec = registry.get("baxter")
+    assert all(f.estimated for f in spec.fts)
+    assert [len(a.joints) for a in spec.arms] == [7, 7]
+
+
+def test_unknown_robot_and_names_raise_clearly():
+    with pytest.raises(registry.RegistryError, match="unknown robot 'r2d2'"):
+        registry.get("r2d2")
+    with pytest.raises(registry.RegistryError, match="no arm 'middle'"):
+        registry.get("melfa").arm("middle")
+
+
+def test_composition_errors_name_the_part():
+    bad = Composition("x", parts=(Part("panda_description/urdf/panda.urdf", drop_links=("no_such_link",)),))
+    with pytest.raises(UrdfError, match="panda.urdf: drop_links names 'no_such_link'"):
+        compose(bad)
+    orphan = Composition("y", parts=(Part("panda_description/urdf/panda.urdf", mount=Mount("ghost")),))
+    with pytest.raises(UrdfError, match="unknown link 'ghost'"):
+        compose(orphan)

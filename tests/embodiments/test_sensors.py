@@ -1,0 +1,116 @@
+"""Sensors from the physics: F/T reads m·g, tactile only under contact, camera cloud of a known box, encoders."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contactflow.embodiments.registry import PadSpec
+from contactflow.embodiments.sensors.camera import depth_to_points
+from contactflow.embodiments.sensors.tactile import pressure, taxel_positions
+from contactflow.embodiments.testing import make_robot
+from contactflow.embodiments.world import box
+from contactflow.nodes.status import Event, Status
+
+MASS = 0.5
+
+
+@pytest.fixture(scope="module")
+def grasp():
+    """melfa picks a 0.5 kg box: (robot, tactile while open, tactile while holding)."""
+    robot = make_robot("melfa")
+    arm, hand = robot.arm("arm"), robot.hand("gripper")
+    T0 = arm.ee_pose()
+    robot.world.add_object(box("obj", (0.04, 0.04, 0.06), (T0[0, 3], T0[1, 3], 0.78), mass=MASS, friction=0.8))
+    robot.step(0.2)
+    down = T0.copy()
+    down[2, 3] = 0.80
+    arm.move_pose(down, speed=0.15)
+    assert arm.wait(5.0) == Status.SUCCESS
+    open_tactile = robot.tactile("gripper")
+    hand.close()
+    assert hand.wait(3.0) == Status.SUCCESS
+    up = down.copy()
+    up[2, 3] = 0.95
+    arm.move_pose(up, speed=0.15)
+    assert arm.wait(5.0) == Status.SUCCESS
+    robot.step(0.3)
+    return robot, open_tactile, robot.tactile("gripper")
+
+
+def test_ft_reads_the_held_weight(grasp):
+    robot, _, _ = grasp
+    assert robot.world.objects["obj"].pose()[2, 3] > 0.85  # lifted
+    f = np.mean([robot.ft("arm").force for _ in range(1) if robot.step(0.01) is None], axis=0)
+    assert f[2] == pytest.approx(-MASS * 9.81, rel=0.05)
+    assert np.linalg.norm(f[:2]) < 0.05 * MASS * 9.81
+
+
+def test_tactile_shows_pressure_only_under_contact(grasp):
+    _, open_tactile, held = grasp
+    assert all(np.all(v == 0) for v in open_tactile.values())
+    for pad in ("left", "right"):
+        img = held[pad]
+        assert img.shape == (5, 8)
+        assert img.max() > 0.5
+        assert (img < 0.01 * img.max()).sum() >= 10  # taxels away from the contact read nothing
+        assert np.all(img >= 0)
+
+
+def test_pressure_model_on_flat_and_curved_pads():
+    flat = PadSpec("p", "l", origin=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), u_axis=(1.0, 0.0, 0.0), size=(0.016, 0.01))
+    img = pressure(flat, np.array([[0.0, 0.0, 0.0]]), np.array([2.0]))
+    r, c = np.unravel_index(img.argmax(), img.shape)
+    assert r == 2 and c in (3, 4)
+    assert img.sum() == pytest.approx(2.0, rel=0.1)
+    assert np.all(pressure(flat, np.array([[0.05, 0.0, 0.0]]), np.array([2.0])) == 0)  # beside the pad
+    assert np.all(pressure(flat, np.array([[0.0, 0.0, 0.02]]), np.array([2.0])) == 0)  # above it
+    tip = PadSpec("t", "l", origin=(0.012, 0.0, 0.0), normal=(1.0, 0.0, 0.0), u_axis=(0.0, 0.0, 1.0), size=(0.022, 0.016),
+                  radius=0.012)
+    taxels = taxel_positions(tip)
+    assert np.allclose(np.linalg.norm(taxels, axis=2), 0.012)
+    front = pressure(tip, np.array([[0.012, 0.0, 0.0]]), np.array([1.0]))
+    back = pressure(tip, np.array([[-0.012, 0.0, 0.0]]), np.array([1.0]))
+    assert front.max() > 0 and np.all(back == 0)
+
+
+def test_camera_cloud_of_a_known_box():
+    robot = make_robot("tombatossals")
+    size, centre = (0.1, 0.06, 0.08), np.array([0.55, 0.0, 0.79])
+    robot.world.add_object(box("target", size, tuple(centre), mass=0.3))
+    robot.step(0.1)
+    frame = robot.camera("kinect")
+    assert frame.depth.shape == (480, 640)
+    assert np.allclose(depth_to_points(frame.depth, frame.K, frame.T_world_cam), frame.points, atol=1e-4)
+    P = frame.points
+    near = P[(np.abs(P[:, 0] - centre[0]) < 0.08) & (np.abs(P[:, 1] - centre[1]) < 0.06) & (P[:, 2] > 0.755) & (P[:, 2] < 0.9)]
+    top = near[near[:, 2] > near[:, 2].max() - 0.003]
+    assert len(top) > 200
+    assert top[:, 2].mean() == pytest.approx(centre[2] + size[2] / 2, abs=5e-3)
+    assert top[:, 0].min() == pytest.approx(centre[0] - size[0] / 2, abs=5e-3)
+    assert top[:, 0].max() == pytest.approx(centre[0] + size[0] / 2, abs=5e-3)
+    assert top[:, 1].min() == pytest.approx(centre[1] - size[1] / 2, abs=5e-3)
+    assert top[:, 1].max() == pytest.approx(centre[1] + size[1] / 2, abs=5e-3)
+    gt = robot.ground_truth()
+    assert np.allclose(gt.object_poses["target"][:3, 3], centre, atol=2e-3)
+    assert any({c.body_a, c.body_b} == {"target", "table"} for c in gt.contacts)
+
+
+def test_encoders_follow_the_fingers(melfa):
+    hand = melfa.hand("gripper")
+    hand.set_fingers(np.array([0.02]))
+    assert hand.wait(2.0) == Status.SUCCESS
+    assert melfa.finger_positions("gripper")[0] == pytest.approx(0.02, abs=1e-3)
+    hand.open()
+    assert hand.wait(2.0) == Status.SUCCESS
+
+
+def test_baxter_estimated_wrench_detects_table_contact():
+    robot = make_robot("baxter")
+    arm = robot.arm("left")
+    quiet = np.array([robot.ft("left").force for _ in range(20) if robot.step(0.01) is None])
+    assert quiet.std(axis=0).max() > 0.3  # noisy, as the real virtual sensor
+    arm.guarded_move(np.array([0.0, 0.0, -0.05, 0.0, 0.0, 0.0]), max_force=8.0, duration=6.0)
+    assert arm.wait(7.0) == Status.SUCCESS
+    assert any(e == Event.CONTACT for _, e, _ in robot.events)
+    assert arm.ee_pose()[2, 3] < 0.80  # stopped at the table (top at 0.75), not before

@@ -1,0 +1,84 @@
+import numpy as np
+import pytest
+
+from contactflow.fusion.hypotheses import (
+    Hypotheses,
+    HypothesisSpace,
+    HypothesisType,
+    VoxelIndex,
+    pack_keys,
+    unpack_keys,
+    voxel_centers,
+    voxel_keys,
+    voxelize,
+)
+
+
+def test_keys_roundtrip_negative_and_positive():
+    ijk = np.array([[0, 0, 0], [-5, 7, -1_000_000], [1_000_000, -3, 2]])
+    assert np.array_equal(unpack_keys(pack_keys(ijk)), ijk)
+    with pytest.raises(ValueError, match="out of range"):
+        pack_keys(np.array([[1 << 21, 0, 0]]))
+
+
+def test_voxel_centers_are_inside_their_voxel():
+    pts = np.random.default_rng(1).uniform(-1, 1, (500, 3))
+    c = voxel_centers(voxel_keys(pts, 0.005), 0.005)
+    assert np.abs(c - pts).max() <= 0.0025 + 1e-12
+
+
+def test_index_insert_lookup_duplicates_and_growth():
+    rng = np.random.default_rng(0)
+    idx = VoxelIndex(16)
+    keys = rng.integers(0, 1 << 50, 5000)
+    rows = idx.insert(np.concatenate([keys, keys[:100]]))
+    assert idx.count == np.unique(keys).size
+    assert np.array_equal(rows[:100], rows[5000:])
+    assert np.array_equal(idx.lookup(keys), rows[:5000])
+    assert np.array_equal(idx.row_keys[rows[:5000]], keys)
+    assert (idx.lookup(rng.integers(1 << 51, 1 << 52, 50)) == -1).all()
+    # new rows are numbered in order of first appearance
+    more = rng.integers(1 << 52, 1 << 53, 10)
+    assert np.array_equal(idx.insert(more), np.arange(5000, 5010))
+
+
+def test_voxelize_sum_keeps_single_contact_mass_and_max_for_multi():
+    pts = np.array([[0.001, 0.001, 0.001], [0.002, 0.002, 0.002], [0.1, 0.1, 0.1]])
+    h = Hypotheses.make(pts, [0.25, 0.25, 0.5], force=[2.0, 4.0, 1.0], direction=[[1, 0, 0]] * 3)
+    s = voxelize(h, 0.005, "sum")
+    assert len(s) == 2 and s.likelihood.sum() == pytest.approx(1.0)
+    m = voxelize(h, 0.005, "max")
+    assert sorted(m.likelihood) == [0.25, 0.5]
+    first = np.argmin(m.location[:, 0])
+    assert m.force[first] == pytest.approx(3.0)  # likelihood-weighted mean
+    assert np.allclose(m.direction[first], [1, 0, 0])
+
+
+def test_voxelize_type_null_wins():
+    h = Hypotheses.make(np.zeros((2, 3)), 1.0, np.array([HypothesisType.REGULAR, HypothesisType.NULL]))
+    assert voxelize(h).kind.tolist() == [HypothesisType.NULL]
+
+
+def test_bad_hypotheses_name_the_field():
+    with pytest.raises(ValueError, match="'likelihood'"):
+        Hypotheses.make(np.zeros((2, 3)), [0.5, 1.5])
+    with pytest.raises(ValueError, match="NaN"):
+        Hypotheses.make(np.array([[np.nan, 0, 0]]), 0.5)
+    with pytest.raises(ValueError, match="'kind'"):
+        Hypotheses.make(np.zeros((1, 3)), 0.5, np.array([7]))
+
+
+def test_space_expire_and_compact_keep_rows_consistent():
+    sp = HypothesisSpace(0.005, capacity=16)
+    pts = np.random.default_rng(2).uniform(0, 0.3, (300, 3))
+    h_old = Hypotheses.make(pts[:200], 0.5, stamp=0.0)
+    h_new = Hypotheses.make(pts[200:], 0.7, stamp=1.0)
+    sp.put(0, sp.rows_for(voxel_keys(h_old.location, 0.005)), h_old)
+    sp.put(1, sp.rows_for(voxel_keys(h_new.location, 0.005)), h_new)
+    assert sp.expire(0.5) == len(np.unique(voxel_keys(pts[:200], 0.005)))
+    assert sp.compact()
+    keys_new = np.unique(voxel_keys(pts[200:], 0.005))
+    assert sp.n == keys_new.size
+    rows = sp.index.lookup(keys_new)
+    assert (rows >= 0).all() and np.allclose(sp.lik[1, rows], 0.7)
+    assert np.allclose(sp.centers(rows), voxel_centers(keys_new, 0.005))

@@ -1,0 +1,78 @@
+import numpy as np
+
+from contactflow.fusion.generators.tactile import TactileGenerator, TactileParams
+from contactflow.fusion.hypotheses import Hypotheses
+from contactflow.fusion.messages import ContactEventMsg, ContactList, HypothesisCloud
+from contactflow.fusion.service import ContactFusion, FusionParams
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.messages import Array
+from contactflow.nodes.status import Event
+from contactflow.nodes.testing import FakeIO
+from contactflow.nodes.wire import NDArray
+
+A = np.array([[0.50, 0.30, 0.80]])
+B = np.array([[0.50, -0.30, 0.80]])
+
+
+def start(module, io):
+    io.module = module
+    module.setup(io)
+    module.start()
+
+
+def test_keys_of_the_fusion_service():
+    ks = KeySpace("lab")
+    p = FusionParams(robot="site", sources="*/*")
+    assert ContactFusion.input_keys(ks, p) == {"hypotheses": "cf/lab/contacts/*/*"}
+    assert ContactFusion.output_keys(ks, p)["events"] == "cf/lab/contacts/fused/site/events"
+
+
+def test_two_robots_fused_by_one_integrator():
+    fusion = ContactFusion("fusion", FusionParams(hold=0.05))
+    io = FakeIO()
+    start(fusion, io)
+    io.feed("hypotheses", HypothesisCloud.of(Hypotheses.make(A, 0.9, stamp=0.0), "r1", "tactile", "thumb"))
+    io.feed("hypotheses", HypothesisCloud.of(Hypotheses.make(B, 0.8, stamp=0.0), "r2", "ft", "hand"))
+    fusion.step()
+    (contacts,) = io.published["contacts"]
+    assert isinstance(contacts, ContactList)
+    assert sorted((c.robot, c.link) for c in contacts.contacts) == [("r1", "thumb"), ("r2", "hand")]
+    made = io.published["events"]
+    assert all(isinstance(e, ContactEventMsg) and e.event == Event.CONTACT_MADE for e in made) and len(made) == 2
+    assert io.event_labels() == [Event.CONTACT_MADE, Event.CONTACT_MADE]
+    # r2's generator keeps talking without a contact; r1 goes silent: its contact breaks.
+    for k in range(1, 20):
+        io.t = 0.05 * k
+        io.feed("hypotheses", HypothesisCloud.of(Hypotheses.empty(io.t), "r2", "ft"))
+        fusion.step()
+    broken = [e for e in io.published["events"] if e.event == Event.CONTACT_BROKEN]
+    assert sorted(e.robot for e in broken) == ["r1", "r2"]
+
+
+def test_silent_sources_are_unplugged_and_bad_clouds_rejected():
+    fusion = ContactFusion("fusion", FusionParams(drop_after=1.0))
+    io = FakeIO()
+    start(fusion, io)
+    io.feed("hypotheses", HypothesisCloud.of(Hypotheses.make(A, 0.9), "r1", "tactile"))
+    fusion.step()
+    assert "r1/tactile" in fusion.integrator.sources
+    bad = HypothesisCloud.of(Hypotheses.make(A, 0.9), "r1", "ft")
+    bad.frame = "hand"
+    io.t = 2.0
+    io.feed("hypotheses", bad)
+    fusion.step()
+    assert fusion.rejected == 1 and fusion.integrator.sources == {}
+    assert any("world frame" in line for line in io.logs)
+
+
+def test_tactile_shell_publishes_cloud():
+    gen = TactileGenerator("tactile", TactileParams(robot="r1"))
+    io = FakeIO()
+    start(gen, io)
+    taxels = np.array([[0.5, 0, 0.8, 0.0], [0.52, 0, 0.8, 2.0]])
+    io.feed("taxels", Array(array=NDArray.of(taxels)))
+    gen.step()
+    (msg,) = io.published["hypotheses"]
+    assert (msg.robot, msg.generator) == ("r1", "tactile")
+    h = msg.hypotheses()
+    assert len(h) == 1 and h.likelihood[0] == 1.0
