@@ -120,8 +120,11 @@ class Broker:
                 raise DispatchRefused(exc.refusals) from None
             started = []
             for robot in chosen:
-                with self._lock:  # before the run request: a fast robot may finish before it returns
+                # recorded and reported before the run request: a fast robot may finish first
+                with self._lock:
                     record.running.add(robot)
+                self._report(record.task_id, "assigned", robot_detail=robot,
+                             detail=f"running on {robot} (attempt {record.attempt})")
                 reply = self._run_on(record, robot)
                 if reply.ok:
                     started.append(robot)
@@ -129,10 +132,8 @@ class Broker:
                     with self._lock:
                         record.running.discard(robot)
                     refusals[robot] = [reply.error or "refused to run"]
+                    self._report(record.task_id, "declined", robot_detail=robot, detail=f"{robot}: {reply.error}")
             if started:
-                for robot in started:
-                    self._report(record.task_id, "assigned", robot_detail=robot,
-                                 detail=f"running on {robot} (attempt {record.attempt})")
                 return started
             if record.target == "all":
                 raise DispatchRefused(refusals)

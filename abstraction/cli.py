@@ -114,8 +114,10 @@ def register(app: typer.Typer) -> None:
         finally:
             t.close()
         table = Table(title=f"site {ks.site}: {len(caps)} robots")
-        for col in ("robot", "node", "hand", "sensors", "primitives", "busy"):
-            table.add_column(col)
+        for col in ("robot", "node", "hand", "busy"):
+            table.add_column(col, no_wrap=True)
+        table.add_column("sensors")
+        table.add_column("primitives")
         for c in caps:
-            table.add_row(c.robot, c.node, c.hand, ", ".join(c.sensors), ", ".join(c.primitives), str(c.busy))
+            table.add_row(c.robot, c.node, c.hand, str(c.busy), ", ".join(c.sensors), ", ".join(c.primitives))
         console.print(table)

@@ -8,6 +8,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from contactflow.abstraction.frames import TaskFrame, params_to_world
 from contactflow.abstraction.translator import AbstractProgress, Translation
 from contactflow.nodes.status import Event
 from contactflow.nodes.taskengine import PrimitiveRunner, TaskEngine
@@ -38,13 +39,22 @@ class EngineExecutor:
         self.max_time = max_time
         self.realtime = realtime
 
+    @staticmethod
+    def frame_of(translation: Translation) -> TaskFrame:
+        from contactflow.abstraction.profiles import PROFILES
+
+        profile = PROFILES.get(translation.robot)
+        return profile.task_frame if profile is not None else TaskFrame()
+
     def __call__(self, translation: Translation, report: Callable[[AbstractProgress], None],
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
         clock = SimTime()
         runner, advance = self.make(clock)
         engine = TaskEngine(runner, clock, on_progress=lambda p: report(translation.abstract(p)))
         declared = translation.estd.params
-        run = engine.launch(translation.estd, {k: v for k, v in (params or {}).items() if k in declared})
+        bound = params_to_world({k: v for k, v in (params or {}).items() if k in declared},
+                                self.frame_of(translation))
+        run = engine.launch(translation.estd, bound)
         wall0 = time.monotonic()
         while not engine.done(run):
             if cancel.is_set():

@@ -1,7 +1,8 @@
 """What a factory knows about a robot: hand kind, sensors, primitive types and workspace.
 
-The lead connects these to ``contactflow.embodiments.registry``; until then the three
-thesis robots are described here with the values the factories need.
+Sensors, hand kind, payload and the workspace box come from the embodiment registry
+(``contactflow.embodiments.registry``); the primitive set, hand shapes and speeds the
+factories choose between are the translation extras of each robot below.
 """
 
 from __future__ import annotations
@@ -10,6 +11,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
+
+from contactflow.abstraction.frames import WORKCELL, TaskFrame
+from contactflow.embodiments import registry
+from contactflow.embodiments.registry import RobotSpec
 
 
 class HandKind(StrEnum):
@@ -28,20 +33,27 @@ class Sensor(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class Workspace:
-    """Reachable region: a sphere around ``center`` (m, world frame) above ``z_min``."""
+    """Reachable region: an axis-aligned box (m, world frame) from the embodiment registry."""
 
-    center: tuple[float, float, float]
-    radius: float  # m
-    z_min: float = 0.0  # m, lowest reachable height (table surface)
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+
+    @property
+    def center(self) -> tuple[float, float, float]:
+        return tuple((a + b) / 2 for a, b in zip(self.lo, self.hi, strict=True))  # type: ignore[return-value]
+
+    @property
+    def radius(self) -> float:
+        """Half the box diagonal (m): the reach a bid may assume."""
+        return math.dist(self.lo, self.hi) / 2
 
     def reaches(self, p: Sequence[float]) -> bool:
-        return math.dist(self.center, p) <= self.radius and p[2] >= self.z_min
+        return all(lo - 1e-9 <= v <= hi + 1e-9 for lo, v, hi in zip(self.lo, p, self.hi, strict=True))
 
     def describe(self, p: Sequence[float]) -> str:
-        d = math.dist(self.center, p)
-        if p[2] < self.z_min:
-            return f"z={p[2]:.3f} m is below the workspace floor {self.z_min:.3f} m"
-        return f"{d:.3f} m from the workspace centre, reach is {self.radius:.3f} m"
+        axes = [f"{n}={v:.3f} m outside [{lo:.2f}, {hi:.2f}]"
+                for n, lo, v, hi in zip("xyz", self.lo, p, self.hi, strict=True) if not lo <= v <= hi]
+        return "; ".join(axes) or "inside the workspace"
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +71,7 @@ class RobotProfile:
     wrench_noise: float = 0.2  # N, standard deviation of the wrist force reading
     speed: float = 0.1  # m/s, nominal Cartesian speed of the end effector
     factory: str = ""  # name of the factory to use (default: the robot's name)
+    task_frame: TaskFrame = WORKCELL  # where the ATD's coordinates sit in this robot's world
 
     def has(self, *sensors: Sensor) -> bool:
         return all(s in self.sensors for s in sensors)
@@ -67,48 +80,59 @@ class RobotProfile:
 _ARM = frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event",
                   "detect_objects", "place_location"})
 
-TOMBATOSSALS = RobotProfile(
-    name="tombatossals",
-    hand=HandKind.MULTI_FINGER,
-    sensors=frozenset({Sensor.WRIST_FT, Sensor.TACTILE, Sensor.JOINT_STATE, Sensor.CAMERA,
-                       Sensor.DEPTH}),
-    capabilities=_ARM | {"robust_grasp", "naive_grasp", "place", "slide", "explore", "unscrew",
-                         "push", "pull", "touch"},
-    workspace=Workspace((0.0, 0.3, 0.6), 1.0, 0.0),
-    hand_shapes=frozenset({"open", "pinch_grasp_preshape", "pinch_grasp", "cylindrical",
-                           "cylindrical_preshape", "spherical", "spherical_preshape"}),
-    max_payload=2.0,
-    max_opening=0.14,
-    wrench_noise=0.2,
-    speed=0.1,
-)
 
-MELFA = RobotProfile(
-    name="melfa",
-    hand=HandKind.PARALLEL_GRIPPER,
-    sensors=frozenset({Sensor.TACTILE, Sensor.GRIPPER_EFFORT, Sensor.JOINT_STATE}),
-    capabilities=_ARM | {"close_until_force"},
-    workspace=Workspace((0.0, 0.4, 0.4), 0.85, 0.0),
-    hand_shapes=frozenset({"open", "closed"}),
-    max_payload=3.0,
-    max_opening=0.068,  # PG-70 stroke
-    wrench_noise=0.0,
-    speed=0.25,
-)
+@dataclass(frozen=True, slots=True)
+class _Extras:
+    """What translation needs beyond the embodiment registry (thesis Tables 7.3-7.4)."""
 
-BAXTER = RobotProfile(
-    name="baxter",
-    hand=HandKind.PARALLEL_GRIPPER,
-    sensors=frozenset({Sensor.WRIST_FT, Sensor.GRIPPER_EFFORT, Sensor.JOINT_STATE,
-                       Sensor.CAMERA}),
-    capabilities=_ARM | {"close_until_force", "naive_grasp", "place", "slide", "push", "pull",
-                         "touch", "explore"},
-    workspace=Workspace((0.0, 0.35, 0.5), 1.1, 0.0),
-    hand_shapes=frozenset({"open", "closed"}),
-    max_payload=2.2,
-    max_opening=0.09,
-    wrench_noise=2.0,  # the wrist wrench is estimated from joint torques: noisy
-    speed=0.2,
-)
+    capabilities: frozenset[str]
+    hand_shapes: frozenset[str]
+    max_opening: float  # m
+    wrench_noise: float  # N
+    speed: float  # m/s
 
-PROFILES = {p.name: p for p in (TOMBATOSSALS, MELFA, BAXTER)}
+
+_EXTRAS = {
+    "tombatossals": _Extras(
+        _ARM | {"robust_grasp", "naive_grasp", "place", "slide", "explore", "unscrew", "push", "pull", "touch"},
+        frozenset({"open", "pinch_grasp_preshape", "pinch_grasp", "cylindrical", "cylindrical_preshape",
+                   "spherical", "spherical_preshape"}),
+        max_opening=0.14, wrench_noise=0.2, speed=0.1),
+    "melfa": _Extras(_ARM | {"close_until_force"}, frozenset({"open", "closed"}),
+                     max_opening=0.08, wrench_noise=0.05, speed=0.25),
+    "baxter": _Extras(
+        _ARM | {"close_until_force", "naive_grasp", "place", "slide", "push", "pull", "touch", "explore"},
+        frozenset({"open", "closed"}),
+        max_opening=0.09, wrench_noise=2.0, speed=0.2),  # wrist wrench estimated from efforts: noisy
+}
+
+
+def profile_of(spec: RobotSpec) -> RobotProfile:
+    """The translation profile of an embodiment: sensors and workspace from its registry entry."""
+    extras = _EXTRAS.get(spec.name)
+    if extras is None:
+        raise KeyError(f"no translation profile for embodiment {spec.name!r} (known: {sorted(_EXTRAS)})")
+    sensors = {Sensor.JOINT_STATE}
+    if spec.fts:
+        sensors.add(Sensor.WRIST_FT)
+    if any(h.pads for h in spec.hands):
+        sensors.add(Sensor.TACTILE)
+    if spec.cameras:
+        sensors |= {Sensor.CAMERA, Sensor.DEPTH}
+    multi = any(h.kind == "multi_finger" for h in spec.hands)
+    if not multi:
+        sensors.add(Sensor.GRIPPER_EFFORT)
+    caps = spec.capabilities
+    if caps is None:
+        raise KeyError(f"embodiment {spec.name!r} declares no capabilities")
+    return RobotProfile(
+        name=spec.name, hand=HandKind.MULTI_FINGER if multi else HandKind.PARALLEL_GRIPPER,
+        sensors=frozenset(sensors), capabilities=extras.capabilities,
+        workspace=Workspace(caps.workspace_min, caps.workspace_max), hand_shapes=extras.hand_shapes,
+        max_payload=caps.payload, max_opening=extras.max_opening, wrench_noise=extras.wrench_noise,
+        speed=extras.speed,
+    )
+
+
+PROFILES = {name: profile_of(registry.get(name)) for name in registry.names() if name in _EXTRAS}
+TOMBATOSSALS, MELFA, BAXTER = PROFILES["tombatossals"], PROFILES["melfa"], PROFILES["baxter"]

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from contactflow.abstraction.atd import Atd
 from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.factory import Factory, MappingRefused, PrimitiveChoice
+from contactflow.abstraction.frames import to_world
 from contactflow.abstraction.primitives import Terminal
 from contactflow.nodes.status import Event
 from contactflow.nodes.taskengine import Progress, ProgressKind
@@ -117,6 +118,7 @@ def _ident(name: str, taken: set[str]) -> str:
 def translate(atd: Atd, factory: Factory) -> Translation:
     """Translate ``atd`` for ``factory.robot``; raises :class:`TranslationError` with reasons."""
     robot = factory.robot.name
+    atd = to_world(atd, factory.robot.task_frame)
     factory.begin(atd)
     reasons: list[str] = []
     notes: list[str] = []

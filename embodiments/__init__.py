@@ -1,1 +1,1 @@
-"""placeholder"""
+"""Simulated embodiments: robot registry, SAPIEN world, physics-derived sensors, spherical model, control and planning."""

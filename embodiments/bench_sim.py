@@ -194,7 +194,9 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
     sim_time = 1.0 if quick else 5.0
     n_problems = 3 if quick else 20
     timeout = 1.0 if quick else 5.0
-    summary: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (0.0, 0.0, 0.0)
+    # other processes on the shared cores skew every number: the load average is recorded with them
+    summary: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "loadavg_1min": load[0]},
                      "sim_time_s": sim_time, "single": {}, "pair": {}}
     ctx = mp.get_context("spawn")
     with Progress(console=console, transient=True) as progress:
@@ -243,5 +245,6 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
         med = r["median_time_success_s"]
         table.add_row(f"{name}: success / median time", f"{100 * r['success_rate']:.0f}% / {1000 * med:.0f} ms" if med else "0%")
     console.print(table)
+    console.print(f"load average at start: {load[0]:.1f} on {os.cpu_count()} cores")
     (out_dir / "sim.json").write_text(json.dumps(summary, indent=2))
     return summary

@@ -187,8 +187,8 @@ class ArmHandle:
                 self.mode = "idle"
         else:
             wrench = r.ft(self.name).vector if self.spec.ft else None
-            full = r._kin_q_cmd()
-            q, qd = self.cart.update(full, dt, wrench)
+            # measured joints: the controller substitutes its own commanded arm joints
+            q, qd = self.cart.update(r._kin_q(), dt, wrench)
             self.q_cmd = q
             if self.mode == "guarded" and force is not None and self._guard is not None:
                 if self._guard.update(force, dt):
@@ -203,6 +203,8 @@ class ArmHandle:
             elif self.cart.mode == Mode.IDLE:
                 self.status = self.cart.status
                 self.mode = "idle"
+                if self.status == Status.FAILURE:
+                    self.abort_reason = "not reached"
         r.mixer.submit(f"arm/{self.name}", self.joints, self.q_cmd, qd, 1.0, r.time)
 
 

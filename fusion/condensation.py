@@ -30,7 +30,8 @@ class Method(StrEnum):
 @dataclass(frozen=True)
 class CondensationParams:
     method: Method = Method.CLUSTER
-    threshold: float = 0.1  # absolute floor on H(x) (thesis: 0.6 for threshold, 0.1 for cluster)
+    threshold: float = 0.02  # absolute floor on H(x) (thesis: 0.6 for threshold, 0.1 for cluster,
+    # with its generators; 1/n laws here put single-contact clouds near 0.05 per voxel)
     relative_threshold: float = 0.1  # floor as a fraction of the largest H(x) of the cycle
     cluster_eps: float = 0.012  # m, neighbour distance of the euclidean clustering
     min_points: int = 1  # voxels for a cluster core point (1: plain euclidean clustering)

@@ -20,7 +20,10 @@ def tool_settings(connect: list[str] | None = None, listen: list[str] | None = N
 
 
 def open_tool_session(connect: list[str] | None = None, config_file: str | None = None) -> ZenohTransport:
-    return ZenohTransport(tool_settings(connect, config_file=config_file)).open()
+    """A peer session for a tool, once it has discovered the rest of the mesh."""
+    t = ZenohTransport(tool_settings(connect, config_file=config_file)).open()
+    t.settle()
+    return t
 
 
 def default_site(site: str | None = None) -> str:

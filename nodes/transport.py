@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -80,6 +81,23 @@ class ZenohTransport:
         zenoh.init_log_from_env_or("error")
         self.session = zenoh.open(self.settings.to_config())
         return self
+
+    def settle(self, quiet: float = 0.3, limit: float = 3.0) -> int:
+        """Wait until peer discovery (gossip) stops adding peers; returns the peer count.
+
+        A fresh peer reaches the endpoint it connects to at once and the rest of the mesh a
+        little later; a tool that queries right away would miss those peers' answers.
+        """
+        end = time.monotonic() + limit
+        count, since = -1, time.monotonic()
+        while time.monotonic() < end:
+            now = len(list(self._s.info.peers_zid()))
+            if now != count:
+                count, since = now, time.monotonic()
+            elif time.monotonic() - since >= quiet:
+                break
+            time.sleep(0.05)
+        return count
 
     @property
     def _s(self) -> zenoh.Session:

@@ -65,7 +65,7 @@ def silhouette_curvedness(shape: ShapeObject, elevation: float, azimuth: float, 
 
 def shape_experiment(rng: np.random.Generator, quick: bool, progress: Progress) -> dict:
     """Table 8.1: train µK, σK on 19 views of the training shapes, classify at 4 slants."""
-    azimuths = np.linspace(0.0, 90.0, 7 if quick else 19)
+    azimuths = np.linspace(0.0, 90.0, 4 if quick else 19)
     clf = ShapeClassifier()
     values, labels = [], []
     task = progress.add_task("V4 training views", total=len(TRAINING_SHAPES) * len(azimuths))
@@ -238,7 +238,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
     console = Console()
     with Progress(console=console, transient=True) as progress:
         shape = shape_experiment(rng, quick, progress)
-        X, y, failures = recognition_samples(rng, 8 if quick else 40, progress)
+        X, y, failures = recognition_samples(rng, 4 if quick else 40, progress)
     rec = recognition_tables(X, y, rng)
     rec["segmentation_failures"] = failures
     (out_dir / "recognition.md").write_text(_markdown(shape, rec))

@@ -47,7 +47,7 @@ def scenes() -> dict[str, tuple[TableScene, tuple[np.ndarray, np.ndarray] | None
     rng = np.random.default_rng(6)
     clutter = []
     for i in range(10):
-        xy = (0.35 + 0.1 * (i % 5) + rng.uniform(-0.02, 0.02), -0.2 + 0.25 * (i // 5) + rng.uniform(-0.03, 0.03))
+        xy = (0.33 + 0.11 * (i % 5) + rng.uniform(-0.01, 0.01), -0.15 + 0.25 * (i // 5) + rng.uniform(-0.02, 0.02))
         kind = ("box", "cylinder", "sphere")[i % 3]
         size = {"box": (0.06, 0.05, 0.1), "cylinder": (0.03, 0.12, 0.0), "sphere": (0.035, 0.0, 0.0)}[kind]
         clutter.append(Placed(kind, size, xy, float(rng.uniform(0, 3))))
@@ -78,6 +78,7 @@ class Frames:
     distance: DistanceFn | None = None
     spheres: tuple[np.ndarray, np.ndarray] | None = None
     objects: int = 0  # objects on the table (the right number of clusters)
+    joints: tuple[list[str], np.ndarray] | None = None  # robot joint names and positions
 
 
 def synthetic_frames(scene: TableScene, arm) -> Frames:
@@ -86,8 +87,8 @@ def synthetic_frames(scene: TableScene, arm) -> Frames:
 
 
 def simulated_frames() -> Frames:
-    """A frame of the simulator's camera: tombatossals at home over a table with five objects;
-    the robot's own spherical model (Appendix B) is the self filter."""
+    """A frame of the simulator's camera: tombatossals reaching over a table with five
+    objects; the robot's own spherical model (Appendix B) is the self filter."""
     from contactflow.embodiments.sim_robot import SimRobot
     from contactflow.embodiments.world import World, WorldParams, bottle, box, cylinder, mug, sphere
 
@@ -100,11 +101,19 @@ def simulated_frames() -> Frames:
                  bottle("bottle", xyz=(0.5, -0.22, 0.83))):
         world.add_object(spec)
     robot = SimRobot(world, "tombatossals")
-    robot.step(0.3)
+    robot.step(0.1)
+    # the right hand reaches over the objects, so the arm is inside the region of interest
+    arm = robot.arm("right")
+    T = arm.ee_pose().copy()
+    T[:3, 3] = (0.6, -0.05, 1.0)
+    arm.move_pose(T, speed=0.5)
+    arm.wait(5.0)
+    robot.step(0.1)
     frame = robot.camera()
     model = robot.spherical
     centres, radii = _stope_spheres(model)
-    return Frames([frame.depth], frame.K, frame.T_world_cam, model.distance, (centres, radii), 5)
+    names, q, _, _ = robot.joint_state()
+    return Frames([frame.depth], frame.K, frame.T_world_cam, model.distance, (centres, radii), 5, (names, q))
 
 
 def _stope_spheres(model, per: int = 4) -> tuple[np.ndarray, np.ndarray]:
@@ -198,7 +207,7 @@ def _unpin(old: dict[int, set[int]]) -> None:
 def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    frames = 40 if quick else 300
+    frames = 15 if quick else 300
     console = Console()
     results = {}
     all_scenes = {name: synthetic_frames(scene, arm) for name, (scene, arm) in scenes().items()}

@@ -137,7 +137,7 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     if len(xy) > 2000:
         # the extreme points along 64 directions span the hull to within 0.12 %
         a = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
-        xy = xy[np.unique(np.argmax(xy @ np.stack((np.cos(a), np.sin(a))), axis=0))]
+        xy = xy[np.unique(np.argmax(np.stack((np.cos(a), np.sin(a)), axis=1) @ xy.T, axis=1))]
     try:
         hull = xy[ConvexHull(xy).vertices]
     except QhullError:

@@ -126,18 +126,18 @@ class CartesianController:
             twist = v_ff + p.gain * err
             if self._t >= self._duration:
                 gerr = np.concatenate([self._goal[:3, 3] - cur[:3, 3], rotvec_error(self._goal[:3, :3], cur[:3, :3])])
+                reached = False
                 if np.linalg.norm(gerr[:3]) < p.pos_tol and np.linalg.norm(gerr[3:]) < p.rot_tol:
                     # done when the measured arm, not only the command, is there
                     self.kin.update(np.asarray(q_full, dtype=np.float64))
                     real = self.kin.frame_pose(self.frame)
                     self.kin.update(q)
-                    rerr = np.linalg.norm(self._goal[:3, 3] - real[:3, 3])
-                    if rerr < p.settle_tol:
-                        self.status = Status.SUCCESS
-                        self.mode = Mode.IDLE
-                    elif self._t > self._duration + p.settle_timeout:
-                        self.status = Status.FAILURE
-                        self.mode = Mode.IDLE
+                    reached = np.linalg.norm(self._goal[:3, 3] - real[:3, 3]) < p.settle_tol
+                if reached:
+                    self.status, self.mode = Status.SUCCESS, Mode.IDLE
+                elif self._t > self._duration + p.settle_timeout:
+                    # unreachable (joint limits) or blocked: give up instead of pushing forever
+                    self.status, self.mode = Status.FAILURE, Mode.IDLE
         elif self.mode == Mode.TWIST:
             # ramp up over 0.1 s: a velocity step would jerk the arm (and the F/T)
             twist = self._twist * min(1.0, self._t / 0.1)

@@ -169,8 +169,8 @@ class SphericalChecker:
 
 @dataclass(frozen=True)
 class PlannerParams:
-    resolution: float = 0.005  # fraction of the space extent between segment checks
-    max_step: float = 0.05  # rad, waypoint spacing after interpolation
+    check_step: float = 0.02  # rad, joint-space distance between collision checks along a motion
+    max_step: float = 0.02  # rad, waypoint spacing after interpolation (= the collision check step)
     simplify: bool = True
     range_: float = 0.0  # planner range (0 = OMPL default)
 
@@ -227,7 +227,7 @@ class ArmPlanner:
 
         ss.setStateValidityChecker(check)
         si = ss.getSpaceInformation()
-        si.setStateValidityCheckingResolution(self.params.resolution)
+        si.setStateValidityCheckingResolution(min(0.5, self.params.check_step / space.getMaximumExtent()))
         s0, s1 = space.allocState(), space.allocState()
         for i in range(n):
             s0[i], s1[i] = float(start[i]), float(goal[i])

@@ -95,6 +95,8 @@ class Primitive(Module):
     layer = Layer.PRIMITIVE
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR)
     requires: ClassVar[Capability] = Capability()
+    commands_arm: ClassVar[bool] = True
+    """False for watchers and perception: they never stop an arm another primitive drives."""
     hand_kinds: ClassVar[tuple[str, ...]] = ("multi_finger", "parallel")
     """Hand kinds the primitive supports; per-embodiment differences (§3.3) are declared here."""
 
@@ -180,7 +182,8 @@ class Primitive(Module):
 
     def halt(self) -> None:
         self._twist_cmd = None
-        self.arm.stop()
+        if self.commands_arm:
+            self.arm.stop()
 
     # -- sensing helpers -----------------------------------------------------------------
     def wrench_in(self, frame: str) -> np.ndarray:

@@ -61,3 +61,16 @@ class ClosingRamp:
             self.stalled = bool(np.abs(q - q0).max() < self._motion)
             self._ref = (t, q.copy())
         return self.stalled
+
+
+def blocked_fingers(q: np.ndarray, closed: np.ndarray, groups: dict[str, np.ndarray], margin: float = 0.15) -> int:
+    """Fingers held open by an object: some joint stays ``margin`` away from the closed preshape (joint-configuration check)."""
+    seen: set[tuple[int, ...]] = set()
+    n = 0
+    for idx in groups.values():
+        key = tuple(int(i) for i in idx)
+        if key in seen:
+            continue
+        seen.add(key)
+        n += int(np.abs(q[idx] - closed[idx]).max() > margin)
+    return n

@@ -8,7 +8,7 @@ from enum import StrEnum
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive
-from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups
+from contactflow.embodiments.primitives.hands import ClosingRamp, blocked_fingers, finger_groups
 from contactflow.nodes.status import Event
 
 
@@ -93,13 +93,12 @@ class NaiveGrasp(Primitive):
                 self.hand.set_fingers(target, effort=p.effort)
                 self._to(Phase.TIGHTEN)
             return
-        if self.phase is Phase.TIGHTEN:
-            if self.hand.done() or self.r.time - self._t_phase > 1.0:
-                pads = self.pads_in_contact()
-                need = min(p.min_contacts, len(self.groups))
-                vals = dict(contacts=len(pads))
-                if len(pads) >= need:
-                    self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
-                    self.succeed(f"grasped with {pads}", **vals)
-                else:
-                    self.fail(f"closed with pads in contact: {pads}", **vals)
+        if self.phase is Phase.TIGHTEN and (self.hand.done() or self.r.time - self._t_phase > 1.0):
+            pads = self.pads_in_contact()
+            need = min(p.min_contacts, len(self.groups))
+            vals = dict(contacts=len(pads))
+            if len(pads) >= need or blocked_fingers(self.hand.positions(), self.closed, self.groups) >= need:
+                self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
+                self.succeed(f"grasped with {pads}", **vals)
+            else:
+                self.fail(f"closed with pads in contact: {pads}", **vals)

@@ -8,7 +8,7 @@ from enum import StrEnum
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive
-from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups
+from contactflow.embodiments.primitives.hands import ClosingRamp, blocked_fingers, finger_groups
 from contactflow.nodes.status import Event
 
 
@@ -66,12 +66,13 @@ class RobustGrasp(Primitive):
         closing_velocity: float = 0.8  # rad/s (m/s for a gripper), finger closing during the sliding grasp
         grasp_effort: float = 0.5  # 0..1 finger force limit while closing
         final_effort: float = 1.0  # 0..1 finger force limit after force adaptation
-        finger_lost_shift: float = 0.05  # m, shift of the finger-lost correction (Fig. 3.2)
+        finger_lost_shift: float = 0.025  # m, shift toward the contacts (Fig. 3.2 uses 5 cm on the SDH2; half the allegro finger spacing here)
         max_regrasps: int = 2  # finger-lost corrections before accepting the grasp
         min_contacts: int = 2  # pads in contact for a grasp to count as holding the object
         alignment: bool = True  # enable the alignment phase (eq. 3.1)
+        alignment_axes: str = "x"  # "x": eq. 3.1 (torque about hand y moves along x); "xy": also torque about x moves along y
         sliding: bool = True  # enable the sliding correction (eq. 3.2)
-        finger_lost: bool = True  # enable the finger-lost correction
+        finger_lost: bool = False  # finger-lost correction (off by default: on the simulated allegro the regrasp lost more grasps than it saved)
 
     def begin(self) -> None:
         p = self.params
@@ -138,7 +139,9 @@ class RobustGrasp(Primitive):
             R = self.r.frame_pose(self.ee_frame)[:3, :3]
             travelled = float((pos - self.p0) @ (R @ self.dir))
             self.lateral = float(np.linalg.norm((pos - self.x0) - ((pos - self.x0) @ (R @ self.dir)) * (R @ self.dir)))
-            ty = float(w[3:] @ np.cross(self.dir, self.xdir))
+            ydir = np.cross(self.dir, self.xdir)
+            ty = float(w[3:] @ ydir)
+            tx = float(w[3:] @ self.xdir)
             if not p.alignment:
                 if contact or travelled >= p.max_distance:
                     self._start_slide()
@@ -147,12 +150,21 @@ class RobustGrasp(Primitive):
                 return
             v, aligned = alignment_velocity(ty, contact, p.torque_threshold, p.correction_velocity,
                                             p.correction_velocity, p.approach_velocity)
+            vy = 0.0
+            if "y" in p.alignment_axes:
+                # same law about the other axis: a contact at +y gives a negative torque about x
+                u, aligned_y = alignment_velocity(-tx, contact, p.torque_threshold, p.correction_velocity,
+                                                  p.correction_velocity, p.approach_velocity)
+                vy = u[0]
+                aligned = aligned and aligned_y
+                if v[0] == 0.0 and vy != 0.0:
+                    v = u * np.array([0.0, 0.0, 1.0])
             if aligned or travelled >= p.max_distance or self.lateral >= p.max_alignment:
                 self._start_slide()
                 return
-            if v[0] != 0.0:
+            if v[0] != 0.0 or vy != 0.0:
                 self.aligns += 1
-            self._twist(v[0] * self.xdir + v[2] * self.dir)
+            self._twist(v[0] * self.xdir + vy * ydir + v[2] * self.dir)
             return
         if self.phase is Phase.SLIDE:
             assert self._ramp is not None
@@ -182,18 +194,17 @@ class RobustGrasp(Primitive):
                 self._contact_seen = False
                 self._start_align()
             return
-        if self.phase is Phase.ADAPT:
-            if self.hand.done() or self.r.time - self._t_phase > 1.0:
-                pads = self.pads_in_contact()
-                held = len(pads) >= min(p.min_contacts, len(self.groups)) if self.spec.pads else \
-                    bool(np.abs(self.hand.positions() - self.closed).max() > 0.05)
-                vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides,
-                            regrasps=self.regrasps, lateral=self.lateral)
-                if held:
-                    self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
-                    self.succeed(f"grasped with {pads}", **vals)
-                else:
-                    self.fail(f"hand closed without holding (pads in contact: {pads})", **vals)
+        if self.phase is Phase.ADAPT and (self.hand.done() or self.r.time - self._t_phase > 1.0):
+            pads = self.pads_in_contact()
+            need = min(p.min_contacts, len(self.groups))
+            held = len(pads) >= need or blocked_fingers(self.hand.positions(), self.closed, self.groups) >= need
+            vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides,
+                        regrasps=self.regrasps, lateral=self.lateral)
+            if held:
+                self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
+                self.succeed(f"grasped with {pads}", **vals)
+            else:
+                self.fail(f"hand closed without holding (pads in contact: {pads})", **vals)
 
     def _finger_lost(self) -> bool:
         """Fig. 3.2 F1/F3: one external finger without contact → open, shift toward the contacts, retry."""

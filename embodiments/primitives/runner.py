@@ -159,3 +159,33 @@ def run_task(task: TaskGraph, robot: Robot, params: Mapping[str, Any] | None = N
 
 def finished_ok(res: RunResult) -> bool:
     return res.status is Status.SUCCESS
+
+
+def run_primitive(runner: LocalPrimitiveRunner, type: str, params: Mapping[str, Any], max_time: float = 30.0,
+                  dt: float = 0.005, instance: str | None = None) -> list[RunnerEvent]:
+    """Run one primitive to its outcome in lockstep with the world; returns every event it raised."""
+    inst = instance or f"{type}#{len(runner.started) + 1}"
+    runner.start(inst, type, params)
+    robot = runner.robot
+    t_end = robot.time + max_time
+    events: list[RunnerEvent] = []
+    while True:
+        runner.advance()
+        robot.step(dt)
+        new = [e for e in runner.poll() if e.instance == inst]
+        events += new
+        if any(e.event in (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.TIMEOUT) for e in new):
+            break
+        if robot.time >= t_end:
+            events.append(RunnerEvent(inst, Event.TIMEOUT, {}, f"{type} still running after {max_time:g} s"))
+            break
+    runner.stop(inst)
+    return events
+
+
+def outcome(events: list[RunnerEvent]) -> RunnerEvent:
+    """The final event of a primitive run (SUCCESS, FAILURE, ERROR or TIMEOUT)."""
+    for e in reversed(events):
+        if e.event in (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.TIMEOUT):
+            return e
+    raise ValueError("the primitive raised no final event")

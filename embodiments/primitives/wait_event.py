@@ -19,6 +19,7 @@ class WaitEvent(Primitive):
     """
 
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.GRASP_LOST, Event.GRASP_STABLE, Event.CONTACT)
+    commands_arm = False
 
     @dataclass(frozen=True)
     class Params(Primitive.Params):
@@ -35,8 +36,7 @@ class WaitEvent(Primitive):
             raise ValueError(f"{self.name}: params.event {self.params.event!r} is not an event") from None
         if self.event not in (Event.GRASP_LOST, Event.GRASP_STABLE, Event.CONTACT, Event.SUCCESS):
             raise ValueError(f"{self.name}: cannot wait for {self.event} (grasp_lost, grasp_stable, contact, success)")
-        if self.event is Event.CONTACT:
-            self.r.tare_ft(self.arm_name)
+        self.f0 = self.wrench_in("world")[:3] if self.event is Event.CONTACT else np.zeros(3)
         self.since: float | None = None
         self.fired = False
 
@@ -44,7 +44,7 @@ class WaitEvent(Primitive):
         if self.event is Event.SUCCESS:
             return True
         if self.event is Event.CONTACT:
-            return bool(np.linalg.norm(self.wrench_in("world")[:3]) > self.params.force_threshold)
+            return bool(np.linalg.norm(self.wrench_in("world")[:3] - self.f0) > self.params.force_threshold)
         n = len(self.pads_in_contact())
         return n == 0 if self.event is Event.GRASP_LOST else n >= 2
 

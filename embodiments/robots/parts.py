@@ -3,12 +3,18 @@
 Composition documented here (the tombatossals and melfa robots use it):
 - ``panda_arm_with_allegro``: ``panda_description/urdf/panda.urdf`` minus ``panda_hand``,
   ``panda_hand_tcp`` and the two fingers; ``allegro_hand_description/urdf/allegro_right_hand.urdf``
-  mounted by a fixed joint ``panda_link8 -> palm_link`` 0.095 m along z (the allegro palm
-  hangs below its origin), plus a fixed ``grasp`` frame 0.07 m in front of the palm.
+  mounted by a fixed joint ``panda_link8 -> palm_link`` with the palm normal along the
+  flange axis (like the Barrett/SDH hands of the real robot, App. A.1.2): the back of the
+  palm on the flange, the palm centre on the flange axis, fingers perpendicular to it.
+  At the panda home pose the palm faces down and the fingers point forward. A fixed
+  ``grasp`` frame sits where the closed fingertips meet (6 cm in front of the palm, z =
+  approach = palm normal, x = from the fingertips toward the wrist side of the palm).
 - ``panda_gripper``: ``panda.urdf`` minus ``panda_link0..8``, so its root is ``panda_hand``.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from contactflow.embodiments.registry import HandSpec, PadSpec
 from contactflow.embodiments.urdf_compose import ExtraLink, Mount, Part
@@ -26,9 +32,12 @@ ALLEGRO_TIPS = ("link_3.0_tip", "link_7.0_tip", "link_11.0_tip", "link_15.0_tip"
 def panda_arm_with_allegro(prefix: str, mount: Mount | None) -> tuple[tuple[Part, ...], tuple[ExtraLink, ...]]:
     """Parts and extra links of one panda arm carrying an allegro right hand."""
     arm = Part(PANDA, prefix=prefix, drop_links=PANDA_HAND_LINKS, mount=mount)
-    hand = Part(ALLEGRO, prefix=prefix, mount=Mount(parent=f"{prefix}panda_link8", xyz=(0.0, 0.0, 0.095), rpy=(0.0, 0.0, -0.7853981633974483)))
+    # palm x (normal) -> flange z, palm z (fingers) -> flange -x, yawed so the fingers point forward at home
+    c = 0.0475 * np.cos(np.pi / 4)
+    hand = Part(ALLEGRO, prefix=prefix, mount=Mount(parent=f"{prefix}panda_link8", xyz=(c, -c, 0.03),
+                                                    rpy=(0.0, -np.pi / 2, 3 * np.pi / 4)))
     grasp = ExtraLink(name=f"{prefix}grasp", parent=f"{prefix}palm_link", joint=f"{prefix}grasp_joint",
-                      xyz=(0.07, 0.0, 0.0), rpy=(0.0, 1.5707963267948966, 0.0), mass=0.001)
+                      xyz=(0.06, 0.0, -0.03), rpy=(0.0, np.pi / 2, 0.0), mass=0.001)
     return (arm, hand), (grasp,)
 
 
@@ -36,7 +45,7 @@ def allegro_hand(name: str, prefix: str) -> HandSpec:
     """An allegro hand with one 5x8 tactile pad on the palmar side (+x) of each fingertip."""
     pads = tuple(
         PadSpec(name=f"{finger}", link=f"{prefix}{tip}", origin=(0.012, 0.0, 0.0), normal=(1.0, 0.0, 0.0),
-                u_axis=(0.0, 0.0, 1.0), size=(0.022, 0.016), radius=0.012, sigma=0.003)
+                u_axis=(0.0, 0.0, 1.0), size=(0.032, 0.023), radius=0.012, sigma=0.003)
         for finger, tip in zip(("index", "middle", "ring", "thumb"), ALLEGRO_TIPS, strict=True)
     )
     finger_open = (0.0, 0.0, 0.0, 0.0)

@@ -6,7 +6,7 @@ the coordinate d_a is sampled across the hand's bounding box expanded by a margi
 other coordinates are solved from two of the equations, giving up to three (ideally equal)
 lines. Points away from the robot surface are dropped (App. B distance), and so, optionally,
 are points where the force would pull the surface outwards. The n voxels left each get
-likelihood 1/n (eq. 4.1). Force and torque are in the sensor frame, torque about its origin.
+likelihood 1/n (eq. 4.1), or optionally a share weighted by the distance law of eq. 4.5. Force and torque are in the sensor frame, torque about its origin.
 """
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ class ForceTorqueParams:
     box_margin: float = 0.02  # m, expansion of the bounding box
     surface_band: float = 0.01  # m, keep points this close to the robot surface
     inward_only: bool = True  # drop points where f would pull the surface outwards
+    surface_lambda: float = 0.0  # m, > 0: weight points by eq. 4.5 on their distance to the
+    # surface (likelihood 0.5 at this distance), normalised to 1; 0: uniform 1/n (thesis)
     step: float = 0.0025  # m, sampling step of d_a (half a voxel)
     voxel_size: float = VOXEL_SIZE  # m
 
@@ -79,17 +81,20 @@ def ft_hypotheses(force: np.ndarray, torque: np.ndarray, T_world_sensor: np.ndar
         return Hypotheses.empty(stamp)
     R, t = T[:3, :3], T[:3, 3]
     pts = d @ R.T + t
-    near = np.abs(distance(pts)) <= p.surface_band
-    pts = pts[near]
+    dist = distance(pts)
+    near = np.abs(dist) <= p.surface_band
+    pts, dist = pts[near], dist[near]
     f_world = R @ f
     if p.inward_only and pts.shape[0]:
-        normals = gradient(distance, pts)
-        pts = pts[normals @ f_world < 0.0]
+        inward = gradient(distance, pts) @ f_world < 0.0
+        pts, dist = pts[inward], dist[inward]
     if pts.shape[0] == 0:
         return Hypotheses.empty(stamp)
-    h = voxelize(Hypotheses.make(pts, 1.0, HypothesisType.REGULAR, fn, f_world / fn, stamp, where="force_torque"),
+    lam = p.surface_lambda
+    weight = lam * lam / (lam * lam + dist * dist) if lam > 0 else np.ones(pts.shape[0])
+    h = voxelize(Hypotheses.make(pts, weight, HypothesisType.REGULAR, fn, f_world / fn, stamp, where="force_torque"),
                  p.voxel_size, reduce="max")
-    return Hypotheses(h.location, np.full(len(h), 1.0 / len(h)), h.kind, h.force, h.direction, stamp)
+    return Hypotheses(h.location, h.likelihood / h.likelihood.sum(), h.kind, h.force, h.direction, stamp)
 
 
 class ForceTorqueGenerator(GeneratorModule):

@@ -10,6 +10,8 @@
    (the object centroid moved >= ``motion_translation`` or rotated >= ``motion_angle``) the OGM
    is carried along with the ICP motion, the surface voxels get the binary Bayes update of eq. 4.11 and the surface voxels with P >= ``hypothesis_p`` become
    hypotheses with likelihood 1/n. When motion stops the OGM is rebuilt from the new cloud.
+   With ``require_motion=False`` (objects that cannot move) the surface voxels that stay
+   likely occupied become hypotheses in every frame.
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ class RangeParams:
     icp_voxel: float = 0.004  # m, down-sampling of the clouds before ICP
     min_fitness: float = 0.3  # ICP fitness below this is no motion evidence
     icp_iterations: int = 100  # ICP iterations (sliding faces converge slowly)
+    require_motion: bool = True  # thesis: hypotheses only once the object moved; False: whenever
+    # the model's surface lies in likely occupied voxels (objects fixed to the table)
     robot_margin: float = 0.01  # m, depth points this close to the robot model are the robot
     table_margin: float = 0.005  # m, depth points this close above the table are the table
 
@@ -210,8 +214,11 @@ class RangeGenerator:
         if not moved:
             if self.moving and pts.shape[0] and self.camera is not None:
                 self.initialize(pts, self.camera if camera is None else camera)
-            return Hypotheses.empty(stamp)
-        self.moving = True
+                return Hypotheses.empty(stamp)
+            if p.require_motion:
+                return Hypotheses.empty(stamp)
+        else:
+            self.moving = True
         flat = self.grid.p.reshape(-1)
         hit = surface[flat[surface] >= p.hypothesis_p]
         if hit.size == 0:

@@ -61,8 +61,9 @@ def test_factories_choose_their_own_primitives_and_parameters():
     # the noisy wrist wrench raises baxter's contact thresholds and lowers its filter
     assert baxter["put_down"].params["contact_threshold"] > tomb["put_down"].params["contact_threshold"]
     assert baxter["preshape_hand"].params["filter_hz"] < tomb["preshape_hand"].params["filter_hz"]
-    # melfa has no wrist F/T: its guarded motions stop on tactile contact
-    assert melfa["preshape_hand"].params["stop_sensor"] == "tactile"
+    # melfa carries a wrist F/T (issue 3): guarded motions stop on it; baxter filters harder
+    assert melfa["preshape_hand"].params["stop_sensor"] == "wrist_ft"
+    assert baxter["preshape_hand"].params["filter_hz"] < melfa["preshape_hand"].params["filter_hz"]
     # grasp force from the object's mass (0.15 kg) on the grippers
     assert 5.0 <= melfa["grasp_object"].params["grasp_force"] <= 40.0
     # hand shapes: kept on the multi-finger hand, approximated on grippers
@@ -111,8 +112,8 @@ def test_refusals_name_the_robot_state_and_reason():
             with pytest.raises(TranslationError, match="exceeds .* payload"):
                 translate(parse_atd(heavy, "heavy.xml"), factory_for(PROFILES[robot]))
 
-    wide = path("grasp_retry.xml").read_text().replace("0.06 0.06 0.12", "0.08 0.08 0.12")
-    with pytest.raises(TranslationError, match="melfa's hand opens to 0.068 m"):
+    wide = path("grasp_retry.xml").read_text().replace("0.06 0.06 0.12", "0.09 0.09 0.12")
+    with pytest.raises(TranslationError, match="melfa's hand opens to 0.080 m"):
         translate(parse_atd(wide, "wide.xml"), factory_for(MELFA))
 
 

@@ -57,3 +57,37 @@ def test_mixer_weights_concurrent_sources():
     assert np.allclose(q, [1.0, 1.5, 2.0]) and not mask.any()
     with pytest.raises(ValueError, match="unknown joint 'z'"):
         m.submit("x", ["z"], np.zeros(1))
+
+
+def _scripted_run(realtime: bool = False) -> np.ndarray:
+    from contactflow.embodiments.sim_robot import SimRobot
+    from contactflow.embodiments.world import World, WorldParams, box
+
+    w = World(WorldParams(realtime=realtime))
+    w.add_table()
+    w.add_object(box("b", (0.04, 0.04, 0.04), (0.5, 0.0, 0.77), mass=0.2))
+    a = SimRobot(w, "melfa")
+    b = SimRobot(w, "baxter", name="baxter", base=np.array([[1, 0, 0, 0], [0, 1, 0, 1.5], [0, 0, 1, 0.85], [0, 0, 0, 1.0]]))
+    goal = a.arm("arm").ee_pose()
+    goal[2, 3] -= 0.1
+    a.arm("arm").move_pose(goal)
+    b.arm("left").set_twist(np.array([0.0, 0.0, -0.05, 0, 0, 0]), duration=0.3)
+    a.step(0.5)
+    return np.concatenate([a.art.qpos(), b.art.qpos(), w.objects["b"].pose().ravel()])
+
+
+def test_two_robots_in_one_world_are_deterministic():
+    first, second = _scripted_run(), _scripted_run()
+    assert np.array_equal(first, second)
+
+
+def test_realtime_mode_follows_the_wall_clock():
+    import time
+
+    from contactflow.embodiments.world import World, WorldParams
+
+    w = World(WorldParams(realtime=True))
+    t0 = time.perf_counter()
+    w.run(0.3)
+    assert time.perf_counter() - t0 >= 0.29
+    assert w.time == pytest.approx(0.3)

@@ -44,7 +44,7 @@ def test_planner_finds_a_path_around_a_box(scene, planner, checker):
     arm = robot.arm("arm")
     if "wall" not in robot.world.objects:
         robot.world.add_object(box("wall", (0.25, 0.03, 0.2), (0.45, 0.0, 0.85), static=True))
-    plan = arm.plan(b, planner=planner, checker=checker, timeout=5.0)
+    plan = arm.plan(b, planner=planner, checker=checker, timeout=15.0)
     assert plan is not None and plan.success
     obstacles = obstacles_from_world(robot.world)
     assert _swept_clear(robot, plan, obstacles)

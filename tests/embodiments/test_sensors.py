@@ -114,3 +114,20 @@ def test_baxter_estimated_wrench_detects_table_contact():
     assert arm.wait(7.0) == Status.SUCCESS
     assert any(e == Event.CONTACT for _, e, _ in robot.events)
     assert arm.ee_pose()[2, 3] < 0.80  # stopped at the table (top at 0.75), not before
+
+
+def test_allegro_fingertip_pad_feels_only_its_own_contact():
+    robot = make_robot("tombatossals")
+    arm = robot.arm("left")
+    tip = robot.frame_pose("left_link_3.0_tip")[:3, 3]  # index fingertip, pad facing down at home
+    robot.world.add_object(box("post", (0.03, 0.03, 0.1), (tip[0], tip[1], tip[2] - 0.07), static=True))
+    arm.guarded_move(np.array([0.0, 0.0, -0.03, 0.0, 0.0, 0.0]), max_force=2.0, duration=5.0)
+    assert arm.wait(6.0) == Status.SUCCESS
+    robot.step(0.1)
+    pads = robot.tactile("left_hand")
+    index = pads["index"]
+    assert index.max() > 0.05
+    r, c = np.unravel_index(index.argmax(), index.shape)
+    assert 1 <= r <= 3 and 2 <= c <= 5  # centred under the fingertip
+    assert all(np.all(pads[p] == 0) for p in ("middle", "ring", "thumb"))
+    assert all(np.all(v == 0) for v in robot.tactile("right_hand").values())

@@ -11,7 +11,7 @@ from contactflow.recognition.features import FEATURE_SETS
 def test_bench_vision_quick(tmp_path):
     out = bench_vision.run(tmp_path, quick=True)
     saved = json.loads((tmp_path / "vision.json").read_text())
-    assert saved["frames"] == out["frames"] == 40
+    assert saved["frames"] == out["frames"] == 15
     for r in saved["scenes"].values():
         assert r["points"]["clusters"] >= 3
         assert r["total"]["mean_ms"] > 0

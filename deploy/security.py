@@ -1,0 +1,193 @@
+"""Zenoh JSON5 configurations from a manifest: lease, TLS / mTLS, usrpwd and access control.
+
+Access control (only with ``transport: mtls``, whose certificates identify the peer of every
+link in both directions; a usrpwd user name is only known to the side that accepted the
+link) denies by default and allows, per host (certificate common name = host name):
+
+* members (every host that is not an observer): publish / subscribe / liveliness on the
+  site's module, contact, clock and evaluation streams; control queries to every module of
+  the manifest, except modules that run on a robot's control host, which only that host
+  may query; joint-command ports of a robot (``command_ports``) only from its control host
+  (an explicit deny for every other host: explicit deny wins in zenoh);
+* brokers: the dispatch queryable and its replies, queries to every robot's broker
+  services; dispatch clients (and brokers) may query dispatch; a robot's control host
+  serves that robot's broker services; brokers and control hosts publish progress;
+* observers: subscribe to fused contact events and nothing else.
+
+Allow rules name concrete key expressions or exact patterns: zenoh matches a rule only when
+the message's key expression is included in the rule's, so a wildcard query such as
+``cf/<site>/**`` matches no allow rule and is refused rather than slipping past a deny.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from contactflow.deploy.manifest import Manifest, NodeSpec
+from contactflow.nodes.keys import ANY, KeySpace
+
+LIVELINESS = ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
+KEEP_ALIVE = 4  # keep-alive messages per lease period
+
+
+class SecurityError(ValueError):
+    """Certificates or passwords a manifest needs are missing."""
+
+
+def cert_paths(m: Manifest, host: str) -> dict[str, Path]:
+    d = m.security.certs
+    if d is None:
+        raise SecurityError(f"{m.file}: security.certs is not set")
+    return {"ca": d / "ca.pem", "cert": d / f"{host}.pem", "key": d / f"{host}.key", "passwords": d / "passwords.txt"}
+
+
+def read_passwords(path: Path) -> dict[str, str]:
+    if not path.exists():
+        raise SecurityError(f"{path}: no password file; run `contactflow deploy certs MANIFEST`")
+    out = {}
+    for line in path.read_text().splitlines():
+        user, sep, pw = line.partition(":")
+        if sep:
+            out[user] = pw
+    return out
+
+
+def endpoint_proto(m: Manifest) -> str:
+    return "tcp" if m.security.transport == "tcp" else "tls"
+
+
+@dataclass
+class Grants:
+    """What one host may do; each becomes zenoh rules for both directions of its links.
+
+    zenoh checks a message against the rules of the *remote* peer's subject, on ingress
+    (what the peer sends us) and on egress (what we send the peer), so "X may read K" is
+    ingress ``declare_subscriber`` from X plus egress ``put`` to X, and so on.
+    """
+
+    write: list[str] = field(default_factory=list)  # put / delete
+    read: list[str] = field(default_factory=list)  # subscribe, receive puts
+    call: list[str] = field(default_factory=list)  # query, receive replies
+    serve: list[str] = field(default_factory=list)  # declare queryables, reply, receive queries
+    live: list[str] = field(default_factory=list)  # liveliness tokens, subscribers, queries
+    deny_write: list[str] = field(default_factory=list)  # explicit deny wins over any allow
+
+    def rules(self, host: str) -> list[dict[str, Any]]:
+        def rule(kind: str, flow: str, messages: list[str], keys: list[str], permission: str = "allow") -> dict[str, Any] | None:
+            if not keys:
+                return None
+            return {"id": f"{host}-{kind}-{flow}", "messages": messages, "flows": [flow],
+                    "permission": permission, "key_exprs": sorted(set(keys))}
+
+        out = [
+            rule("write", "ingress", ["put", "delete"], self.write),
+            rule("read", "ingress", ["declare_subscriber"], self.read),
+            rule("read", "egress", ["put", "delete"], self.read),
+            rule("wsub", "egress", ["declare_subscriber"], self.write),
+            rule("call", "ingress", ["query"], self.call),
+            rule("call", "egress", ["reply", "declare_queryable"], self.call),
+            rule("serve", "ingress", ["declare_queryable", "reply"], self.serve),
+            rule("serve", "egress", ["query"], self.serve),
+            rule("live", "ingress", LIVELINESS, self.live),
+            rule("live", "egress", LIVELINESS, self.live),
+            rule("denywrite", "ingress", ["put", "delete"], self.deny_write, "deny"),
+        ]
+        return [r for r in out if r is not None]
+
+
+def access_control(m: Manifest) -> dict[str, Any]:
+    """The ``access_control`` section shared by every node of the manifest."""
+    ks = KeySpace(m.site)
+    observers = set(m.security.observers)
+    brokers = set(m.security.broker)
+    callers = brokers | set(m.security.dispatch_clients)
+    controls = {r.control for r in m.robots.values()}
+    verbs = ("caps", "translate", "run", "cancel")
+    streams = [ks.clock(), ks.output(ANY, ANY, ANY, ANY), ks.events(), ks.status(), ks.hypotheses(),
+               ks.evaluation(), ks.progress()] + [ks.fused(ANY, s) for s in ("hypotheses", "contacts", "events")]
+    alive = [ks.alive_node(), ks.alive_module(), ks.alive_robot(), ks.claim(ANY, ANY)]
+
+    open_ctl: list[str] = []
+    protected_ctl: dict[str, list[str]] = {}
+    for n in m.nodes():
+        for mod in n.modules:
+            robot = mod.get("robot", n.robot)
+            key = ks.control(robot, ANY, mod["name"])
+            if robot in m.robots and m.robots[robot].control == n.host:
+                protected_ctl.setdefault(n.host, []).append(key)
+            else:
+                open_ctl.append(key)
+
+    grants: dict[str, Grants] = {}
+    for h in m.hosts:
+        if h in observers:
+            grants[h] = Grants(read=[ks.fused(ANY, "events")])
+            continue
+        g = Grants(write=list(streams), read=list(streams), live=list(alive),
+                   call=open_ctl + protected_ctl.get(h, []), serve=[ks.control(ANY, ANY, ANY)])
+        for r in m.robots.values():
+            if r.control == h:
+                g.serve += [ks.robot_service(r.name, v) for v in verbs]
+            else:
+                g.deny_write += [ks.output(r.name, ANY, ANY, p) for p in r.command_ports]
+        if h in brokers:
+            g.serve.append(ks.dispatch())
+            g.call += [ks.robot_service(ANY, v) for v in verbs]
+        if h in callers:
+            g.call.append(ks.dispatch())
+        if h not in brokers and h not in controls:
+            g.deny_write.append(ks.progress())
+        grants[h] = g
+
+    rules: list[dict[str, Any]] = []
+    policies = []
+    for h, g in grants.items():
+        rs = g.rules(h)
+        rules += rs
+        policies.append({"id": f"policy-{h}", "rules": [r["id"] for r in rs], "subjects": [f"host-{h}"]})
+    subjects = [{"id": f"host-{h}", "cert_common_names": [h]} for h in m.hosts]
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+
+
+def zenoh_config(m: Manifest, node: NodeSpec, identity: str | None = None) -> dict[str, Any]:
+    """The JSON5 settings of one node (mode and endpoints come from the node configuration).
+
+    ``identity`` is the host whose certificate and password the session uses (default: the
+    node's host); tools such as ``deploy status`` join as one of the manifest's hosts.
+    """
+    who = identity or node.host
+    cfg: dict[str, Any] = {
+        "transport": {"link": {"tx": {"lease": m.topology.lease_ms, "keep_alive": KEEP_ALIVE}}},
+        "connect": {"retry": {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}},
+    }
+    sec = m.security
+    if sec.transport in ("tls", "mtls"):
+        p = cert_paths(m, who)
+        for f in ("ca", "cert", "key"):
+            if not p[f].exists():
+                raise SecurityError(f"{p[f]}: missing; run `contactflow deploy certs {m.file}`")
+        tls: dict[str, Any] = {"root_ca_certificate": str(p["ca"]), "listen_private_key": str(p["key"]),
+                               "listen_certificate": str(p["cert"]), "enable_mtls": sec.transport == "mtls"}
+        if sec.transport == "mtls":
+            tls |= {"connect_private_key": str(p["key"]), "connect_certificate": str(p["cert"])}
+        cfg["transport"]["link"]["tls"] = tls
+    if sec.auth == "usrpwd":
+        p = cert_paths(m, who)
+        pw = read_passwords(p["passwords"])
+        if who not in pw:
+            raise SecurityError(f"{p['passwords']}: no password for host {who!r}; run `contactflow deploy certs {m.file}`")
+        cfg["transport"]["auth"] = {"usrpwd": {"user": who, "password": pw[who], "dictionary_file": str(p["passwords"])}}
+    if sec.acl:
+        cfg["access_control"] = access_control(m)
+    return cfg
+
+
+def write_json5(path: Path, data: dict[str, Any]) -> Path:
+    """JSON is JSON5; the file is private because it may hold a password."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2) + "\n")
+    path.chmod(0o600)
+    return path

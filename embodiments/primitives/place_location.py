@@ -1,0 +1,56 @@
+"""Place location (perceptual): a free spot on the support in a region, away from every sensed object."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from contactflow.embodiments.primitives.base import Capability, Primitive, pose6, top_grasp_pose
+from contactflow.nodes.status import Event
+
+
+def free_spot(occupied: np.ndarray, region: np.ndarray, clearance: float, step: float = 0.02) -> np.ndarray | None:
+    """The grid point of ``region`` [xmin, ymin, xmax, ymax] farthest from ``occupied`` (N,2) beyond ``clearance``."""
+    xs = np.arange(region[0], region[2] + 1e-9, step)
+    ys = np.arange(region[1], region[3] + 1e-9, step)
+    grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
+    if len(occupied) == 0:
+        return grid[len(grid) // 2]
+    d = np.min(np.linalg.norm(grid[:, None, :] - occupied[None, ::max(1, len(occupied) // 500), :], axis=2), axis=1)
+    best = int(np.argmax(d))
+    return grid[best] if d[best] >= clearance else None
+
+
+class PlaceLocation(Primitive):
+    """Find where to put an object: the camera cloud above the support marks occupied cells."""
+
+    requires = Capability(camera=True)
+    commands_arm = False
+    events = (Event.SUCCESS, Event.FAILURE, Event.ERROR)
+
+    @dataclass(frozen=True)
+    class Params(Primitive.Params):
+        region: tuple[float, ...] = (0.4, 0.1, 0.7, 0.5)  # m, [xmin, ymin, xmax, ymax] on the support
+        support_z: float = 0.75  # m, height of the support surface
+        clearance: float = 0.08  # m from any sensed object
+        height: float = 0.1  # m, approach height of the hand above the support
+        yaw: float = 1.5707963267948966  # rad
+        camera: str = "kinect"
+
+    def update(self) -> None:
+        p = self.params
+        region = np.asarray(p.region, dtype=np.float64)
+        if region.shape != (4,):
+            raise ValueError(f"{self.name}: params.region must be [xmin, ymin, xmax, ymax], got {p.region}")
+        pts = np.asarray(self.r.camera(p.camera).points)
+        model = getattr(self.r, "spherical", None)
+        sel = (pts[:, 2] > p.support_z + 0.01) & (pts[:, 2] < p.support_z + 0.5)
+        pts = pts[sel]
+        if model is not None and len(pts):
+            pts = pts[model.distance(pts) > 0.02]
+        spot = free_spot(pts[:, :2], region, p.clearance)
+        if spot is None:
+            self.fail("no free place in the region")
+            return
+        self.succeed(**pose6(top_grasp_pose((spot[0], spot[1], p.support_z + p.height), p.yaw)))

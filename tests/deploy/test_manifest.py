@@ -1,0 +1,169 @@
+"""Manifests: validation with file:line:field, rendering node configurations, generated zenoh security."""
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from contactflow.deploy.certs import make_ca, make_host_cert, make_passwords
+from contactflow.deploy.launcher import endpoints, render
+from contactflow.deploy.manifest import DEFAULT_MANIFEST, ConfigError, load_manifest, parse_manifest
+from contactflow.deploy.security import SecurityError, access_control, zenoh_config
+from contactflow.deploy.seqcheck import SequenceMonitor
+from contactflow.deploy.supervisor import backoff_delay
+from contactflow.nodes.config import load_node_config
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.yamldoc import YamlDoc
+
+BASE = """\
+site: t
+hosts:
+  a:
+    address: 10.1.0.1
+    nodes:
+      na:
+        robot: r
+        sensors: [cam]
+        modules:
+          - {name: s, type: signal_source}
+  b:
+    address: 10.1.0.2
+    nodes:
+      nb:
+        robot: r
+        modules:
+          - {name: f, type: lowpass, inputs: {in: s.signal}}
+robots:
+  r: {control: a, sensors: {cam: a}}
+"""
+
+
+def parse(text, name="m.yaml"):
+    return parse_manifest(YamlDoc.parse(text, name))
+
+
+def test_default_manifest_is_the_thesis_layout_plus_one_station_per_robot():
+    m = load_manifest(DEFAULT_MANIFEST)
+    assert {"control", "vision2d", "vision3d", "melfa_station", "baxter_station"} <= set(m.hosts)
+    tomb = m.robots["tombatossals"]
+    assert tomb.control == "control" and tomb.sensors["kinect"] == "vision3d"
+    assert tomb.sensors["stereo_left"] == "vision2d" and tomb.sensors["ft_right"] == "control"
+    assert m.robots["melfa"].control == "melfa_station" and m.robots["baxter"].control == "baxter_station"
+    assert all(n.modules for n in m.nodes())
+
+
+def test_render_local_writes_loadable_node_configs_with_a_loopback_mesh(tmp_path):
+    m = load_manifest(DEFAULT_MANIFEST)
+    launches = render(m, tmp_path, local=True)
+    assert len(launches) == len(m.nodes())
+    eps = {ln.endpoint for ln in launches}
+    assert len(eps) == len(launches) and all("127.0.0.1" in e for e in eps)
+    for ln in launches:
+        cfg = load_node_config(ln.config)
+        assert cfg.zenoh.listen == (ln.endpoint,)
+        assert set(cfg.zenoh.connect) == eps - {ln.endpoint}
+        assert zenoh.Config.from_file(cfg.zenoh.config_file) is not None
+        assert json.loads(Path(cfg.zenoh.config_file).read_text())["transport"]["link"]["tx"]["lease"] == 1000
+
+
+def test_render_one_host_uses_the_manifest_addresses(tmp_path):
+    m = parse(BASE)
+    (ln,) = render(m, tmp_path, host="b")
+    cfg = load_node_config(ln.config)
+    assert cfg.zenoh.listen == ("tcp/10.1.0.2:7450",) and cfg.zenoh.connect == ("tcp/10.1.0.1:7450",)
+    assert cfg.modules[0].inputs["in"].module == "s"
+
+
+def test_routers_topology_adds_router_nodes_and_clients(tmp_path):
+    m = parse(BASE.replace("site: t", "site: t\nzenoh: {topology: routers, routers: [a], port: 7600}"))
+    assert [n.id for n in m.nodes("a")] == ["a/router", "a/na"]
+    eps = endpoints(m, local=False)
+    assert eps["a/router"] == "tcp/10.1.0.1:7600" and eps["a/na"] == "tcp/10.1.0.1:7601"
+    docs = {ln.node.name: load_node_config(ln.config) for ln in render(m, tmp_path, host="a")}
+    assert docs["router"].zenoh.mode == "router" and docs["na"].zenoh.mode == "client"
+    assert docs["na"].zenoh.connect == ("tcp/10.1.0.1:7600",)
+
+
+@pytest.mark.parametrize("edit, where, words", [
+    (("    address: 10.1.0.2\n", "    address: 10.1.0.2\n    colour: red\n"), "m.yaml:13: hosts.b.colour", "unknown field"),
+    (("type: lowpass", "type: no_such_module"), "m.yaml:17: hosts.b.nodes.nb.modules[0].type", "unknown module type"),
+    (("inputs: {in: s.signal}", "inputs: {nope: s.signal}"), "m.yaml:17: hosts.b.nodes.nb.modules[0].inputs.nope", "no input"),
+    (("{cam: a}", "{cam: b}"), "m.yaml:8: hosts.a.nodes.na.sensors[0]", "high-bandwidth"),
+    (("control: a,", "control: z,"), "m.yaml:19: robots.r.control", "not in hosts"),
+    (("site: t\n", "site: t\nsecurity: {transport: ssl}\n"), "m.yaml:2: security.transport", "not one of"),
+    (("address: 10.1.0.2", "address: 10.1.0.1"), "m.yaml:12: hosts.b.address", "already host"),
+    (("      nb:", "      na:"), "m.yaml:14: hosts.b.nodes.na", "already defined"),
+])
+def test_bad_manifests_name_file_line_and_field(edit, where, words):
+    with pytest.raises(ConfigError) as err:
+        parse(BASE.replace(*edit))
+    assert str(err.value).startswith(where) and words in str(err.value), str(err.value)
+
+
+def secure_manifest(tmp_path):
+    text = BASE.replace("site: t\n", f"site: t\nsecurity: {{transport: mtls, auth: usrpwd, certs: {tmp_path}, broker: [b], observers: [c]}}\n")
+    text = text.replace("robots:", "  c:\n    address: 10.1.0.3\nrobots:")
+    return parse(text)
+
+
+def _grants(acl, host):
+    policy = next(p for p in acl["policies"] if p["subjects"] == [f"host-{host}"])
+    return [r for r in acl["rules"] if r["id"] in policy["rules"]]
+
+
+def test_access_control_rules_follow_the_manifest(tmp_path):
+    m = secure_manifest(tmp_path)
+    ks = KeySpace("t")
+    acl = access_control(m)
+    assert acl["default_permission"] == "deny"
+    assert {s["id"]: s["cert_common_names"] for s in acl["subjects"]} == {"host-a": ["a"], "host-b": ["b"], "host-c": ["c"]}
+    obs = _grants(acl, "c")
+    assert {k for r in obs for k in r["key_exprs"]} == {ks.fused("*", "events")}
+    assert {m_ for r in obs for m_ in r["messages"]} == {"declare_subscriber", "put", "delete"}
+    joints = ks.output("r", "*", "*", "command")
+    deny_b = [r for r in _grants(acl, "b") if r["permission"] == "deny"]
+    assert any(joints in r["key_exprs"] and "put" in r["messages"] and r["flows"] == ["ingress"] for r in deny_b)
+    assert not any(joints in r["key_exprs"] for r in _grants(acl, "a") if r["permission"] == "deny")
+    serve = lambda h: {k for r in _grants(acl, h) if "declare_queryable" in r["messages"] and r["flows"] == ["ingress"] for k in r["key_exprs"]}  # noqa: E731
+    assert ks.dispatch() in serve("b") and ks.dispatch() not in serve("a")
+    call = lambda h: {k for r in _grants(acl, h) if "query" in r["messages"] and r["flows"] == ["ingress"] for k in r["key_exprs"]}  # noqa: E731
+    assert ks.control("r", "*", "s") in call("a") and ks.control("r", "*", "s") not in call("b")
+    assert ks.control("r", "*", "f") in call("a") | call("b") and ks.dispatch() in call("b")
+    assert not any("*" in k.split("/")[-1] and k.endswith("**") for r in acl["rules"] for k in r["key_exprs"])
+
+
+def test_zenoh_config_needs_certificates_then_zenoh_accepts_it(tmp_path):
+    m = secure_manifest(tmp_path)
+    with pytest.raises(SecurityError, match="deploy certs"):
+        zenoh_config(m, m.nodes("a")[0])
+    make_ca(tmp_path, "test CA")
+    for h in m.hosts:
+        make_host_cert(tmp_path, h, [m.hosts[h].address])
+    make_passwords(tmp_path / "passwords.txt", list(m.hosts))
+    cfg = zenoh_config(m, m.nodes("a")[0])
+    tls = cfg["transport"]["link"]["tls"]
+    assert tls["enable_mtls"] and tls["connect_certificate"].endswith("a.pem")
+    assert cfg["transport"]["auth"]["usrpwd"]["user"] == "a"
+    assert zenoh.Config.from_json5(json.dumps(cfg)) is not None
+    out = subprocess.run(["openssl", "verify", "-CAfile", str(tmp_path / "ca.pem"), str(tmp_path / "b.pem")],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    text = subprocess.run(["openssl", "x509", "-in", str(tmp_path / "b.pem"), "-noout", "-text"], capture_output=True, text=True).stdout
+    assert "IP Address:10.1.0.2" in text and "CN = b" in text and "TLS Web Client Authentication" in text
+
+
+def test_backoff_doubles_up_to_a_cap():
+    assert [backoff_delay(n, 0.5, 4.0) for n in range(0, 6)] == [0.0, 0.5, 1.0, 2.0, 4.0, 4.0]
+
+
+def test_sequence_monitor_reports_gaps_and_accounts_for_every_number():
+    mon = SequenceMonitor()
+    for s in (5, 6, 7, 10, 11, 11, 12):
+        mon.observe("a", s)
+    (gap,) = mon.gaps()
+    assert (gap.first_missing, gap.last_missing, gap.count) == (8, 9, 2)
+    t = mon.sources["a"]
+    assert t.duplicates == 1 and t.received == 6 and mon.accounted("a")
+    assert mon.observe("a", 1) is None and mon.sources["a"].restarts == 1

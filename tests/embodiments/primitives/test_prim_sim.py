@@ -1,0 +1,61 @@
+"""Primitives on the simulated tombatossals: nominal success and the corrective behaviour in perturbed cases."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
+from contactflow.embodiments.sim_robot import SimRobot
+from contactflow.embodiments.world import World, WorldParams, cylinder
+from contactflow.nodes.status import Event
+
+ARM = "right"
+
+
+def vec(T: np.ndarray) -> list[float]:
+    v = pose6(T)
+    return [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
+
+
+def scene(with_object: bool = True) -> tuple[SimRobot, LocalPrimitiveRunner]:
+    world = World(WorldParams())
+    world.add_table()
+    if with_object:
+        world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
+    robot = SimRobot(world, "tombatossals")
+    return robot, LocalPrimitiveRunner(robot)
+
+
+def labels(events) -> list[Event]:
+    return [e.event for e in events]
+
+
+def test_transport_stops_on_unexpected_contact() -> None:
+    robot, runner = scene(with_object=False)
+    run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.3, 0.85)))})
+    ev = run_primitive(runner, "transport", {"arm": ARM, "target": [0.0, 0.0, -0.2, 0.0, 0.0, 0.0], "relative": True,
+                                             "planning_distance_limit": 1.0, "velocity_limits": [0.03, 0.03, 0.03, 0.3, 0.3, 0.3]})
+    assert Event.CONTACT in labels(ev) and outcome(ev).event is Event.FAILURE  # eq. 3.3 F/T stop at the table
+
+
+def test_release_backs_off_when_fingers_hit_the_table() -> None:
+    robot, runner = scene(with_object=False)
+    run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.3, 0.9)))})
+    robot.hand("right_hand").close()
+    robot.hand("right_hand").wait(1.0)
+    touch = run_primitive(runner, "touch", {"arm": ARM})
+    assert outcome(touch).event is Event.SUCCESS
+    ev = run_primitive(runner, "release", {"arm": ARM})
+    end = outcome(ev)
+    assert end.event is Event.SUCCESS
+    assert Event.CONTACT in labels(ev) and end.values["backoff_steps"] > 0 and end.values["backoff"] > 0.001
+
+
+def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
+    robot, runner = scene()
+    # 3 cm along the hand x axis (world y for this yaw): the approach touches the object off-centre
+    run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.535, -0.27, 0.92)))})
+    ev = run_primitive(runner, "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "torque_threshold": 0.1})
+    assert outcome(ev).values["alignments"] >= 1
+    assert Event.CONTACT in labels(ev)
