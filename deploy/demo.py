@@ -1,11 +1,260 @@
-"""``contactflow demo``: the README's main command."""
+"""``contactflow demo``: the thesis §7.3 experiment on three robots over zenoh, with a report.
+
+It starts, as local processes on loopback, the Tombatossals layout (control node with the
+broker and the robot's agent, a 2D vision node, a 3D vision node) plus one station each for
+Melfa and Baxter. Each robot station simulates its own world. The demo then dispatches ATD 1
+(push the box away) and ATD 2 (pick the target behind it) with ``--on all``, shows the
+abstract progress and the fused contact events live, and writes a report folder:
+``summary.json``, ``timeline.png``, ``contacts.png`` and the camera frames it received.
+"""
 
 from __future__ import annotations
 
+import json
+import threading
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from contactflow.deploy import pipeline_demo
+from rich.console import Console
+from rich.progress import Progress
+
+from contactflow.abstraction.cli import progress_table
+from contactflow.abstraction.client import TaskFollow, close, dispatch
+from contactflow.abstraction.messages import AbstractProgressMsg
+from contactflow.embodiments.messages import DepthImage
+from contactflow.fusion.messages import ContactEventMsg
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
+from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+from contactflow.nodes.wire import WireError, decode
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "abstraction" / "examples"
+ATDS = ("push_away.xml", "pick_place_behind.xml")
+ROBOTS = ("tombatossals", "melfa", "baxter")
+REC = "contactflow.recognition"
 
 
-def run(out: Path, quick: bool = False) -> int:
-    return pipeline_demo.run(out, quick=quick)
+def agent(robot: str) -> dict:
+    return {"name": "agent", "type": "robot_agent", "robot": robot,
+            "params": {"robot": robot, "executor": "sim", "realtime": 0.0, "scene": "thesis_7_3"}}
+
+
+def layout(site: str) -> dict[str, dict]:
+    """Node configurations: Tombatossals' three computers by role, one station per other robot."""
+    hub = free_port()
+
+    def zen(port: int, first: bool = False) -> dict:
+        z = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"], "multicast_scouting": False}
+        if not first:
+            z["connect"] = [f"tcp/127.0.0.1:{hub}"]
+        return z
+
+    depth = "tombatossals/agent.depth"
+    nodes = {
+        "tombatossals_control": {"host": "control", "robot": "tombatossals", "zenoh": zen(hub, first=True),
+                                 "modules": [{"name": "broker", "type": "broker", "robot": "site"},
+                                             agent("tombatossals")]},
+        "tombatossals_vision3d": {"host": "vision3d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
+            {"name": "cloud", "type": f"{REC}.services.cloud_builder:CloudBuilder", "inputs": {"depth": depth}},
+            {"name": "plane", "type": f"{REC}.services.plane_detector:PlaneDetector", "inputs": {"cloud": "cloud.cloud"}},
+            {"name": "roi", "type": f"{REC}.services.roi_filter:RoiFilter",
+             "inputs": {"cloud": "cloud.cloud", "roi": "plane.roi"}},
+            {"name": "objects", "type": f"{REC}.services.cluster_extractor:ClusterExtractor",
+             "inputs": {"cloud": "roi.cloud", "plane": "plane.plane"}},
+        ]},
+        "tombatossals_vision2d": {"host": "vision2d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
+            {"name": "shape", "type": f"{REC}.primitives.classify_shape:ClassifyShape", "autostart": True,
+             "inputs": {"depth": depth, "objects": "objects.objects"}, "params": {"timeout": 0.0}},
+        ]},
+        "melfa_station": {"host": "melfa_pc", "robot": "melfa", "zenoh": zen(free_port()), "modules": [agent("melfa")]},
+        "baxter_station": {"host": "baxter_pc", "robot": "baxter", "zenoh": zen(free_port()), "modules": [agent("baxter")]},
+    }
+    for name, cfg in nodes.items():
+        cfg.update(site=site, node=name)
+    return nodes
+
+
+@dataclass
+class Record:
+    t0: float = field(default_factory=time.time)
+    progress: list[dict] = field(default_factory=list)
+    contacts: list[dict] = field(default_factory=list)
+    objects: list[int] = field(default_factory=list)
+    frames: list[DepthImage] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+def _plots(out: Path, rec: Record, tasks: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(11, 4.5))
+    rows = {r: i for i, r in enumerate(ROBOTS)}
+    colours = {"success": "tab:green", "hardware_failure": "tab:red", "failure": "tab:orange", "error": "tab:red",
+               "timeout": "tab:purple"}
+    for r in ROBOTS:
+        entered = [p for p in rec.progress if p["robot"] == r and p["kind"] in ("entered", "finished")]
+        for a, b in zip(entered, entered[1:], strict=False):
+            if a["kind"] == "entered":
+                ax.barh(rows[r], b["t"] - a["t"], left=a["t"], height=0.5, color="tab:blue", alpha=0.35,
+                        edgecolor="k")
+                ax.text(a["t"], rows[r] + 0.3, a["state"], fontsize=6, rotation=30)
+        for p in rec.progress:
+            if p["robot"] == r and p["final"]:
+                ax.plot(p["t"], rows[r], "s", color=colours.get(p["outcome"], "k"), ms=9)
+    for c in rec.contacts:
+        if c["robot"] in rows:
+            ax.plot(c["t"], rows[c["robot"]] - 0.3, "v" if c["event"] == "contact_made" else "^",
+                    color="tab:red" if c["event"] == "contact_made" else "tab:gray", ms=5)
+    for t in tasks:
+        ax.axvline(t["t_dispatch"], color="k", ls="--", lw=0.8)
+        ax.text(t["t_dispatch"], len(ROBOTS) - 0.4, t["atd"], fontsize=8)
+    ax.set_yticks(list(rows.values()), list(rows))
+    ax.set_xlabel("s since the demo started")
+    ax.set_title("Abstract states per robot (bars), outcomes (squares), contact made/broken (triangles)")
+    fig.tight_layout()
+    fig.savefig(out / "timeline.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 6))
+    for r, marker in zip(ROBOTS, "os^", strict=True):
+        pts = [c["location"] for c in rec.contacts if c["robot"] == r and c["event"] == "contact_made"]
+        if pts:
+            ax.scatter([p[0] for p in pts], [p[1] for p in pts], marker=marker, label=f"{r} ({len(pts)})")
+    for name, xy, size in (("box (start)", (0.50, 0.0), 0.05), ("target", (0.62, 0.0), 0.05)):
+        ax.add_patch(plt.Rectangle((xy[0] - size / 2, xy[1] - size / 2), size, size, fill=False, ls="--"))
+        ax.text(xy[0], xy[1] + 0.04, name, fontsize=8, ha="center")
+    ax.set_xlabel("world x (m)")
+    ax.set_ylabel("world y (m)")
+    ax.set_aspect("equal")
+    ax.set_title("Fused contacts made (top view)")
+    if rec.contacts:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "contacts.png", dpi=120)
+    plt.close(fig)
+
+    frames = out / "frames"
+    frames.mkdir(exist_ok=True)
+    for i, f in enumerate(rec.frames[-3:]):
+        fig, ax = plt.subplots(figsize=(6.4, 4.8))
+        im = ax.imshow(f.depth.numpy(), cmap="viridis")
+        fig.colorbar(im, ax=ax, label="depth (m)")
+        ax.set_title(f"tombatossals {f.camera} depth, t_sim={f.hdr.t_sim:.1f} s")
+        fig.savefig(frames / f"kinect_{i}.png", dpi=100)
+        plt.close(fig)
+
+
+def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
+    console = console or Console()
+    out.mkdir(parents=True, exist_ok=True)
+    site = f"demo{int(time.time()) % 100000}"
+    ks = KeySpace(site)
+    nodes = layout(site)
+    hub = nodes["tombatossals_control"]["zenoh"]["listen"][0]
+    rec = Record()
+    procs = {name: spawn_node(write_config(out / "config" / f"{name}.yaml", cfg), out / "logs" / f"{name}.log")
+             for name, cfg in nodes.items()}
+    tool = ZenohTransport(ZenohSettings(connect=(hub,))).open()
+
+    def on_contact(key: str, payload: bytes) -> None:
+        try:
+            c = decode(payload, ContactEventMsg, key)
+        except WireError:
+            return
+        with rec.lock:
+            rec.contacts.append({"t": round(time.time() - rec.t0, 3), "robot": c.robot, "link": c.link,
+                                 "event": str(c.event), "location": [round(v, 4) for v in c.location]})
+        console.print(f"  [magenta]contact[/] {c.robot}/{c.link}: {c.event} at "
+                      f"({', '.join(f'{v:.3f}' for v in c.location)})")
+
+    def on_objects(key: str, payload: bytes) -> None:
+        from contactflow.recognition.messages import SegmentedObjects
+
+        try:
+            msg = decode(payload, SegmentedObjects, key)
+        except WireError:
+            return
+        with rec.lock:
+            rec.objects.append(len(msg.objects))
+
+    def on_depth(key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, DepthImage, key)
+        except WireError:
+            return
+        with rec.lock:
+            rec.frames = rec.frames[-2:] + [msg]
+
+    def on_progress(m: AbstractProgressMsg) -> None:
+        with rec.lock:
+            rec.progress.append({"t": round(time.time() - rec.t0, 3), "robot": m.robot, "kind": m.kind,
+                                 "state": m.state, "transition": m.transition, "event": m.event,
+                                 "concrete": m.concrete, "final": m.final, "outcome": m.outcome,
+                                 "task": m.task_id, "detail": m.detail[:200]})
+
+    subs = [tool.subscribe(ks.fused("*", "events"), on_contact),
+            tool.subscribe(ks.output("tombatossals", "*", "objects", "objects"), on_objects),
+            tool.subscribe(ks.output("tombatossals", "*", "agent", "depth"), on_depth)]
+    tasks: list[dict] = []
+    code = 1
+    try:
+        with Progress(console=console, transient=True) as bar:
+            task = bar.add_task("starting 5 nodes", total=len(ROBOTS))
+
+            def robots_up() -> bool:
+                n = len(tool.alive(ks.alive_robot(), timeout=0.5))
+                bar.update(task, completed=n)
+                return n >= len(ROBOTS)
+
+            up = wait_for(robots_up, timeout=90)
+        nodes_up = tool.alive(ks.alive_node(), timeout=1.0)
+        console.print(f"[green]{len(nodes_up)} nodes up[/] ({time.time() - rec.t0:.1f} s): "
+                      + ", ".join(k.rsplit("/", 1)[-1] for k in sorted(nodes_up)))
+        if not up:
+            console.print("[red]not every robot came up; see the logs in[/] " + str(out / "logs"))
+            return 1
+        for name in ATDS[:1] if quick else ATDS:
+            text = (EXAMPLES / name).read_text()
+            console.rule(f"{name} --on all")
+            t_dispatch = round(time.time() - rec.t0, 3)
+            follow: TaskFollow = dispatch(tool, ks, text, name, target="all", on_progress=on_progress)
+            if follow.reply is None or not follow.reply.ok:
+                console.print(f"[red]not dispatched:[/] {follow.reply.error if follow.reply else ''}")
+                tasks.append({"atd": name, "t_dispatch": t_dispatch, "dispatched": False})
+                continue
+            console.print(f"dispatched to {', '.join(follow.reply.robots)}")
+            from rich.live import Live
+
+            with Live(progress_table(follow), console=console, refresh_per_second=4) as live:
+                deadline = time.monotonic() + (90 if quick else 120)
+                while not follow.done.wait(0.25) and time.monotonic() < deadline:
+                    live.update(progress_table(follow))
+                live.update(progress_table(follow))
+            close(follow)
+            outcomes = {m.robot: m.outcome for m in follow.progress if m.final and m.robot != "broker"}
+            tasks.append({"atd": name, "t_dispatch": t_dispatch, "dispatched": True, "robots": follow.reply.robots,
+                          "outcomes": outcomes, "finished": follow.final is not None})
+        code = 0 if tasks and all(t.get("finished") for t in tasks) else 1
+    finally:
+        for s in subs:
+            s.close()
+        tool.close()
+        for p in procs.values():
+            stop_process(p)
+    with rec.lock:
+        _plots(out, rec, tasks)
+        summary = {"site": site, "duration_s": round(time.time() - rec.t0, 1), "nodes": sorted(nodes),
+                   "tasks": tasks, "contact_events": len(rec.contacts),
+                   "contacts_by_robot": {r: sum(c["robot"] == r for c in rec.contacts) for r in ROBOTS},
+                   "vision_objects_seen": rec.objects[-10:], "camera_frames": len(rec.frames),
+                   "progress": rec.progress, "contacts": rec.contacts}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    console.rule("report")
+    for t in tasks:
+        console.print(f"{t['atd']}: " + ", ".join(f"{r}: {o}" for r, o in sorted(t.get("outcomes", {}).items())))
+    console.print(f"{len(rec.contacts)} contact events; report in {out} (summary.json, timeline.png, contacts.png)")
+    return code

@@ -39,9 +39,10 @@ def open_observer(m: Manifest, local: bool, identity: str | None = None) -> Zeno
     """A peer session joining the deployment as ``identity`` (a host of the manifest)."""
     who = identity or next(h for h in m.hosts if h not in m.security.observers)
     node = m.nodes(who)[0] if m.nodes(who) else m.nodes()[0]
-    zfile = write_json5(Path(tempfile.mkdtemp(prefix="cf-status-")) / "tool.json5", zenoh_config(m, node, identity=who))
-    settings = ZenohSettings(mode="peer", connect=tuple(tool_endpoints(m, local)), config_file=str(zfile))
-    return ZenohTransport(settings).open()
+    with tempfile.TemporaryDirectory(prefix="cf-status-") as tmp:  # holds a password: gone once read
+        zfile = write_json5(Path(tmp) / "tool.json5", zenoh_config(m, node, identity=who))
+        settings = ZenohSettings(mode="peer", connect=tuple(tool_endpoints(m, local)), config_file=str(zfile))
+        return ZenohTransport(settings).open()
 
 
 def alive_nodes(m: Manifest, transport: ZenohTransport, timeout: float = 1.0) -> set[str]:

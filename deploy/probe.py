@@ -93,7 +93,7 @@ class Probe:
         elif op == "token":
             self.handles.append(self.t.token(cmd["key"]))
         elif op == "peers":
-            emit(ev="peers", id=cid, count=len(list(self.t._s.info.peers_zid())))
+            emit(ev="peers", id=cid, count=len(list(self.t.session.info.peers_zid())))
         else:
             raise ValueError(f"unknown op {op!r}")
         emit(ev="ok", id=cid, op=op)

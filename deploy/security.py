@@ -160,8 +160,12 @@ def zenoh_config(m: Manifest, node: NodeSpec, identity: str | None = None) -> di
     """
     who = identity or node.host
     cfg: dict[str, Any] = {
+        # no implicit listener: zenoh peers otherwise listen on plain tcp/[::]:0, which gossip
+        # advertises; nodes set their (TLS) endpoint in the node configuration
+        "listen": {"endpoints": []},
         "transport": {"link": {"tx": {"lease": m.topology.lease_ms, "keep_alive": KEEP_ALIVE}}},
-        "connect": {"retry": {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}},
+        "connect": {"exit_on_failure": False,
+                    "retry": {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}},
     }
     sec = m.security
     if sec.transport in ("tls", "mtls"):

@@ -29,10 +29,6 @@ ARM = "right"
 SPOT = (0.55, -0.3)
 TABLE_Z = 0.75
 
-PROFILE = {"robust_grasp": {"torque_threshold": 0.1}}
-"""Embodiment profile: the thesis sets TORQUE THRESHOLD "depending on the force-torque sensor
-sensitivity" (§3.3.1); 5 N m suits the JR3 with its heavy hands, the simulated wrist sees
-contact torques of a few tenths of N m."""
 
 
 def objects() -> list[ObjectSpec]:
@@ -83,7 +79,7 @@ def scene(spec: ObjectSpec) -> tuple[World, SimRobot, LocalPrimitiveRunner]:
     world.add_table()
     world.add_object(spec)
     robot = SimRobot(world, ROBOT)
-    return world, robot, LocalPrimitiveRunner(robot, defaults=PROFILE)
+    return world, robot, LocalPrimitiveRunner(robot)
 
 
 def vision_approach(spec: ObjectSpec) -> np.ndarray:

@@ -74,6 +74,7 @@ class HandSpec:
     force_limit: float = 100.0  # N or N m per finger joint
     friction: float = 2.0  # finger link friction coefficient
     max_velocity: float = 2.0  # rad/s or m/s
+    armature: float = 0.0  # kg m^2 (or kg) added to each finger joint: light phalanges chatter in contact without it
 
 
 @dataclass(frozen=True)
@@ -145,6 +146,9 @@ class RobotSpec:
     computers: tuple[Computer, ...] = ()
     base_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m, default placement in the world
     base_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    collision_groups: tuple[str, ...] = ()
+    """Link-name prefixes of parts that collide with each other (e.g. the two arms of a torso);
+    links inside one part (and all unmatched links) never collide with each other."""
     task_frames: dict[str, tuple[str, tuple[float, ...]]] = field(default_factory=dict)
     """Named task frames: name -> (parent frame, xyz + rpy offset)."""
 

@@ -288,7 +288,7 @@ class HandHandle:
             qd = r._qd_s[self._sidx]
             if np.all(np.abs(q - self.goal) < self._tol):
                 self.status = Status.SUCCESS
-            elif np.abs(qd).max() < 0.01:
+            elif np.abs(qd).max() < 0.03 * self.spec.max_velocity:  # fingers stalled against an object
                 self._still += dt
                 if self._still > 0.1:
                     self.status = Status.SUCCESS  # blocked by an object: the grasp closed on it

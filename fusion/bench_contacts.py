@@ -3,8 +3,9 @@
 A hand touches a fixed object (box, cylinder, spray-bottle-like) from 15 approach
 directions each (5 azimuths x 3 elevations) with a guarded move that stops when the wrist
 F/T feels the touch. At the stop every generator runs on the simulated sensors: tactile
-pads (eq. 4.6), wrist F/T (eq. 4.8-4.9, hand model from the spherical model), a depth
-camera above the table + occupancy grid (§4.4.4; the object is fixed, so the range
+pads (eq. 4.6), wrist F/T (eq. 4.8-4.9, hand model from the spherical model), a head-like
+depth camera above and behind the robot (the arm hides the object at the touch; the grid
+built before the approach carries the knowledge) + occupancy grid (§4.4.4; the object is fixed, so the range
 generator runs with ``require_motion=False``) and simulator prediction support (§4.5.2: a
 prediction scene with the object displaced by N(0, 2 cm), robot posed at the measured
 joints). The rig (robot, arm, hand) is a parameter; ``melfa`` (arm + parallel gripper with
@@ -31,13 +32,12 @@ from rich.progress import Progress
 from rich.table import Table
 
 from contactflow.fusion.condensation import CondensationParams, condense
-from contactflow.fusion.generators.force_torque import ForceTorqueParams, ft_hypotheses
 from contactflow.fusion.generators.range import RangeGenerator, RangeParams, segment_object
 from contactflow.fusion.generators.simulator import SimulatorParams, simulator_support
 from contactflow.fusion.generators.tactile import tactile_hypotheses
-from contactflow.fusion.geometry import distance_fn
 from contactflow.fusion.hypotheses import Hypotheses
 from contactflow.fusion.integrator import Integrator
+from contactflow.fusion.sim_sources import hand_capsules, taxel_readings, wrist_hypotheses
 
 MODALITIES = {
     "tactile": ("tactile",),
@@ -63,12 +63,14 @@ class Rig:
     hand_links: tuple[str, ...] = ("panda_hand", "panda_leftfinger", "panda_rightfinger")
     object_xy: tuple[float, float] = (0.56, 0.11)
     turn: tuple[float, ...] = (1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0)  # rotation applied to the home ee orientation
+    camera: str = ""  # the robot's own depth camera; "" = a fixed head-like camera above and behind
 
 
 RIGS = {
     "melfa": Rig(),
     "tombatossals": Rig("tombatossals", "right", "right_hand", "right_palm_link",
-                        ("right_palm_link", "right_link_"), (0.55, -0.30), (1.0, 0, 0, 0, 0, 1.0, 0, -1.0, 0)),
+                        ("right_palm_link", "right_link_"), (0.55, -0.30), (1.0, 0, 0, 0, 0, 1.0, 0, -1.0, 0),
+                        "kinect"),
 }
 POSE_SIGMA = 0.02  # m, object pose error of the prediction scene (thesis §4.7)
 PRESS_FORCE = 1.5  # N, wrist force at which the touch is recorded
@@ -104,32 +106,6 @@ class Touch:
     truth: np.ndarray | None
     clouds: dict[str, Hypotheses] = field(default_factory=dict)
     wrench: tuple | None = None  # (f, tau, T_world_sensor, hand bi-spheres): to rerun the F/T generator
-
-
-def _hand_caps(robot, rig: Rig) -> np.ndarray:
-    sph = robot.spherical
-    sel = [i for i, link in enumerate(sph.links) if any(link.startswith(h) for h in rig.hand_links)]
-    return np.concatenate([sph.C1[sel], sph.r1[sel, None], sph.C2[sel], sph.r2[sel, None]], axis=1)
-
-
-def _taxels(robot, hand: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    from contactflow.embodiments.sensors.tactile import _pad_axes, taxel_positions
-
-    pressures, positions, normals = [], [], []
-    readings = robot.tactile(hand)
-    for pad in robot.spec.hand(hand).pads:
-        T = robot.frame_pose(pad.link)
-        local = taxel_positions(pad).reshape(-1, 3)
-        n, _, _ = _pad_axes(pad)
-        if pad.radius > 0:
-            c = np.asarray(pad.origin) - pad.radius * n
-            nl = (local - c) / np.linalg.norm(local - c, axis=1, keepdims=True)
-        else:
-            nl = np.tile(n, (local.shape[0], 1))
-        positions.append(local @ T[:3, :3].T + T[:3, 3])
-        normals.append(nl @ T[:3, :3].T)
-        pressures.append(readings[pad.name].ravel())
-    return np.concatenate(pressures), np.concatenate(positions), np.concatenate(normals)
 
 
 def _truth(world, robot_prefix: str, obj: str = "obj") -> np.ndarray | None:
@@ -208,9 +184,16 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
     roi_lo, roi_hi = centre - [0.12, 0.12, 0.2], centre + [0.12, 0.12, 0.2]
     rparams = RangeParams(table_z=TABLE_Z, require_motion=False)
     # A head-like depth camera above and behind the robot, looking at the object.
-    camera = RaycastCamera(world, CameraSpec(name="head", link=""),
-                           T_world_cam=look_at(np.array([-0.1, rig.object_xy[1], 1.45]), centre))
-    frame = camera.read(robot.time)
+    if rig.camera:
+        def read_depth():
+            return robot.camera(rig.camera)
+    else:
+        camera = RaycastCamera(world, CameraSpec(name="head", link=""),
+                               T_world_cam=look_at(np.array([-0.1, rig.object_xy[1], 1.45]), centre))
+
+        def read_depth():
+            return camera.read(robot.time)
+    frame = read_depth()
     cam = frame.T_world_cam[:3, 3]
     obj_pts = segment_object(frame.points, robot.spherical.distance, rparams, roi_lo, roi_hi)
     touches = []
@@ -246,19 +229,11 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
         if touch.truth is None:
             continue
         now = robot.time
-        pressure, taxels, normals = _taxels(robot, rig.hand)
+        pressure, taxels, normals = taxel_readings(robot, rig.hand)
         touch.clouds["tactile"] = tactile_hypotheses(pressure, taxels, now, normals)
-        caps = _hand_caps(robot, rig)
-        T_s = robot.frame_pose(rig.ft_link)
-        w = robot.ft(rig.arm)
-        f_s, tau_s = w.in_sensor_frame()
-        local = np.concatenate([caps[:, 0:3], caps[:, 4:7]]) - T_s[:3, 3]
-        local = local @ T_s[:3, :3]
-        r = np.concatenate([caps[:, 3], caps[:, 7]])[:, None]
-        fparams = ForceTorqueParams(box_lo=tuple((local - r).min(axis=0)), box_hi=tuple((local + r).max(axis=0)))
-        touch.clouds["force"] = ft_hypotheses(f_s, tau_s, T_s, distance_fn(caps), now, fparams)
-        touch.wrench = (f_s, tau_s, T_s, caps)
-        frame = camera.read(robot.time)
+        caps = hand_capsules(robot, rig.hand_links)
+        touch.clouds["force"], touch.wrench = wrist_hypotheses(robot, rig.arm, rig.ft_link, caps, now)
+        frame = read_depth()
         pts = segment_object(frame.points, robot.spherical.distance, rparams, roi_lo, roi_hi)
         touch.clouds["range"] = rng_gen.observe(pts, robot.spherical.distance, now)
         predicted = prediction.contacts(robot.art.qpos(), rng.normal(0.0, POSE_SIGMA, 3))
@@ -313,8 +288,8 @@ def _plot(touches: list[Touch], path: pathlib.Path, cparams: CondensationParams)
         if len(fused):
             sc = ax.scatter(*fused.location.T, c=fused.likelihood, cmap="viridis", s=6, vmin=0, vmax=1)
             fig.colorbar(sc, ax=ax, shrink=0.5, label="H(x)")
-        for c in condense(fused, cparams):
-            ax.scatter(*c.location, color="red", s=60, label="detected")
+        for j, c in enumerate(condense(fused, cparams)):
+            ax.scatter(*c.location, color="red", s=60, label="detected" if j == 0 else None)
         ax.scatter(*t.truth, color="black", marker="x", s=60, label="truth")
         ax.set_title(f"{t.obj} {np.round(t.direction, 2).tolist()}", fontsize=8)
         ax.legend(fontsize=6)

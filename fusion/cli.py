@@ -21,6 +21,11 @@ app = typer.Typer(help="Fused contact events (thesis ch. 4).", no_args_is_help=T
 console = Console()
 
 
+@app.callback()
+def contacts() -> None:
+    """Fused contact events (thesis ch. 4)."""
+
+
 def format_event(msg: ContactEventMsg) -> str:
     colour = "green" if msg.event == Event.CONTACT_MADE else "red"
     x, y, z = msg.location
@@ -72,7 +77,7 @@ def watch(
             while not done.is_set():
                 time.sleep(0.2)
     except KeyboardInterrupt:
-        pass
+        console.print("interrupted")
     finally:
         sub.close()
         transport.close()

@@ -83,8 +83,10 @@ def condense(fused: Fused, params: CondensationParams | None = None) -> list[Con
     if len(fused) == 0:
         return []
     lik = fused.likelihood
-    floor = max(p.threshold if p.method != Method.CENTROID else 0.0,
-                p.relative_threshold * float(lik.max()))
+    if p.method == Method.CENTROID:
+        floor = 0.0  # the weighted centroid of every voxel
+    else:
+        floor = max(p.threshold, p.relative_threshold * float(lik.max()))
     idx = np.flatnonzero(lik >= floor)
     if idx.size == 0:
         return []

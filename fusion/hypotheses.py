@@ -294,10 +294,11 @@ class HypothesisSpace:
     """The hypothesis space HS: occupied voxels with per-source likelihood, stamp, type, force.
 
     Sources are columns (at most 64, so a voxel's sources fit a uint64 bitmask). Storage is
-    column-major, ``lik[col, row]`` and ``direction[col, axis, row]`` and ``center[axis, row]``, so that writing one source's cloud and reducing over the
-    few sources are both contiguous passes. A column entry is empty when its stamp is
-    ``-inf`` and its likelihood 0. Rows whose every column is empty are dead; they are dropped
-    in bulk when they outnumber the live ones.
+    column-major (``lik[col, row]``, ``direction[col, axis, row]``, ``center[axis, row]``), so
+    that writing one source's cloud and reducing over the few sources are contiguous passes.
+    A column entry is empty when its stamp is ``+inf`` (so the oldest live stamp is a plain
+    minimum) and its likelihood 0. Rows whose every column is empty are dead; they are
+    dropped in bulk when they outnumber the live ones.
     """
 
     MAX_SOURCES = 64
@@ -317,7 +318,7 @@ class HypothesisSpace:
     def _alloc_rows(self, cap: int, ncol: int) -> None:
         n, c = self.n, self.ncol
         lik = np.zeros((ncol, cap))
-        stamp = np.full((ncol, cap), -np.inf)
+        stamp = np.full((ncol, cap), np.inf)
         kind = np.zeros((ncol, cap), dtype=np.uint8)
         force = np.zeros((ncol, cap))
         direction = np.zeros((ncol, 3, cap))
@@ -385,7 +386,7 @@ class HypothesisSpace:
     def clear_column(self, col: int) -> None:
         if col < self.ncol:
             self.lik[col] = 0.0
-            self.stamp[col] = -np.inf
+            self.stamp[col] = np.inf
             self.oldest[col] = np.inf
 
     def expire(self, older_than: float) -> int:
@@ -400,17 +401,17 @@ class HypothesisSpace:
             if self.oldest[c] >= older_than:
                 continue
             st = self.stamp[c, :n]
-            old = (st < older_than) & (st > -np.inf)
+            old = st < older_than
             k = int(np.count_nonzero(old))
             if k:
-                self.lik[c, :n][old] = 0.0
-                st[old] = -np.inf
+                np.copyto(self.lik[c, :n], 0.0, where=old)
+                np.copyto(st, np.inf, where=old)
                 count += k
-            self.oldest[c] = float(np.min(st, initial=np.inf, where=st > -np.inf))
+            self.oldest[c] = float(st.min(initial=np.inf))
         return count
 
     def live(self) -> np.ndarray:
-        return (self.stamp[:, : self.n] > -np.inf).any(axis=0)
+        return (self.stamp[:, : self.n] < np.inf).any(axis=0)
 
     def compact(self, force: bool = False) -> bool:
         """Drop dead rows when they are the majority (or always with ``force``)."""
@@ -424,7 +425,7 @@ class HypothesisSpace:
             arr = getattr(self, name)
             arr[..., :n_live] = np.take(arr, keep, axis=-1)
         self.center[:, :n_live] = np.take(self.center, keep, axis=1)
-        self.stamp[:, n_live:self.n] = -np.inf
+        self.stamp[:, n_live:self.n] = np.inf
         self.lik[:, n_live:self.n] = 0.0
         self.n = n_live
         self.index.rebuild(keys)

@@ -6,7 +6,8 @@ the newest one is used), writes each cloud into that source's column of the hypo
 older hypothesis of the same source gets the newer one), discards entries older than the
 timeout and computes the fused likelihood of every voxel with the noisy-OR of eq. 4.14.
 Voxels whose only evidence is support hypotheses are left out, and any voxel with a null
-hypothesis is vetoed. Force magnitude and direction are averaged weighted by likelihood.
+hypothesis is vetoed. Force magnitude and direction are averaged weighted by likelihood over
+the hypotheses that carry a force.
 Sources may be plugged and unplugged at any time. Everything is vectorised over voxels.
 """
 
@@ -130,6 +131,7 @@ class Integrator:
         if src is None:
             raise KeyError(f"integrator: source {name!r} is not plugged (plugged: {sorted(self.sources)})")
         self.space.clear_column(src.col)
+        self.space.compact()
 
     def active(self, now: float) -> list[Source]:
         """Sources the next cycle waits for: plugged and heard from within ``source_timeout``."""
@@ -179,8 +181,8 @@ class Integrator:
                 continue
             rows, unique = self._rows(src, cloud)
             space.put(src.col, rows, cloud, unique)
-        space.expire(now - self.params.timeout)
-        space.compact()
+        if space.expire(now - self.params.timeout):
+            space.compact()
         self.cycles += 1
         return self.fuse(now)
 
@@ -210,15 +212,19 @@ class Integrator:
         # Whole-array passes over the (columns, rows) views; selecting the kept voxels comes
         # last (gathering first makes strided copies).
         lik = space.lik[:ncol, :n]
-        valid = space.stamp[:ncol, :n] > -np.inf
+        valid = space.stamp[:ncol, :n] < np.inf
         kind = space.kind[:ncol, :n]
         regular = ((kind == int(HypothesisType.REGULAR)) & valid).any(axis=0)
         null = ((kind == int(HypothesisType.NULL)) & valid).any(axis=0)
         live = valid.any(axis=0)
         miss = np.prod(1.0 - lik, axis=0)
-        wsum = lik.sum(axis=0)
-        fsum = np.einsum("cn,cn->n", lik, space.force[:ncol, :n])
-        dsum = np.einsum("cn,can->an", lik, space.direction[:ncol, :, :n])
+        # Force and direction average over the entries that carry a force (support and range
+        # hypotheses know none and must not pull the magnitude towards zero).
+        force = space.force[:ncol, :n]
+        wf = lik * (force > 0.0)
+        wsum = wf.sum(axis=0)
+        fsum = np.einsum("cn,cn->n", wf, force)
+        dsum = np.einsum("cn,can->an", wf, space.direction[:ncol, :, :n])
         keep = np.flatnonzero(regular & ~null & (miss < 1.0))
         if keep.size == n:
             def take(a: np.ndarray) -> np.ndarray:
@@ -231,8 +237,10 @@ class Integrator:
         norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         np.divide(d, norm, out=d, where=norm > 1e-12)
         d[:, norm <= 1e-12] = 0.0
+        fk, wk = take(fsum), take(wsum)
         return Fused(
-            location=take(space.center).T, likelihood=1.0 - take(miss), force=take(fsum) / take(wsum),
+            location=take(space.center).T, likelihood=1.0 - take(miss),
+            force=np.divide(fk, wk, out=np.zeros_like(fk), where=wk > 0),
             direction=d.T, sources=source_bits(take(valid)), per_source=take(lik).T,
             columns=names, robots=robots, links=links, stamp=now,
             vetoed=int(np.count_nonzero(null & live)), unsupported=int(np.count_nonzero(live & ~regular & ~null)),

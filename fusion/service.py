@@ -5,7 +5,7 @@ generator of every robot of the site (``KeySpace.hypotheses("*", "*")``); each
 ``robot/generator`` pair is a source, plugged on its first cloud and unplugged after
 ``drop_after`` seconds of silence. Each cycle publishes the fused cloud, the condensed
 contacts and the contact events on ``KeySpace.fused(robot, stream)`` (see
-:meth:`ContactFusion.output_keys`) and raises the events for the task engine.
+:meth:`ContactFusion.default_output_keys`) and raises the events for the task engine.
 """
 
 from __future__ import annotations
@@ -84,12 +84,12 @@ class ContactFusion(Module):
     events = (Event.CONTACT_MADE, Event.CONTACT_BROKEN)
 
     @classmethod
-    def input_keys(cls, ks: KeySpace, params: FusionParams) -> dict[str, str]:
+    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: FusionParams) -> dict[str, str]:
         robot, generator = params.sources.split("/")
         return {"hypotheses": ks.hypotheses(robot, generator)}
 
     @classmethod
-    def output_keys(cls, ks: KeySpace, params: FusionParams) -> dict[str, str]:
+    def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: FusionParams) -> dict[str, str]:
         return {stream: ks.fused(params.robot, stream) for stream in ("hypotheses", "contacts", "events")}
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]

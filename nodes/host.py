@@ -167,16 +167,19 @@ class ModuleHost:
         hm = HostedModule(cfg=cfg, module=module, addr=addr)
         hm.io = HostedIO(self, hm)
         t = self.transport
+        out_keys = module.default_output_keys(self.ks, addr.robot, addr.module, module.params)
         for port in module.outputs:
-            key = cfg.outputs.get(port.name) or self.ks.output(addr.robot, addr.node, addr.module, port.name)
+            key = (cfg.outputs.get(port.name) or out_keys.get(port.name)
+                   or self.ks.output(addr.robot, addr.node, addr.module, port.name))
             hm.publishers[port.name] = t.publisher(key)
         hm.event_pub = t.publisher(self.ks.events(*self._a(addr)))
         hm.status_pub = t.publisher(self.ks.status(*self._a(addr)))
+        in_keys = module.default_input_keys(self.ks, addr.robot, addr.module, module.params)
         for port in module.inputs:
             src = cfg.inputs.get(port.name)
-            if src is None:
+            key = src.keyexpr(self.ks, addr.robot) if src is not None else in_keys.get(port.name)
+            if key is None:
                 continue
-            key = src.keyexpr(self.ks, addr.robot)
             hm.handles.append(t.subscribe(key, self._input_callback(hm, port.name, port.type)))
         hm.handles.append(t.queryable(self.ks.control(*self._a(addr)), self._control_callback(hm)))
         hm.handles.append(t.token(self.ks.alive_module(*self._a(addr))))

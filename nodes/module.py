@@ -15,6 +15,7 @@ from typing import Any, ClassVar, Protocol
 
 import yaml
 
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.messages import Command, ControlReply, ParamValue
 from contactflow.nodes.params import ParamError, params_dict, replace_params
 from contactflow.nodes.status import Event, Status
@@ -136,6 +137,20 @@ class Module:
     @property
     def may_command(self) -> bool:
         return self.layer in (Layer.PRIMITIVE, Layer.TASK, Layer.INTERFACE)
+
+    @classmethod
+    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        """Key expressions input ports read when the configuration names no source.
+
+        Modules that live on a shared part of the key space override it (the fusion service
+        reads ``contacts/*/*``); ordinary modules read only what their configuration wires.
+        """
+        return {}
+
+    @classmethod
+    def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        """Key expressions output ports publish on instead of ``.../<module>/out/<port>``."""
+        return {}
 
     @classmethod
     def describe(cls) -> dict[str, Any]:

@@ -98,7 +98,8 @@ class NDArray(msgspec.Struct, frozen=True, kw_only=True):
             a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
         dt = a.dtype
         name = _NAME_BY_CHAR.get(dt.char) or dt.name
-        return cls(dtype=name, shape=list(a.shape), data=memoryview(a).cast("B"))
+        data = memoryview(a).cast("B") if a.size else memoryview(b"")  # cast refuses zero-size views
+        return cls(dtype=name, shape=list(a.shape), data=data)
 
     def numpy(self) -> np.ndarray:
         return np.frombuffer(self.data, dtype=np.dtype(self.dtype).newbyteorder("<")).reshape(self.shape)

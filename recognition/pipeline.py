@@ -131,20 +131,55 @@ def roi_filter(points: np.ndarray, roi: Box | None) -> np.ndarray:
     return pts[roi.contains(pts)]
 
 
-def sphere_distance(centers: np.ndarray, radii: np.ndarray) -> DistanceFn:
-    """Distance function of a spherical robot model: min over spheres of ``|p - c| - r``."""
+def sphere_distance(centers: np.ndarray, radii: np.ndarray, cutoff: float = np.inf) -> DistanceFn:
+    """Distance function of a spherical robot model: min over spheres of ``|p - c| - r``.
+
+    With a finite ``cutoff`` only spheres reaching within ``cutoff`` of the points'
+    bounding box are evaluated: distances below ``cutoff`` stay exact, larger ones may
+    come out larger (``inf`` when no sphere is near), which is all a self filter needs.
+    """
     c = np.asarray(centers, float).reshape(-1, 3)
     r = np.asarray(radii, float).reshape(-1)
     if len(c) != len(r):
         raise ValueError(f"sphere_distance: {len(c)} centres but {len(r)} radii")
-    cc = (c * c).sum(axis=1)
 
     def dist(points: np.ndarray) -> np.ndarray:
-        if len(c) == 0:
+        cc, rr = c, r
+        if np.isfinite(cutoff) and len(points):
+            lo, hi = points.min(axis=0), points.max(axis=0)
+            gap = np.linalg.norm(np.maximum(np.maximum(lo - cc, cc - hi), 0.0), axis=1) - rr
+            cc, rr = cc[gap <= cutoff], rr[gap <= cutoff]
+        if len(cc) == 0:
             return np.full(len(points), np.inf)
         # |p-c|^2 = |p|^2 - 2 p.c + |c|^2, as one matrix product
-        d2 = (points * points).sum(axis=1)[:, None] - 2.0 * points @ c.T + cc[None]
-        return (np.sqrt(np.maximum(d2, 0.0)) - r[None]).min(axis=1)
+        d2 = (points * points).sum(axis=1)[:, None] - 2.0 * points @ cc.T + (cc * cc).sum(axis=1)[None]
+        return (np.sqrt(np.maximum(d2, 0.0)) - rr[None]).min(axis=1)
+
+    return dist
+
+
+def culled_distance(distance: DistanceFn, c1: np.ndarray, c2: np.ndarray, r1: np.ndarray, r2: np.ndarray,
+                    cutoff: float) -> DistanceFn:
+    """Evaluate a robot model made of sphere-swept segments (s-topes, Appendix B) only on
+    points inside the bounding box of some s-tope grown by ``cutoff``; others get ``inf``.
+
+    ``c1``/``c2`` (M, 3) are the end centres and ``r1``/``r2`` (M,) the end radii, posed in
+    the world; ``distance`` is the model's exact distance function.
+    """
+    rmax = np.maximum(r1, r2)[:, None] + cutoff
+    lo = np.minimum(c1, c2) - rmax
+    hi = np.maximum(c1, c2) + rmax
+
+    def dist(points: np.ndarray) -> np.ndarray:
+        out = np.full(len(points), np.inf)
+        if len(points) == 0:
+            return out
+        near = np.zeros(len(points), bool)
+        for k in range(len(lo)):
+            near |= np.all((points >= lo[k]) & (points <= hi[k]), axis=1)
+        if near.any():
+            out[near] = distance(points[near])
+        return out
 
     return dist
 
@@ -248,8 +283,10 @@ class SegmentationResult:
 class SegmentationPipeline:
     """The whole chain in one process, with per-stage timings (used by primitives and benchmarks)."""
 
-    def __init__(self, params: PipelineParams | None = None) -> None:
+    def __init__(self, params: PipelineParams | None = None, clock: Callable[[], float] = time.perf_counter) -> None:
+        """``clock`` times the stages (``time.process_time`` gives CPU time, immune to other load)."""
         self.params = params or PipelineParams()
+        self.clock = clock
         p = self.params
         self.planes = PlaneCache(p.plane_period, distance=p.plane_distance, iterations=p.plane_iterations,
                                  max_tilt_deg=p.plane_max_tilt_deg, min_inliers=p.plane_min_inliers)
@@ -266,12 +303,12 @@ class SegmentationPipeline:
 
     def process_depth(self, depth: np.ndarray, K: np.ndarray, world_T_cam: np.ndarray, t: float = 0.0,
                       distance_fn: DistanceFn | None = None) -> SegmentationResult:
-        t0 = time.perf_counter()
+        t0 = self.clock()
         pts = self.cloud(depth, K, world_T_cam)
-        t_cloud = time.perf_counter() - t0
+        t_cloud = self.clock() - t0
         res = self.process_points(pts, t, distance_fn, downsample=False)
         res.timings = {"cloud": t_cloud, **res.timings}
-        res.timings["total"] = time.perf_counter() - t0
+        res.timings["total"] = self.clock() - t0
         return res
 
     def process_points(self, points: np.ndarray, t: float = 0.0, distance_fn: DistanceFn | None = None,
@@ -279,27 +316,27 @@ class SegmentationPipeline:
         p = self.params
         timings: dict[str, float] = {}
         counts: dict[str, int] = {}
-        t0 = time.perf_counter()
+        t0 = self.clock()
         pts = as_points(points, "points")
         if downsample:
             pts = voxel_downsample(pts, p.voxel)
         counts["cloud"] = len(pts)
-        t1 = time.perf_counter()
+        t1 = self.clock()
         replan = self.planes.due(t)
         plane = self.planes.update(pts, t)
         if replan:
             self.roi = (roi_from_plane(plane, self.planes.roi_inliers, p.roi_min_height, p.roi_max_height,
                                        p.roi_margin) if plane is not None else None)
-        t2 = time.perf_counter()
+        t2 = self.clock()
         inside = roi_filter(pts, self.roi)
         counts["roi"] = len(inside)
-        t3 = time.perf_counter()
+        t3 = self.clock()
         free = self_filter(inside, distance_fn, p.self_margin)
         counts["self"] = len(free)
-        t4 = time.perf_counter()
+        t4 = self.clock()
         clusters = extract_clusters(free, p.cluster_eps, p.cluster_min_points, p.cluster_min_size,
                                     p.cluster_max_size, plane)
-        t5 = time.perf_counter()
+        t5 = self.clock()
         timings.update(prepare=t1 - t0, plane=t2 - t1, roi=t3 - t2, self=t4 - t3, cluster=t5 - t4, total=t5 - t0)
         counts["clusters"] = len(clusters)
         return SegmentationResult(clusters, plane, self.roi, timings, counts)

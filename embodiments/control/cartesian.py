@@ -35,8 +35,9 @@ class CartesianParams:
     rot_tol: float = 0.01  # rad
     settle_tol: float = 0.003  # m, measured position error at which a pose move succeeds
     settle_timeout: float = 2.0  # s after the reference ends before a pose move fails
-    admittance: float = 0.004  # m/s per N in wrench mode
-    admittance_rot: float = 0.05  # rad/s per N m
+    admittance: float = 0.002  # m/s per N in wrench mode
+    admittance_rot: float = 0.02  # rad/s per N m
+    wrench_filter: float = 0.03  # s, time constant of the measured-wrench low-pass in wrench mode
     max_speed: float = 0.25  # m/s, bound on any commanded linear speed
 
 
@@ -50,6 +51,7 @@ class CartesianController:
         self.status = Status.IDLE
         self.q_cmd: np.ndarray | None = None
         self._t = 0.0
+        self._ramp_t = 0.0
         self._duration: float | None = None
 
     @property
@@ -80,6 +82,8 @@ class CartesianController:
         R = self._axes(frame) if frame != "world" else np.eye(3)
         tw = np.asarray(twist, dtype=np.float64)
         self._twist = np.concatenate([R @ tw[:3], R @ tw[3:]])
+        if self.mode != Mode.TWIST:
+            self._ramp_t = 0.0  # re-issuing a twist every tick (primitives do) must not restart the ramp
         self._duration, self._t = duration, 0.0
         self.mode, self.status = Mode.TWIST, Status.RUNNING
 
@@ -88,6 +92,7 @@ class CartesianController:
         self._wrench_frame = frame
         self._wrench = np.asarray(wrench, dtype=np.float64)
         self._t, self._duration = 0.0, None
+        self._wf: np.ndarray | None = None
         self.mode, self.status = Mode.WRENCH, Status.RUNNING
 
     def stop(self) -> None:
@@ -140,7 +145,8 @@ class CartesianController:
                     self.status, self.mode = Status.FAILURE, Mode.IDLE
         elif self.mode == Mode.TWIST:
             # ramp up over 0.1 s: a velocity step would jerk the arm (and the F/T)
-            twist = self._twist * min(1.0, self._t / 0.1)
+            self._ramp_t += dt
+            twist = self._twist * min(1.0, self._ramp_t / 0.1)
             if self._duration is not None and self._t >= self._duration:
                 self.status, self.mode = Status.SUCCESS, Mode.IDLE
                 return self.q_cmd.copy(), np.zeros(len(self.q_cmd))
@@ -148,6 +154,9 @@ class CartesianController:
             R = self._axes(self._wrench_frame) if self._wrench_frame != "world" else np.eye(3)
             target = np.concatenate([R @ self._wrench[:3], R @ self._wrench[3:]])
             measured = np.zeros(6) if wrench is None else np.asarray(wrench, dtype=np.float64)
+            a = min(1.0, dt / p.wrench_filter)
+            self._wf = measured if self._wf is None else (1 - a) * self._wf + a * measured
+            measured = self._wf
             # the F/T reads the reaction of the environment on the hand: applied = -measured
             err = target - (-measured)
             twist = np.concatenate([p.admittance * err[:3], p.admittance_rot * err[3:]])

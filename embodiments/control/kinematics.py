@@ -27,6 +27,7 @@ class Kinematics:
         if self.model.nq != self.model.nv:
             raise KinematicsError(f"{urdf}: continuous joints (nq {self.model.nq} != nv {self.model.nv}) are not supported")
         self.base = np.eye(4) if base is None else np.asarray(base, dtype=np.float64)
+        self._identity_base = bool(np.allclose(self.base, np.eye(4)))
         self._base_se3 = pin.SE3(self.base[:3, :3], self.base[:3, 3])
         self.joint_names = [self.model.names[i] for i in range(1, self.model.njoints)]
         self._jidx = {n: self.model.joints[self.model.getJointId(n)].idx_q for n in self.joint_names}
@@ -66,10 +67,10 @@ class Kinematics:
             for n, x in q.items():
                 v[self.q_index([n])[0]] = x
             q = v
-        q = np.asarray(q, dtype=np.float64)
+        q = np.array(q, dtype=np.float64)
         if q.shape != (self.model.nq,):
             raise KinematicsError(f"q has shape {q.shape}, model needs ({self.model.nq},)")
-        self.q = q.copy()
+        self.q = q
         pin.forwardKinematics(self.model, self.data, self.q)
         pin.updateFramePlacements(self.model, self.data)
 
@@ -93,12 +94,14 @@ class Kinematics:
         if name in self.task_frames:
             parent, off = self.task_frames[name]
             return self._world_pose(parent) @ off
-        M = self.data.oMf[self.frame_id(name)]
-        return self.base @ M.homogeneous
+        M = self.data.oMf[self.frame_id(name)].homogeneous
+        return M if self._identity_base else self.base @ M
 
     def jacobian(self, frame: str) -> np.ndarray:
         """6 x nv Jacobian of a model frame, LOCAL_WORLD_ALIGNED, in world axes."""
         J = pin.computeFrameJacobian(self.model, self.data, self.q, self.frame_id(frame), pin.LOCAL_WORLD_ALIGNED)
+        if self._identity_base:
+            return J
         R = self.base[:3, :3]
         out = np.empty_like(J)
         out[:3] = R @ J[:3]

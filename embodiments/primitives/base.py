@@ -175,10 +175,32 @@ class Primitive(Module):
         if key == self._twist_cmd:
             return
         self._twist_cmd = key
+        self._trace = []
         if not np.any(key[0]):
             self.arm.stop()
             return
         self.arm.set_twist(np.asarray(v6, dtype=np.float64), frame=frame)
+
+    def blocked(self, window: float = 0.4, ratio: float = 0.25) -> bool:
+        """The arm does not follow the current twist: over ``window`` s it moved less than ``ratio`` of it.
+
+        A blocked Cartesian command winds up the joint targets until the fault monitor stops
+        the robot, so the primitives treat it as a contact.
+        """
+        if self._twist_cmd is None or not any(self._twist_cmd[0][:3]):
+            return False
+        speed = float(np.linalg.norm(self._twist_cmd[0][:3]))
+        now = self.r.time
+        pos = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
+        trace = getattr(self, "_trace", [])
+        trace.append((now, pos))
+        while len(trace) > 1 and now - trace[1][0] >= window:
+            trace.pop(0)
+        self._trace = trace
+        t0, p0 = trace[0]
+        if now - t0 < window:
+            return False
+        return float(np.linalg.norm(pos - p0)) < ratio * speed * (now - t0)
 
     def halt(self) -> None:
         self._twist_cmd = None
@@ -187,11 +209,14 @@ class Primitive(Module):
 
     # -- sensing helpers -----------------------------------------------------------------
     def wrench_in(self, frame: str) -> np.ndarray:
-        """Wrist wrench (reaction of the environment on the hand) with axes of ``frame``."""
-        reading = self.r.ft(self.arm_name)
-        spec = self.r.spec.ft(self.r.spec.arm(self.arm_name).ft)
-        R = self.r.frame_pose(frame)[:3, :3].T @ self.r.frame_pose(spec.link)[:3, :3]
-        w = np.asarray(reading.vector, dtype=np.float64)
+        """Wrist wrench (reaction of the environment on the hand, at the sensor origin) in ``frame`` axes.
+
+        The F/T reading comes in world axes (``sensors/ft.py``); it is rotated, not moved.
+        """
+        w = np.asarray(self.r.ft(self.arm_name).vector, dtype=np.float64)
+        if frame == "world":
+            return w
+        R = self.r.frame_pose(frame)[:3, :3].T
         return np.concatenate([R @ w[:3], R @ w[3:]])
 
     def pad_forces(self) -> dict[str, float]:
@@ -204,6 +229,23 @@ class Primitive(Module):
         if not self.hand_name:
             return []
         return [k for k, v in self.r.tactile(self.hand_name).items() if float(v.max(initial=0.0)) > TACTILE_CONTACT]
+
+    def holding(self, min_fingers: int = 2) -> bool:
+        """Something is in the hand: a pad touches, or ``min_fingers`` fingers are held open by an object.
+
+        The pads cover the fingertips only, so a power grasp on the inner phalanxes is told
+        by the joint configuration (thesis §3.3.1: "joint configuration or contact information").
+        """
+        from contactflow.embodiments.primitives.hands import blocked_fingers, finger_groups
+
+        if not self.hand_name:
+            return False
+        if self.pads_in_contact():
+            return True
+        spec = self.r.spec.hand(self.hand_name)
+        groups = finger_groups(spec)
+        closed = np.asarray(spec.preshapes["closed"], dtype=np.float64)
+        return blocked_fingers(self.hand.positions(), closed, groups) >= min(min_fingers, len(groups))
 
     # -- lifecycle -----------------------------------------------------------------------
     def start(self) -> None:

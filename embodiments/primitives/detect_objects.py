@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive, pose6, top_grasp_pose
+from contactflow.embodiments.primitives.profiles import hand_pose_for
 from contactflow.nodes.status import Event
 
 
@@ -94,7 +95,8 @@ class DetectObjects(Primitive):
         bottom = float(pick[:, 2].min())
         size = pick.max(axis=0) - pick.min(axis=0)
         grasp_z = top - min(p.grasp_depth, max(0.5 * (top - bottom), 0.01))
-        approach = top_grasp_pose((c[0], c[1], top + p.standoff), p.yaw)
+        # the approach puts the hand's grasp centre (per embodiment) over the object centroid
+        approach = hand_pose_for(self.r.spec.name, top_grasp_pose((c[0], c[1], top + p.standoff), p.yaw))
         vals = dict(count=len(clusters), cx=float(c[0]), cy=float(c[1]), cz=float(c[2]), top=top,
                     size_x=float(size[0]), size_y=float(size[1]), size_z=float(top - bottom),
                     grasp_z=float(grasp_z), **pose6(approach))

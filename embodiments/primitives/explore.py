@@ -11,14 +11,16 @@ from contactflow.nodes.status import Event
 
 
 class Explore(Primitive):
-    """Guarded sweep: straight along ``direction`` (world) or through ``sweep`` points; contact ends it with the pose.
+    """Guarded sweep: straight along ``direction`` (world) or through ``sweep`` points until a contact.
 
-    The result says whether the contact was reached below ``floor_z`` (a known support such
-    as a box bottom, by proprioception, §3.4.3) via ``on_floor``.
+    A contact above ``floor_z`` (a known support such as a box bottom, told apart by
+    proprioception, §3.4.3) is an object: SUCCESS with the contact pose and ``x, y`` moved
+    ``lead`` m ahead along the motion (where the object is). A contact on the support or a
+    finished sweep ends with OBJECT_NOT_FOUND (FAILURE).
     """
 
     requires = Capability(ft=True)
-    events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.CONTACT)
+    events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.CONTACT, Event.OBJECT_DETECTED, Event.OBJECT_NOT_FOUND)
 
     @dataclass(frozen=True)
     class Params(Primitive.Params):
@@ -29,6 +31,8 @@ class Explore(Primitive):
         max_distance: float = 0.3  # m, along ``direction``
         floor_z: float = -1.0  # m, contacts at or below this height are on the known support
         floor_margin: float = 0.015  # m
+        lead: float = 0.03  # m, the object is this far ahead of the hand along the motion
+        retreat: float = 0.02  # m, back-off along -motion after the contact
 
     def begin(self) -> None:
         p = self.params
@@ -52,9 +56,19 @@ class Explore(Primitive):
         f = self.wrench_in("world")[:3]
         if np.linalg.norm(f) > p.force_threshold or self.pads_in_contact():
             self.halt()
-            on_floor = float(pos[2] <= p.floor_z + p.floor_margin)
-            self.emit_once(Event.CONTACT, "explored into a contact", {"on_floor": on_floor})
-            self.succeed(on_floor=on_floor, waypoint=float(self.k), **pose6(T))
+            moving = self._dir if self._dir is not None else self.d
+            on_floor = bool(pos[2] <= p.floor_z + p.floor_margin) and abs(float(moving[2])) > 0.7
+            self.emit_once(Event.CONTACT, "explored into a contact", {"on_floor": float(on_floor)})
+            vals = pose6(T)
+            vals["x"] += float(moving[0]) * p.lead
+            vals["y"] += float(moving[1]) * p.lead
+            vals.update(contact_x=float(pos[0]), contact_y=float(pos[1]), contact_z=float(pos[2]),
+                        on_floor=float(on_floor), waypoint=float(self.k))
+            if on_floor:
+                self.fail("touched the support, no object here", event=Event.OBJECT_NOT_FOUND, **vals)
+            else:
+                self.emit_once(Event.OBJECT_DETECTED, "contact above the support", vals)
+                self.succeed(**vals)
             return
         if self.points:
             goal = self.points[self.k]
@@ -62,7 +76,7 @@ class Explore(Primitive):
             if np.linalg.norm(err) < 0.005:
                 self.k += 1
                 if self.k >= len(self.points):
-                    self.fail("sweep finished without a contact", waypoint=float(self.k))
+                    self.fail("sweep finished without a contact", event=Event.OBJECT_NOT_FOUND, waypoint=float(self.k))
                     return
                 goal = self.points[self.k]
                 err = goal - pos
@@ -70,7 +84,7 @@ class Explore(Primitive):
             speed = min(p.velocity, 2.0 * float(np.linalg.norm(err)) + 0.005)
         else:
             if float((pos - self.p0) @ self.d) >= p.max_distance:
-                self.fail(f"no contact within {p.max_distance} m")
+                self.fail(f"no contact within {p.max_distance} m", event=Event.OBJECT_NOT_FOUND)
                 return
             d, speed = self.d, p.velocity
         if self._dir is None or float(d @ self._dir) < 0.95 or abs(speed - self._speed) > 0.3 * self._speed:

@@ -20,7 +20,7 @@ class Hold(Primitive):
     class Params(Primitive.Params):
         effort: float = 1.0  # 0..1 finger force limit
         duration: float = 0.0  # s, 0 = until stopped
-        min_contacts: int = 1  # pads that must stay in contact
+        min_contacts: int = 1  # pads that must stay in contact (or fingers held open by the object)
         grace: float = 0.2  # s a loss must last to count (debounce)
 
     def begin(self) -> None:
@@ -32,7 +32,7 @@ class Hold(Primitive):
     def update(self) -> None:
         p = self.params
         n = len(self.pads_in_contact())
-        if n >= p.min_contacts:
+        if n >= p.min_contacts or self.holding():
             self.lost_since = None
             if not self.stable_sent:
                 self.stable_sent = True

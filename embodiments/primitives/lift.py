@@ -9,7 +9,7 @@ from contactflow.nodes.status import Event
 
 
 class Lift(Primitive):
-    """Raise the hand; a grasp that loses all its tactile contacts on the way raises GRASP_LOST and fails."""
+    """Raise the hand; a grasp that empties on the way (no pad contact, fingers closed) raises GRASP_LOST and fails."""
 
     requires = Capability()
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.GRASP_LOST)
@@ -18,7 +18,7 @@ class Lift(Primitive):
     class Params(Primitive.Params):
         distance: float = 0.1  # m, lift height
         velocity: float = 0.05  # m/s
-        watch_grasp: bool = True  # fail with GRASP_LOST when the pads lose every contact
+        watch_grasp: bool = True  # fail with GRASP_LOST when the hand empties
         timeout: float = 10.0  # s
 
     def begin(self) -> None:
@@ -29,14 +29,14 @@ class Lift(Primitive):
         self.z0 = float(T[2, 3])
         self.goal = T.copy()
         self.goal[2, 3] += p.distance
-        self.had_grasp = bool(self.pads_in_contact())
+        self.had_grasp = self.holding()
         self.arm.move_pose(self.goal, speed=p.velocity)
 
     def update(self) -> None:
         p = self.params
         lifted = float(self.r.frame_pose(self.ee_frame)[2, 3]) - self.z0
-        if p.watch_grasp and self.had_grasp and not self.pads_in_contact():
-            self.emit_once(Event.GRASP_LOST, "pads lost every contact while lifting", {"lifted": lifted})
+        if p.watch_grasp and self.had_grasp and not self.holding():
+            self.emit_once(Event.GRASP_LOST, "the hand emptied while lifting", {"lifted": lifted})
             self.fail("grasp lost", lifted=lifted)
             return
         if self.arm.done():

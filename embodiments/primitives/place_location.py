@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Capability, Primitive, pose6, top_grasp_pose
+from contactflow.embodiments.primitives.base import Primitive, pose6, top_grasp_pose
 from contactflow.nodes.status import Event
 
 
@@ -23,9 +23,9 @@ def free_spot(occupied: np.ndarray, region: np.ndarray, clearance: float, step: 
 
 
 class PlaceLocation(Primitive):
-    """Find where to put an object: the camera cloud above the support marks occupied cells."""
+    """A location on a support: ``free`` = the spot farthest from what the camera sees above it;
+    ``random`` = uniform in the region without sensing (the blind random strategy of §3.4.3)."""
 
-    requires = Capability(camera=True)
     commands_arm = False
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR)
 
@@ -37,12 +37,23 @@ class PlaceLocation(Primitive):
         height: float = 0.1  # m, approach height of the hand above the support
         yaw: float = 1.5707963267948966  # rad
         camera: str = "kinect"
+        mode: str = "free"  # free | random
+        seed: int = 0  # random mode
 
     def update(self) -> None:
         p = self.params
         region = np.asarray(p.region, dtype=np.float64)
-        if region.shape != (4,):
+        if region.shape != (4,) or region[0] > region[2] or region[1] > region[3]:
             raise ValueError(f"{self.name}: params.region must be [xmin, ymin, xmax, ymax], got {p.region}")
+        if p.mode == "random":
+            rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
+            x, y = rng.uniform(region[:2], region[2:])
+            self.succeed(**pose6(top_grasp_pose((x, y, p.support_z + p.height), p.yaw)))
+            return
+        if p.mode != "free":
+            raise ValueError(f"{self.name}: params.mode must be free or random, got {p.mode!r}")
+        if not self.r.spec.cameras:
+            raise ValueError(f"{self.name}: mode free needs a camera on {self.r.spec.name}")
         pts = np.asarray(self.r.camera(p.camera).points)
         model = getattr(self.r, "spherical", None)
         sel = (pts[:, 2] > p.support_z + 0.01) & (pts[:, 2] < p.support_z + 0.5)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from contactflow.embodiments.primitives.base import Primitive, PrimitiveError, Robot
+from contactflow.embodiments.primitives.profiles import profile
 from contactflow.nodes.messages import Command, ControlReply, ParamValue
 from contactflow.nodes.params import replace_params
 from contactflow.nodes.registry import resolve
@@ -63,13 +64,14 @@ class LocalPrimitiveRunner:
     Primitives are created by registered short name (``contactflow.nodes.registry``), bound
     to ``robot``, set up with a :class:`LocalIO` and stepped at their ``rate_hz`` by
     :meth:`advance` as the world advances. ``defaults`` holds per-type parameter overrides
-    (e.g. an embodiment profile); task parameters override them.
+    (default: the embodiment profile of :mod:`~contactflow.embodiments.primitives.profiles`);
+    task parameters override them.
     """
 
     def __init__(self, robot: Robot, defaults: Mapping[str, Mapping[str, Any]] | None = None,
                  factory: Callable[[str], type[Primitive]] | None = None) -> None:
         self.robot = robot
-        self.defaults = {k: dict(v) for k, v in (defaults or {}).items()}
+        self.defaults = profile(robot.spec.name) if defaults is None else {k: dict(v) for k, v in defaults.items()}
         self._factory = factory or _resolve_primitive
         self.active: dict[str, _Active] = {}
         self.started: list[tuple[str, str, dict[str, Any]]] = []

@@ -40,6 +40,7 @@ class Slide(Primitive):
         preshape: str = "closed"  # hand preshape used to slide ("" = keep)
         tolerance: float = 0.005  # m
         timeout: float = 60.0  # s
+        dwell: float = 0.2  # s, minimum duration of one velocity command
 
     def begin(self) -> None:
         p = self.params
@@ -55,6 +56,7 @@ class Slide(Primitive):
         self.r.tare_ft(self.arm_name)
         self.in_band = 0
         self.touched = False
+        self._since = -np.inf
 
     def update(self) -> None:
         p = self.params
@@ -76,4 +78,7 @@ class Slide(Primitive):
                            p.target_velocity, p.contact_velocity)
         if p.lower_force_threshold < fn < p.upper_force_threshold:
             self.in_band += 1
-        self.twist(np.concatenate([np.round(v, 4), np.zeros(3)]))
+        # a new twist restarts the arm's Cartesian controller: keep each command at least dwell s
+        if self.r.time - self._since >= p.dwell:
+            self._since = self.r.time
+            self.twist(np.concatenate([np.round(v, 4), np.zeros(3)]))

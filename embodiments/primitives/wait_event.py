@@ -11,7 +11,7 @@ from contactflow.nodes.status import Event
 
 
 class WaitEvent(Primitive):
-    """Emits ``event`` when its condition holds: grasp_lost / grasp_stable (tactile), contact (F/T), or after ``delay``.
+    """Emits ``event`` when its condition holds: grasp_lost / grasp_stable (pads and finger joints), contact (F/T), or after ``delay``.
 
     Used as a helper next to another primitive (e.g. watch for GRASP_LOST while transporting)
     or alone as a delay (``event: success``). ``finish`` ends the primitive with SUCCESS when the
@@ -45,8 +45,8 @@ class WaitEvent(Primitive):
             return True
         if self.event is Event.CONTACT:
             return bool(np.linalg.norm(self.wrench_in("world")[:3] - self.f0) > self.params.force_threshold)
-        n = len(self.pads_in_contact())
-        return n == 0 if self.event is Event.GRASP_LOST else n >= 2
+        held = self.holding()
+        return not held if self.event is Event.GRASP_LOST else held
 
     def update(self) -> None:
         p = self.params

@@ -68,6 +68,7 @@ def allegro_hand(name: str, prefix: str) -> HandSpec:
         force_limit=15.0,
         friction=1.5,
         max_velocity=3.0,
+        armature=0.01,
     )
 
 

@@ -5,6 +5,8 @@ on the torso 0.3 m either side of its centre, each carrying an allegro right han
 ``robots/parts.py``); a pan-tilt head (``head_pan`` about z, ``head_tilt`` about y) on a
 column behind the arms, carrying a Kinect-like RGBD camera (640x480, f = 525 px) looking
 forward. Wrist F/T sensors sit at the fixed joint between ``panda_link8`` and the hand palm.
+The two arms (with their hands) collide with each other and with the head; links within
+one arm do not (self-collision inside an arm is off, as for every simulated robot).
 """
 
 from __future__ import annotations
@@ -76,4 +78,5 @@ SPEC = RobotSpec(
         Computer("depth", "3D vision and fusion", ("camera", "ground_truth")),
     ),
     base_xyz=(0.0, 0.0, 0.75),
+    collision_groups=("left_", "right_"),
 )

@@ -1,10 +1,12 @@
 """Tactile pressure arrays from the physics contact points on the pads, spread with a Gaussian.
 
-PhysX reports at most ~4 points per shape pair, so binning them would light 3-4 taxels;
-each point's normal force is spread over the pad with a Gaussian of width ``sigma``
+PhysX reports at most ~4 points per shape pair, at the corners of the contact patch, so
+binning them would light 3-4 taxels. On flat pads, the points of one contact pair that
+span an area are treated as a patch: its total normal force is spread evenly over the
+taxels whose centres lie inside the patch (a flat face pressed on the pad loads the whole
+overlap, as on a real pressure array). Isolated points, and every point on curved
+fingertip pads (unrolled on their sphere), are spread with a Gaussian of width ``sigma``
 (normalised over the plane, so a contact at the edge loses the part outside the pad).
-Curved fingertip pads are unrolled on their sphere. Everything after the contact query is
-vectorised.
 """
 
 from __future__ import annotations
@@ -77,6 +79,30 @@ def pressure(pad: PadSpec, p_local: np.ndarray, force: np.ndarray) -> np.ndarray
     return np.tensordot(force[ok], w, axes=1)
 
 
+def patch_pressure(pad: PadSpec, p_local: np.ndarray, force: np.ndarray) -> np.ndarray | None:
+    """Pressure of one flat contact patch (its corner points), or None if it covers no taxel centre."""
+    if pad.radius > 0 or len(p_local) < 3:
+        return None
+    cu, cv, off = surface_coords(pad, p_local)
+    ok = np.abs(off) <= pad.range_
+    if ok.sum() < 3:
+        return None
+    pts = np.stack([cu[ok], cv[ok]], 1)
+    centred = pts - pts.mean(0)
+    if np.linalg.svd(centred, compute_uv=False)[-1] < 1e-4:
+        return None  # the points lie on a line: an edge contact, not a patch
+    from scipy.spatial import ConvexHull, Delaunay
+
+    hull = pts[ConvexHull(pts).vertices]
+    gu, gv = taxel_grid(pad)
+    inside = Delaunay(hull).find_simplex(np.stack([gu.ravel(), gv.ravel()], 1), tol=1e-9) >= 0
+    if not inside.any():
+        return None
+    out = np.zeros(gu.size)
+    out[inside] = force[ok].sum() / inside.sum()
+    return out.reshape(gu.shape)
+
+
 class TactileSensor:
     """All pads of one hand; ``read(contacts, dt)`` returns ``{pad name: (rows, cols)}``."""
 
@@ -85,32 +111,30 @@ class TactileSensor:
         self.pads = hand.pads
         self._link_of = {p.name: art.links[p.link] for p in self.pads}
         self._bodies = {id(art.links[p.link]) for p in self.pads}
-        self._pads_by_body: dict[int, list[PadSpec]] = {}
-        for p in self.pads:
-            self._pads_by_body.setdefault(id(art.links[p.link]), []).append(p)
         self.lost = False
 
     def read(self, contacts: list, dt: float) -> dict[str, np.ndarray]:
-        pts: dict[int, list[np.ndarray]] = {}
-        frc: dict[int, list[float]] = {}
+        groups: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
         for c in contacts:
             b0, b1 = c.bodies
             k0, k1 = id(b0), id(b1)
             key = k0 if k0 in self._bodies else (k1 if k1 in self._bodies else None)
-            if key is None:
+            if key is None or not c.points:
                 continue
-            for p in c.points:
-                pts.setdefault(key, []).append(p.position)
-                frc.setdefault(key, []).append(float(np.linalg.norm(p.impulse)) / dt)
+            P = np.array([p.position for p in c.points], dtype=np.float64)
+            F = np.array([np.linalg.norm(p.impulse) for p in c.points], dtype=np.float64) / dt
+            groups.setdefault(key, []).append((P, F))
         out = {}
         for pad in self.pads:
             link = self._link_of[pad.name]
-            key = id(link)
-            if key not in pts:
-                out[pad.name] = np.zeros((pad.rows, pad.cols))
-                continue
-            T = pose_to_matrix(link.get_entity_pose())
-            P = np.asarray(pts[key], dtype=np.float64)
-            local = (P - T[:3, 3]) @ T[:3, :3]
-            out[pad.name] = pressure(pad, local, np.asarray(frc[key]))
+            img = np.zeros((pad.rows, pad.cols))
+            if id(link) in groups:
+                T = pose_to_matrix(link.get_entity_pose())
+                for P, F in groups[id(link)]:
+                    if F.sum() <= 0:
+                        continue
+                    local = (P - T[:3, 3]) @ T[:3, :3]
+                    patch = patch_pressure(pad, local, F)
+                    img += patch if patch is not None else pressure(pad, local, F)
+            out[pad.name] = img
         return out

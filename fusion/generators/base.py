@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -24,9 +24,9 @@ class GeneratorModule(Module):
     outputs: ClassVar[tuple[Port, ...]] = (Port("hypotheses", HypothesisCloud, "contact hypotheses, world frame"),)
 
     @classmethod
-    def output_keys(cls, ks: KeySpace, robot: str, generator: str) -> dict[str, str]:
-        """Where the node should publish this generator's output (``contacts/<robot>/<generator>``)."""
-        return {"hypotheses": ks.hypotheses(robot, generator)}
+    def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        """Clouds go to ``contacts/<robot>/<generator>``: the robot they are about, this module's name."""
+        return {"hypotheses": ks.hypotheses(getattr(params, "robot", robot), name)}
 
     def publish_cloud(self, h: Hypotheses, link: str = "") -> None:
         assert self.io is not None

@@ -10,8 +10,8 @@
    (the object centroid moved >= ``motion_translation`` or rotated >= ``motion_angle``) the OGM
    is carried along with the ICP motion, the surface voxels get the binary Bayes update of eq. 4.11 and the surface voxels with P >= ``hypothesis_p`` become
    hypotheses with likelihood 1/n. When motion stops the OGM is rebuilt from the new cloud.
-   With ``require_motion=False`` (objects that cannot move) the surface voxels that stay
-   likely occupied become hypotheses in every frame.
+   With ``require_motion=False`` (objects that cannot move) every frame gets the update of
+   eq. 4.11: the model surface lying in space not seen free becomes hypotheses.
 """
 
 from __future__ import annotations
@@ -208,7 +208,8 @@ class RangeGenerator:
         moved = fitness >= p.min_fitness and (trans >= p.motion_translation or angle >= p.motion_angle)
         if moved:
             self.grid.transform(T)
-        surface = self.grid.update(distance, moved, p)
+        # A fixed object cannot move: every frame then carries the virtual sensor's evidence.
+        surface = self.grid.update(distance, moved or not p.require_motion, p)
         if pts.shape[0]:
             self.prev = pts
         if not moved:

@@ -10,7 +10,12 @@ from contactflow.embodiments.messages import JointState
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Status
 from contactflow.recognition.messages import PointCloud, RobotSpheres, provenance
-from contactflow.recognition.pipeline import DistanceFn, self_filter, sphere_distance
+from contactflow.recognition.pipeline import (
+    DistanceFn,
+    culled_distance,
+    self_filter,
+    sphere_distance,
+)
 
 
 class SelfFilter(Module):
@@ -85,11 +90,14 @@ class SelfFilter(Module):
             joints = self.io.latest("joints")
             if joints is not None:
                 self._pose_model(joints)
-                fn, used = self.model.distance, joints
+                m = self.model
+                fn = culled_distance(m.distance, m.C1, m.C2, m.r1, m.r2, self.params.margin)
+                used = joints
         if fn is None:
             spheres = self.io.latest("spheres")
             if spheres is not None:
-                fn, used = sphere_distance(spheres.centers.numpy(), spheres.radii.numpy()), spheres
+                fn = sphere_distance(spheres.centers.numpy(), spheres.radii.numpy(), cutoff=self.params.margin)
+                used = spheres
         kept = self_filter(cloud.xyz(), fn, self.params.margin)
         self.io.publish("cloud", PointCloud.of(kept, cloud.depth_frame),
                         inputs=provenance(cloud.depth_frame, cloud, used))

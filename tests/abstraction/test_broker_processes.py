@@ -37,13 +37,15 @@ def site(tmp_path):
         cfg = node_config(f"{robot}_control", free_port(), hub, [agent(robot, 0.6)])
         procs[robot] = spawn_node(write_config(tmp_path / f"{robot}.yaml", cfg), tmp_path / f"{robot}.log")
     tool = ZenohTransport(ZenohSettings(connect=(f"tcp/127.0.0.1:{hub}",))).open()
-    ready = wait_for(lambda: len(tool.alive(KS.alive_robot(), timeout=0.5)) == 2
-                     and len(tool.alive(KS.alive_module("site"), timeout=0.5)) == 1, timeout=40)
-    assert ready, "\n".join(p.read_text()[-1500:] for p in tmp_path.glob("*.log"))
-    yield procs, tool, hub
-    tool.close()
-    for p in procs.values():
-        stop_process(p)
+    try:
+        ready = wait_for(lambda: len(tool.alive(KS.alive_robot(), timeout=0.5)) == 2
+                         and len(tool.alive(KS.alive_module("site"), timeout=0.5)) == 1, timeout=40)
+        assert ready, "\n".join(p.read_text()[-1500:] for p in tmp_path.glob("*.log"))
+        yield procs, tool, hub
+    finally:
+        tool.close()
+        for p in procs.values():
+            stop_process(p)
 
 
 def test_robots_cli_lists_capabilities(site):

@@ -13,13 +13,13 @@ from contactflow.deploy.supervisor import Supervisor, pid_alive, read_state
 from contactflow.nodes.procs import free_port
 
 
-def test_up_local_status_and_stop_from_another_shell(tmp_path):
+def test_up_local_with_a_router_then_status_and_stop_from_another_shell(tmp_path):
     port = free_port()
     while port > 65000:
         port = free_port()
     manifest = tmp_path / "two.yaml"
     manifest.write_text(yaml.safe_dump({
-        "site": "localtest", "zenoh": {"port": port},
+        "site": "localtest", "zenoh": {"port": port, "topology": "routers", "routers": ["b"]},
         "hosts": {
             "a": {"nodes": {"na": {"robot": "r", "modules": [{"name": "s", "type": "signal_source"}]}}},
             "b": {"nodes": {"nb": {"robot": "r", "modules": [{"name": "f", "type": "lowpass", "inputs": {"in": "s.signal"}}]}}},
@@ -29,12 +29,12 @@ def test_up_local_status_and_stop_from_another_shell(tmp_path):
     res = cli.invoke(app, ["up", str(manifest), "--local", "--run-dir", str(run), "--detach", "--wait", "40"])
     try:
         assert res.exit_code == 0, res.output
-        assert "2/2 nodes alive" in res.output, res.output
+        assert "3/3 nodes alive" in res.output, res.output
         st = read_state(run / "local")
         assert st is not None and pid_alive(st.pid) and all(pid_alive(n.pid) for n in st.nodes.values())
         assert (run / "local" / "logs" / "na.log").exists()
         res = cli.invoke(app, ["status", str(manifest), "--run-dir", str(run)])
-        assert res.exit_code == 0 and "2/2 nodes alive" in res.output, res.output
+        assert res.exit_code == 0 and "3/3 nodes alive" in res.output, res.output
         again = cli.invoke(app, ["up", str(manifest), "--local", "--run-dir", str(run)])
         assert again.exit_code == 1 and "already supervised" in again.output
     finally:
@@ -44,7 +44,7 @@ def test_up_local_status_and_stop_from_another_shell(tmp_path):
     assert st.state == "stopped" and not pid_alive(st.pid)
     assert not any(pid_alive(n.pid) for n in st.nodes.values())
     res = cli.invoke(app, ["status", str(manifest), "--run-dir", str(run), "--timeout", "0.3"])
-    assert res.exit_code == 1 and "0/2 nodes alive" in res.output
+    assert res.exit_code == 1 and "0/3 nodes alive" in res.output
 
 
 def test_a_crashing_node_is_restarted_with_growing_back_off(tmp_path):

@@ -146,6 +146,7 @@ def test_zenoh_config_needs_certificates_then_zenoh_accepts_it(tmp_path):
     tls = cfg["transport"]["link"]["tls"]
     assert tls["enable_mtls"] and tls["connect_certificate"].endswith("a.pem")
     assert cfg["transport"]["auth"]["usrpwd"]["user"] == "a"
+    assert cfg["listen"]["endpoints"] == []  # no implicit plain-TCP listener next to the TLS one
     assert zenoh.Config.from_json5(json.dumps(cfg)) is not None
     out = subprocess.run(["openssl", "verify", "-CAfile", str(tmp_path / "ca.pem"), str(tmp_path / "b.pem")],
                          capture_output=True, text=True)

@@ -70,6 +70,7 @@ def test_data_events_and_control_flow_between_hosts(deployment):
     gain = obs.send("sub", key=KS.output("r1", "*", "gain", "out"))
     events = obs.send("sub", key=KS.events("r1", "*", "watch"))
     assert obs.wait(lambda e: e.get("id") == smooth and e["ev"] == "sample", 10), "h1 -> h2 -> h3 data did not arrive"
+    assert obs.wait(lambda e: e.get("id") == gain and e["ev"] == "sample", 10), "h2's output did not arrive"
     assert all(abs(e["values"][0]) <= 2.0 + 1e-9 for e in obs.events(gain))
 
     replies = obs.query(KS.control("r1", "*", "watch"), cmd="run", timeout=3.0)
@@ -79,9 +80,8 @@ def test_data_events_and_control_flow_between_hosts(deployment):
 
     replies = obs.query(KS.control("r1", "*", "gain"), cmd="set", params={"gain": 0.0, "offset": 5.0}, timeout=3.0)
     assert replies and replies[0]["ok"], replies
-    n0 = obs.count(gain)
-    got = obs.wait(lambda e: e.get("id") == gain and e["ev"] == "sample" and e["values"] == [5.0], 10, start=0)
-    assert got is not None and obs.count(gain) > n0
+    got = obs.wait(lambda e: e.get("id") == gain and e["ev"] == "sample" and e["values"] == [5.0], 10)
+    assert got is not None, f"no output with the new parameters ({obs.count(gain)} outputs seen)"
     obs.query(KS.control("r1", "*", "gain"), cmd="set", params={"gain": 2.0, "offset": 0.0}, timeout=3.0)
 
 

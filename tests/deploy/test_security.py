@@ -78,6 +78,7 @@ def test_tls_only_listener_refuses_plain_tcp_and_peers_without_credentials(secur
     plain = ProbeClient(lab.wrap("guest", []), [f"tcp/{lab.addresses['h2']}:7450", f"tcp/{lab.addresses['h1']}:{HUB_PORT}"], name="plain")
     try:
         assert _wait_peers(probes["guest"], 2), "the credentialed guest should connect (its rights come from the ACL)"
+        assert all(probes[w].peers() == 2 for w in ("h2", "h3", "obs", "guest")), "tools open no extra (plain) links"
         time.sleep(1.5)
         assert plain.peers() == 0
         sub = plain.send("sub", key=KS.everything())
@@ -146,5 +147,5 @@ def test_protected_control_and_reads(secure):
     fused, signal, events = (probes["h3"].count(c) for c in subs["h3"])
     assert fused and signal and events, "members read every stream"
     fused, signal, events = (probes["obs"].count(c) for c in subs["obs"])
-    assert fused and not signal and not events, "observers read contact events and nothing else"
+    assert fused and not signal and not events, ("observers read contact events and nothing else", fused, signal, events, probes["obs"].peers())
     assert [probes["guest"].count(c) for c in subs["guest"]] == [0, 0, 0], "credentials without a rule read nothing"

@@ -91,3 +91,18 @@ def test_realtime_mode_follows_the_wall_clock():
     w.run(0.3)
     assert time.perf_counter() - t0 >= 0.29
     assert w.time == pytest.approx(0.3)
+
+
+def test_tombatossals_arms_collide_with_each_other():
+    robot = make_robot("tombatossals", table=False)
+    left, right = robot.arm("left"), robot.arm("right")
+    for arm in (left, right):
+        goal = arm.ee_pose()
+        goal[:3, 3] = [0.45, 0.0, 1.1]  # both hands to the same point
+        arm.move_pose(goal, speed=0.2)
+    robot.step(3.0)
+    gap = left.ee_pose()[1, 3] - right.ee_pose()[1, 3]
+    assert gap > 0.05  # they stopped against each other instead of passing through
+    pairs = {(c.body_a.split("/")[-1][:5], c.body_b.split("/")[-1][:5]) for c in robot.ground_truth().contacts}
+    assert any({a, b} == {"left_", "right"} for a, b in pairs)
+    assert not robot.failed

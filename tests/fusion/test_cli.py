@@ -1,3 +1,5 @@
+"""The contacts CLI: event formatting, filtering and the zenoh watch command."""
+
 from typer.testing import CliRunner
 
 from contactflow.fusion.cli import app, format_event, watch_events
@@ -30,3 +32,32 @@ def test_watch_filters_by_robot_and_rejects_garbage():
 def test_cli_help_lists_watch():
     result = CliRunner().invoke(app, ["--help"])
     assert result.exit_code == 0 and "watch" in result.output
+
+
+def test_watch_prints_events_from_zenoh():
+    import threading
+
+    from contactflow.nodes.procs import free_port
+    from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+
+    port = free_port()
+    ks = KeySpace("clitest")
+    bus = ZenohTransport(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",))).open()
+    pub = bus.publisher(ks.fused("r1", "events"))
+    stop = threading.Event()
+
+    def talk():
+        while not stop.wait(0.05):
+            pub(encode(event("r1")))
+
+    th = threading.Thread(target=talk, daemon=True)
+    th.start()
+    try:
+        result = CliRunner().invoke(app, ["watch", "r1", "--site", "clitest", "--connect",
+                                          f"tcp/127.0.0.1:{port}", "--duration", "2.0"])
+    finally:
+        stop.set()
+        th.join()
+        bus.close()
+    assert result.exit_code == 0, result.output
+    assert "contact_made" in result.output and "r1/thumb" in result.output

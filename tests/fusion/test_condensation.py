@@ -1,3 +1,5 @@
+"""Contact condensation: cluster separates two contacts (Fig. 4.12), centroid, threshold."""
+
 import numpy as np
 import pytest
 

@@ -1,3 +1,5 @@
+"""Contact event tracker: made, broken, confirm, hold, association."""
+
 import numpy as np
 
 from contactflow.fusion.condensation import Contact

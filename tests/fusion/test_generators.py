@@ -1,3 +1,5 @@
+"""Each generator core on synthetic inputs with a known answer."""
+
 import numpy as np
 import pytest
 

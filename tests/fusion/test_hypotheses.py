@@ -1,3 +1,5 @@
+"""Hypothesis clouds, voxel keys, the voxel hash index and the hypothesis space."""
+
 import numpy as np
 import pytest
 

@@ -1,5 +1,9 @@
+"""Integrator semantics: noisy-OR, type rules, waiting, timeouts, plug/unplug, reference maths."""
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from contactflow.fusion.hypotheses import Hypotheses, HypothesisType, voxel_keys, voxelize
 from contactflow.fusion.integrator import Integrator, IntegratorParams
@@ -155,3 +159,42 @@ def test_moving_clouds_recycle_rows():
         f = integ.cycle(0.1 * k)
         assert len(f) == len(np.unique(voxel_keys(base + [0.01 * k, 0, 0], 0.005)))
     assert integ.space.n < 3 * len(f)  # expired voxels are compacted away
+
+
+def test_support_without_force_does_not_dilute_the_force():
+    integ = Integrator()
+    integ.offer("ft", cloud(P, 0.2, force=6.0, direction=[0, 0, 1]), 0.0)
+    integ.offer("sim", cloud(P, 0.5, HypothesisType.SUPPORT), 0.0)
+    f = integ.cycle(0.0)
+    assert f.force[0] == pytest.approx(6.0) and np.allclose(f.direction[0], [0, 0, 1])
+    assert f.likelihood[0] == pytest.approx(1 - 0.8 * 0.5)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.lists(st.tuples(st.integers(0, 6), st.integers(0, 6), st.integers(0, 2),
+                                   st.floats(0.01, 0.99), st.sampled_from([0, 0, 1, 2])),
+                         min_size=1, max_size=40), min_size=1, max_size=4))
+def test_property_space_equals_stateless_fusion(sources):
+    integ = Integrator()
+    keys, liks, kinds = [], [], []
+    for s, rows in enumerate(sources):
+        by_voxel = {(i, j, k): (lik, kind) for i, j, k, lik, kind in rows}  # one hypothesis per voxel
+        vox = np.array(list(by_voxel), dtype=float)
+        lik = np.array([v[0] for v in by_voxel.values()])
+        kind = np.array([v[1] for v in by_voxel.values()], dtype=np.uint8)
+        h = Hypotheses.make((vox + 0.5) * 0.005, lik, kind)
+        integ.offer(f"s{s}", h, 0.0)
+        keys.append(voxel_keys(h.location, 0.005))
+        liks.append(lik)
+        kinds.append(kind)
+    f = integ.cycle(0.0)
+    k, lk, kd = np.concatenate(keys), np.concatenate(liks), np.concatenate(kinds)
+    expected = {}
+    for key in np.unique(k):
+        m = k == key
+        if (kd[m] == 0).any() and not (kd[m] == 2).any():
+            expected[int(key)] = 1 - np.prod(1 - lk[m])
+    got = dict(zip(voxel_keys(f.location, 0.005).tolist(), f.likelihood.tolist(), strict=True))
+    assert got.keys() == expected.keys()
+    for key, v in expected.items():
+        assert got[key] == pytest.approx(v, rel=1e-9)

@@ -1,3 +1,5 @@
+"""Fusion wire messages: round trips and field-naming errors."""
+
 import numpy as np
 import pytest
 

@@ -1,3 +1,5 @@
+"""The ContactFusion service and a generator shell on FakeIO."""
+
 import numpy as np
 
 from contactflow.fusion.generators.tactile import TactileGenerator, TactileParams
@@ -23,8 +25,8 @@ def start(module, io):
 def test_keys_of_the_fusion_service():
     ks = KeySpace("lab")
     p = FusionParams(robot="site", sources="*/*")
-    assert ContactFusion.input_keys(ks, p) == {"hypotheses": "cf/lab/contacts/*/*"}
-    assert ContactFusion.output_keys(ks, p)["events"] == "cf/lab/contacts/fused/site/events"
+    assert ContactFusion.default_input_keys(ks, "site", "fusion", p) == {"hypotheses": "cf/lab/contacts/*/*"}
+    assert ContactFusion.default_output_keys(ks, "site", "fusion", p)["events"] == "cf/lab/contacts/fused/site/events"
 
 
 def test_two_robots_fused_by_one_integrator():

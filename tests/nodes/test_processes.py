@@ -50,7 +50,9 @@ class Deployment:
             self.tool.subscribe(KS.status(), self._on_status),
         ]
         up = wait_for(lambda: len(self.tool.alive(KS.alive_module("demo"), timeout=0.5)) >= 4, timeout=40)
-        assert up, (tmp / "a.log").read_text()[-2000:] + (tmp / "b.log").read_text()[-2000:]
+        if not up:
+            self.close()
+            raise AssertionError((tmp / "a.log").read_text()[-2000:] + (tmp / "b.log").read_text()[-2000:])
 
     def _on(self, cls, sink):
         def cb(key, payload):

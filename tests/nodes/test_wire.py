@@ -38,6 +38,13 @@ def test_ndarray_round_trip_keeps_dtype_and_shape():
     assert raw["array"]["dtype"] == "float32" and raw["array"]["shape"] == [2, 3, 4]
 
 
+def test_empty_arrays_round_trip():
+    for shape in ((0,), (0, 3), (2, 0, 4)):
+        a = np.zeros(shape, dtype=np.float32)
+        back = decode(encode(Array(array=NDArray.of(a))), Array).array.numpy()
+        assert back.shape == shape and back.dtype == np.float32
+
+
 def test_ndarray_with_inconsistent_size_is_refused():
     raw = msgpack.packb({"type": "array", "array": {"dtype": "float64", "shape": [10], "data": b"\0" * 8}})
     with pytest.raises(WireError, match="needs 80"):

@@ -27,5 +27,6 @@ def test_bench_recognition_quick(tmp_path):
     for r in rec["table_8_2"].values():
         for o in r.values():
             assert abs(o["correct"] + o["wrong"] + o["uncertain"] - 100.0) < 1e-6
+    assert all(len(rec["incremental"][m]) == 4 for m in ("unsupervised", "supervisor labels unknowns"))
     assert len(out["shape"]["rows"]) == 18
     assert all(len(r["cells"]) == 4 for r in out["shape"]["rows"])

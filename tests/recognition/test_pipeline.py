@@ -195,3 +195,20 @@ def test_service_chain_on_a_nan_frame_publishes_empty_results():
     run_module(ClusterExtractor("clusters"), io, steps=1)
     objs = io.published["objects"][-1]
     assert objs.objects == [] and objs.depth_frame == frame.hdr.id
+
+
+def test_culled_distances_are_exact_below_the_cutoff():
+    from contactflow.recognition.pipeline import culled_distance
+
+    rng = np.random.default_rng(9)
+    centers, radii = rng.uniform(-1, 1, (30, 3)), rng.uniform(0.02, 0.1, 30)
+    pts = rng.uniform(-1.2, 1.2, (3000, 3))
+    exact = sphere_distance(centers, radii)(pts)
+    fast = sphere_distance(centers, radii, cutoff=0.05)(pts)
+    near = exact < 0.05
+    assert near.any() and np.allclose(fast[near], exact[near])
+    assert np.all(fast[~near] >= 0.05 - 1e-12)
+    # spheres as degenerate s-topes (both ends equal)
+    culled = culled_distance(sphere_distance(centers, radii), centers, centers, radii, radii, 0.05)(pts)
+    assert np.allclose(culled[near], exact[near]) and np.all(culled[~near] >= 0.05 - 1e-12)
+    assert culled_distance(sphere_distance(centers, radii), centers, centers, radii, radii, 0.05)(np.zeros((0, 3))).shape == (0,)

@@ -1,0 +1,1 @@
+"""Deployment manifests shipped with contactflow (the thesis layout is default.yaml)."""

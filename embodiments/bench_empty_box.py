@@ -1,0 +1,248 @@
+"""Benchmark of thesis Table 3.6: empty a box of 5 objects with the random, exploration and vision approach strategies."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import time
+
+import numpy as np
+
+from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
+from contactflow.embodiments.sim_robot import SimRobot
+from contactflow.embodiments.world import (
+    ObjectSpec,
+    ShapeSpec,
+    World,
+    WorldParams,
+    box,
+    cylinder,
+    sphere,
+)
+from contactflow.nodes.taskengine import Progress, ProgressKind
+
+ROBOT = "tombatossals"
+ARM = "right"
+BOX_CENTER = (0.55, -0.32)
+INNER = (0.22, 0.26)  # m, inner x, y size of the box
+WALL = 0.01  # m, wall thickness
+HEIGHT = 0.07  # m, wall height above the bottom
+TABLE_Z = 0.75
+BOTTOM = TABLE_Z + WALL  # m, top of the box bottom
+TARGET_XY = (0.55, -0.02)  # where the objects are put, outside the box
+STRATEGIES = ("random", "exploration", "vision")
+THESIS = {"random": {"attempts": 30.5, "time": 284.1, "success": 1.0},
+          "exploration": {"attempts": 32.8, "time": 334.8, "success": 1.0},
+          "vision": {"attempts": 7.1, "time": 101.4, "success": 1.0}}
+
+
+def container() -> ObjectSpec:
+    """A static open box: bottom and four walls."""
+    ix, iy = INNER
+    t, h = WALL, HEIGHT
+    shapes = (
+        ShapeSpec("box", (ix + 2 * t, iy + 2 * t, t), (0.0, 0.0, t / 2)),
+        ShapeSpec("box", (t, iy + 2 * t, h), (ix / 2 + t / 2, 0.0, t + h / 2)),
+        ShapeSpec("box", (t, iy + 2 * t, h), (-ix / 2 - t / 2, 0.0, t + h / 2)),
+        ShapeSpec("box", (ix, t, h), (0.0, iy / 2 + t / 2, t + h / 2)),
+        ShapeSpec("box", (ix, t, h), (0.0, -iy / 2 - t / 2, t + h / 2)),
+    )
+    return ObjectSpec("container", shapes, xyz=(BOX_CENTER[0], BOX_CENTER[1], TABLE_Z), static=True, friction=0.5)
+
+
+def contents(rng: np.random.Generator, n: int) -> list[ObjectSpec]:
+    """Five household-like objects of primitive and compound shapes in a jittered 3x2 layout."""
+    cx, cy = BOX_CENTER
+    cells = [(-0.05, -0.08), (-0.05, 0.0), (-0.05, 0.08), (0.05, -0.08), (0.05, 0.0), (0.05, 0.08)]
+    order = rng.permutation(len(cells))[:n]
+    makers = [
+        lambda x, y: cylinder("can", 0.025, 0.07, xyz=(x, y, BOTTOM + 0.035), mass=0.15, friction=0.8),
+        lambda x, y: box("cube", (0.045, 0.045, 0.045), xyz=(x, y, BOTTOM + 0.0225), mass=0.1, friction=0.8),
+        lambda x, y: sphere("ball", 0.03, xyz=(x, y, BOTTOM + 0.03), mass=0.08, friction=0.8),
+        lambda x, y: box("brick", (0.06, 0.035, 0.04), xyz=(x, y, BOTTOM + 0.02), mass=0.12, friction=0.8),
+        lambda x, y: ObjectSpec("mug", (ShapeSpec("cylinder", (0.03, 0.06), (0.0, 0.0, 0.03)),
+                                        ShapeSpec("box", (0.012, 0.02, 0.04), (0.036, 0.0, 0.03))),
+                                mass=0.15, friction=0.8, xyz=(x, y, BOTTOM + 0.001)),
+    ]
+    out = []
+    for k, cell in zip(range(n), order, strict=False):
+        dx, dy = cells[cell]
+        j = rng.uniform(-0.01, 0.01, 2)
+        out.append(makers[k](cx + dx + j[0], cy + dy + j[1]))
+    return out
+
+
+def in_box(robot: SimRobot, names: list[str]) -> int:
+    """Objects still inside the box (ground truth, the "human supervisor" of §3.4.3)."""
+    gt = robot.ground_truth().object_poses
+    cx, cy = BOX_CENTER
+    n = 0
+    for name in names:
+        p = gt[name][:3, 3]
+        if abs(p[0] - cx) < INNER[0] / 2 + WALL and abs(p[1] - cy) < INNER[1] / 2 + WALL and p[2] < BOTTOM + 0.12:
+            n += 1
+    return n
+
+
+def sweep_points(z: float, lines: int = 4, margin: float = 0.03) -> list[float]:
+    """Serpentine exploration trajectory over the box bottom (Fig. 3.26a), flat [x, y, z, ...]."""
+    cx, cy = BOX_CENTER
+    xs = np.linspace(cx - INNER[0] / 2 + margin, cx + INNER[0] / 2 - margin, lines)
+    y0, y1 = cy - INNER[1] / 2 + margin + 0.02, cy + INNER[1] / 2 - margin
+    pts: list[float] = []
+    for k, x in enumerate(xs):
+        ya, yb = (y0, y1) if k % 2 == 0 else (y1, y0)
+        pts += [float(x), float(ya), z, float(x), float(yb), z]
+    return pts
+
+
+def task_params(strategy: str, seed: int) -> dict:
+    cx, cy = BOX_CENTER
+    target = pose6(top_grasp_pose((TARGET_XY[0], TARGET_XY[1], TABLE_Z + 0.2)))
+    tvec = [target[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
+    approach_z = BOTTOM + 0.16
+    if strategy == "vision":
+        region = [cx - INNER[0] / 2 + 0.005, cy - INNER[1] / 2 + 0.005, BOTTOM - 0.005,
+                  cx + INNER[0] / 2 - 0.005, cy + INNER[1] / 2 - 0.005, BOTTOM + 0.2]
+        return {"arm": ARM, "region": region, "bottom": BOTTOM, "target": tvec, "seed": seed}
+    if strategy == "random":
+        area = [cx - INNER[0] / 2 + 0.02, cy - INNER[1] / 2 + 0.02, cx + INNER[0] / 2 - 0.02, cy + INNER[1] / 2 - 0.02]
+        return {"arm": ARM, "area": area, "bottom": BOTTOM, "height": approach_z - BOTTOM, "target": tvec, "seed": seed}
+    start = pose6(top_grasp_pose((cx, cy, approach_z)))
+    return {"arm": ARM, "start": [start[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")], "bottom": BOTTOM,
+            "sweep": sweep_points(BOTTOM + 0.025), "approach_z": approach_z, "target": tvec}
+
+
+def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
+    from contactflow.embodiments.tasks import load
+
+    rng = np.random.default_rng(seed)
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(container())
+    objs = contents(rng, n_objects)
+    for o in objs:
+        world.add_object(o)
+    robot = SimRobot(world, ROBOT)
+    robot.step(0.3)
+    names = [o.name for o in objs]
+    tasks, _ = load()
+    attempts = 0
+    runner = LocalPrimitiveRunner(robot)
+    stop = {"now": False}
+
+    def count(p: Progress) -> None:
+        nonlocal attempts
+        if p.kind is ProgressKind.ENTERED and p.node in ("grasp",) and p.path and p.path[-1].startswith("attempt"):
+            attempts += 1
+            if attempts > max_attempts or in_box(robot, names) == 0:
+                stop["now"] = True
+
+    t0 = robot.time
+    res, _ = _run_until(tasks, f"empty_box_{strategy}", robot, task_params(strategy, seed), runner, count,
+                             stop, max_time, names)
+    left = in_box(robot, names)
+    return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts, "time": robot.time - t0,
+            "left": left, "success": left == 0, "result": str(res)}
+
+
+def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, names) -> tuple[str, object]:
+    """Run the strategy task; the supervisor (ground truth) ends it once the box is empty."""
+    from contactflow.nodes.taskengine import TaskEngine
+
+    engine = TaskEngine(runner, lambda: robot.time, library=tasks, on_progress=on_progress)
+    run = engine.launch(tasks[name], params)
+    t_end = robot.time + max_time
+    empty_since: float | None = None
+    next_check = robot.time
+    while not engine.done(run):
+        runner.advance()
+        robot.step(0.005)
+        engine.tick()
+        if robot.time < next_check:
+            continue
+        next_check = robot.time + 0.25
+        if in_box(robot, names) == 0:
+            # let the running place finish before the supervisor stops the robot
+            empty_since = robot.time if empty_since is None else empty_since
+            if robot.time - empty_since > 8.0 or engine.state(run)[:1] in (["detect"], ["pick_spot"], ["above"]):
+                engine.cancel(run, "supervisor: the box is empty")
+        if stop["now"] and in_box(robot, names) > 0 and not engine.done(run):
+            engine.cancel(run, "supervisor: attempt limit")
+        if robot.time >= t_end and not engine.done(run):
+            engine.cancel(run, f"supervisor: {max_time:g} s of simulated time")
+    for inst in list(runner.active):
+        runner.stop(inst)
+    res = engine.result(run)
+    return (f"{res.event}:{res.label or res.detail}" if res else "none"), engine
+
+
+def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None) -> dict:
+    from rich.console import Console
+    from rich.progress import Progress as Bar
+    from rich.table import Table
+
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    n_runs = runs if runs is not None else (1 if quick else 10)
+    n_objects = 1 if quick else 5
+    max_attempts = 2 if quick else 60
+    max_time = 40.0 if quick else 900.0
+    results = []
+    t_start = time.perf_counter()
+    plan = [(s, k) for s in STRATEGIES for k in range(n_runs)]
+    with Bar(transient=True) as bar:
+        job = bar.add_task("empty the box", total=len(plan))
+        for s, k in plan:
+            bar.update(job, description=f"{s} run {k + 1}/{n_runs}")
+            results.append(run_once(s, 100 + k, n_objects, max_attempts, max_time))
+            bar.update(job, advance=1)
+    rows = []
+    for s in STRATEGIES:
+        rs = [r for r in results if r["strategy"] == s]
+        rows.append({"method": s, "attempts": float(np.mean([r["attempts"] for r in rs])),
+                     "time": float(np.mean([r["time"] for r in rs])),
+                     "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs)})
+    summary = {"benchmark": "empty_box", "robot": ROBOT, "objects": n_objects, "runs_per_strategy": n_runs,
+               "quick": quick, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
+               "runs": results}
+    (out_dir / "empty_box.json").write_text(json.dumps(summary, indent=1))
+    md = ["| method | attempts | time (sim s) | task success | thesis attempts | thesis time | thesis success |",
+          "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        t = THESIS[r["method"]]
+        md.append(f"| {r['method']} | {r['attempts']:.1f} | {r['time']:.1f} | {100 * r['success']:.0f}% | "
+                  f"{t['attempts']} | {t['time']} s | {100 * t['success']:.0f}% |")
+    (out_dir / "empty_box.md").write_text("\n".join(md) + "\n")
+    table = Table(title=f"Empty a box (Table 3.6), {n_objects} objects x {n_runs} runs")
+    for col in ("method", "attempts", "time (s)", "success", "thesis"):
+        table.add_column(col)
+    for r in rows:
+        t = THESIS[r["method"]]
+        table.add_row(r["method"], f"{r['attempts']:.1f}", f"{r['time']:.1f}", f"{100 * r['success']:.0f}%",
+                      f"{t['attempts']} / {t['time']} s / {100 * t['success']:.0f}%")
+    Console().print(table)
+    _plot(rows, out_dir / "empty_box.png")
+    return summary
+
+
+def _plot(rows: list[dict], path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(9, 3))
+    x = np.arange(len(rows))
+    names = [r["method"] for r in rows]
+    for ax, key, label in zip(axes, ("attempts", "time", "success"), ("attempts", "time (s)", "success"), strict=True):
+        scale = 100.0 if key == "success" else 1.0
+        ax.bar(x - 0.2, [scale * r[key] for r in rows], 0.4, label="simulation")
+        ax.bar(x + 0.2, [scale * THESIS[n][key] for n in names], 0.4, label="thesis")
+        ax.set_xticks(x, names)
+        ax.set_title(label + (" (%)" if key == "success" else ""))
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

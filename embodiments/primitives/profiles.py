@@ -1,0 +1,37 @@
+"""Per-embodiment parameter profiles: thesis parameters that "have to be set depending on" the hardware (§3.3)."""
+
+from __future__ import annotations
+
+PROFILES: dict[str, dict[str, dict[str, object]]] = {
+    # simulated wrist F/T of the panda arms: contact torques are tenths of N m, not the JR3's N m
+    "tombatossals": {
+        "robust_grasp": {"torque_threshold": 0.1, "alignment_axes": "xy"},
+    },
+    # parallel gripper: no finger-lost correction (two fingers, no external finger to lose)
+    "melfa": {
+        "robust_grasp": {"torque_threshold": 0.1, "finger_lost": False},
+    },
+}
+"""Robot name -> primitive type -> parameter overrides applied before the task's own parameters."""
+
+
+def profile(robot: str) -> dict[str, dict[str, object]]:
+    return {k: dict(v) for k, v in PROFILES.get(robot, {}).items()}
+
+
+GRASP_CENTER: dict[str, tuple[float, float, float]] = {
+    # allegro top grasps: the fingers curl toward +x and the thumb sweeps toward -y of the
+    # grasp frame, so an object is caught 5.5 cm toward the fingers and 1.5 cm toward the thumb
+    # side of the frame origin (measured on a 6 cm cylinder, both grasp controllers)
+    "tombatossals": (-0.055, 0.015, 0.0),
+}
+"""Robot name -> where an object sits in a closing hand, in the controlled (grasp) frame (m)."""
+
+
+def hand_pose_for(robot: str, T_center):
+    """The controlled-frame pose that puts the hand's grasp centre at ``T_center`` (4x4, world)."""
+    import numpy as np
+
+    off = np.eye(4)
+    off[:3, 3] = GRASP_CENTER.get(robot, (0.0, 0.0, 0.0))
+    return T_center @ np.linalg.inv(off)

@@ -1,0 +1,21 @@
+"""Named scenes a robot station builds in its world ("reality"), one function each."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from contactflow.embodiments.world import World, box, cylinder
+
+
+def thesis_7_3(world: World) -> None:
+    """§7.3 (Fig. 7.4): a box stands in front of the target; push it aside, then pick the target."""
+    world.add_table()
+    world.add_object(box("obstacle_box", (0.05, 0.05, 0.10), xyz=(0.50, 0.0, 0.80), mass=0.2, friction=0.5))
+    world.add_object(cylinder("target", 0.025, 0.12, xyz=(0.62, 0.0, 0.81), mass=0.15, friction=0.9))
+
+
+def table_only(world: World) -> None:
+    world.add_table()
+
+
+SCENES: dict[str, Callable[[World], None]] = {"thesis_7_3": thesis_7_3, "table": table_only}

@@ -1,0 +1,61 @@
+"""Contact cues of a simulated robot as generator inputs: taxels, hand model and F/T hypotheses.
+
+These adapters read only what a real robot would give (tactile pressures with the pads'
+known geometry posed by forward kinematics, the wrist wrench, the spherical model); the
+Table 4.1 benchmark and the robot stations' fusion share them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from contactflow.fusion.generators.force_torque import ForceTorqueParams, ft_hypotheses
+from contactflow.fusion.geometry import distance_fn
+from contactflow.fusion.hypotheses import Hypotheses
+
+FT_BAND = 0.02  # m, F/T hypotheses kept this close to the hand model (bi-sphere fitting error)
+
+
+def hand_capsules(robot, link_prefixes: Sequence[str]) -> np.ndarray:
+    """The posed bi-spheres ``[c1, r1, c2, r2]`` (k, 8) of the links whose names start with a prefix."""
+    sph = robot.spherical
+    sel = [i for i, link in enumerate(sph.links) if any(link.startswith(p) for p in link_prefixes)]
+    return np.concatenate([sph.C1[sel], sph.r1[sel, None], sph.C2[sel], sph.r2[sel, None]], axis=1)
+
+
+def taxel_readings(robot, hand: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pressure (n,), world taxel positions (n,3), world normals (n,3)) of every pad of ``hand``."""
+    from contactflow.embodiments.sensors.tactile import _pad_axes, taxel_positions
+
+    pressures, positions, normals = [], [], []
+    readings = robot.tactile(hand)
+    for pad in robot.spec.hand(hand).pads:
+        T = robot.frame_pose(pad.link)
+        local = taxel_positions(pad).reshape(-1, 3)
+        n, _, _ = _pad_axes(pad)
+        if pad.radius > 0:
+            c = np.asarray(pad.origin) - pad.radius * n
+            nl = (local - c) / np.linalg.norm(local - c, axis=1, keepdims=True)
+        else:
+            nl = np.tile(n, (local.shape[0], 1))
+        positions.append(local @ T[:3, :3].T + T[:3, 3])
+        normals.append(nl @ T[:3, :3].T)
+        pressures.append(readings[pad.name].ravel())
+    if not pressures:
+        return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+    return np.concatenate(pressures), np.concatenate(positions), np.concatenate(normals)
+
+
+def wrist_hypotheses(robot, arm: str, ft_link: str, caps: np.ndarray, now: float,
+                     band: float = FT_BAND) -> tuple[Hypotheses, tuple]:
+    """F/T hypotheses (eq. 4.8-4.9) inside the hand's bounding box; also the raw wrench used."""
+    T_s = robot.frame_pose(ft_link)
+    f_s, tau_s = robot.ft(arm).in_sensor_frame()
+    local = np.concatenate([caps[:, 0:3], caps[:, 4:7]]) - T_s[:3, 3]
+    local = local @ T_s[:3, :3]
+    r = np.concatenate([caps[:, 3], caps[:, 7]])[:, None]
+    params = ForceTorqueParams(box_lo=tuple((local - r).min(axis=0)), box_hi=tuple((local + r).max(axis=0)),
+                               surface_band=band)
+    return ft_hypotheses(f_s, tau_s, T_s, distance_fn(caps), now, params), (f_s, tau_s, T_s, caps)

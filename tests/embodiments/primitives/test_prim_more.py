@@ -1,0 +1,105 @@
+"""More primitives on simulated robots: perception, guarded motions, the gripper grasp, slide, push/pull, waits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
+from contactflow.embodiments.sim_robot import SimRobot
+from contactflow.embodiments.world import World, WorldParams, box, cylinder
+from contactflow.nodes.status import Event
+
+
+def vec(T: np.ndarray) -> list[float]:
+    v = pose6(T)
+    return [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
+
+
+def labels(events) -> list[Event]:
+    return [e.event for e in events]
+
+
+@pytest.fixture(scope="module")
+def tomba() -> tuple[SimRobot, LocalPrimitiveRunner]:
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
+    robot = SimRobot(world, "tombatossals")
+    return robot, LocalPrimitiveRunner(robot)
+
+
+def test_detect_objects_and_place_location(tomba) -> None:
+    robot, runner = tomba
+    seen = outcome(run_primitive(runner, "detect_objects", {}, max_time=2.0))
+    assert seen.event is Event.SUCCESS and seen.values["count"] == 1
+    assert np.hypot(seen.values["cx"] - 0.55, seen.values["cy"] + 0.3) < 0.03
+    assert seen.values["top"] == pytest.approx(0.87, abs=0.01)
+    empty = run_primitive(runner, "detect_objects", {"region": [0.3, 0.2, 0.74, 0.9, 0.6, 1.2]}, max_time=2.0)
+    assert Event.OBJECT_NOT_FOUND in labels(empty)
+    spot = outcome(run_primitive(runner, "place_location", {"region": [0.45, -0.4, 0.65, -0.2], "clearance": 0.06}))
+    assert spot.event is Event.SUCCESS and np.hypot(spot.values["x"] - 0.55, spot.values["y"] + 0.3) >= 0.06
+    rnd = outcome(run_primitive(runner, "place_location", {"mode": "random", "region": [0.4, 0.1, 0.5, 0.2]}))
+    assert 0.4 <= rnd.values["x"] <= 0.5 and 0.1 <= rnd.values["y"] <= 0.2
+
+
+def test_explore_tells_objects_from_the_support(tomba) -> None:
+    robot, runner = tomba
+    assert outcome(run_primitive(runner, "move_to", {"arm": "right", "target": vec(top_grasp_pose((0.4, -0.3, 0.9)))})).event is Event.SUCCESS
+    floor = run_primitive(runner, "explore", {"arm": "right", "floor_z": 0.78, "velocity": 0.05})
+    assert Event.OBJECT_NOT_FOUND in labels(floor)  # the table, by proprioception
+    run_primitive(runner, "transport", {"arm": "right", "target": [0, 0, 0.04, 0, 0, 0], "relative": True})
+    # sweep toward the cylinder at the height of its body: the fingers bump into it
+    here = robot.frame_pose("right_grasp")[:3, 3]
+    ev = run_primitive(runner, "explore", {"arm": "right", "sweep": [0.58, here[1], here[2]], "floor_z": 0.78,
+                                           "velocity": 0.04}, max_time=10.0)
+    assert outcome(ev).event is Event.SUCCESS and Event.OBJECT_DETECTED in labels(ev)
+    run_primitive(runner, "transport", {"arm": "right", "target": [0, 0, 0.15, 0, 0, 0], "relative": True})
+
+
+def test_push_pull_and_wait_event(tomba) -> None:
+    robot, runner = tomba
+    p0 = robot.frame_pose("right_grasp")[:3, 3].copy()
+    push = outcome(run_primitive(runner, "push", {"arm": "right", "direction": [0, 1, 0], "distance": 0.03}))
+    assert push.event is Event.SUCCESS and push.values["moved"] >= 0.03
+    pull = outcome(run_primitive(runner, "pull", {"arm": "right", "direction": [0, 1, 0], "distance": 0.03}))
+    assert pull.event is Event.SUCCESS
+    assert np.linalg.norm(robot.frame_pose("right_grasp")[:3, 3] - p0) < 0.01
+    wait = outcome(run_primitive(runner, "wait_event", {"delay": 0.2}))
+    assert wait.event is Event.SUCCESS and wait.values["waited"] >= 0.2
+    lost = run_primitive(runner, "hold", {"arm": "right", "effort": 0.5}, max_time=3.0)  # empty hand
+    assert Event.GRASP_LOST in labels(lost) and outcome(lost).event is Event.FAILURE
+    robot.hand("right_hand").open()
+
+
+def test_slide_moves_an_object_pressed_in_the_force_band() -> None:
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(box("pad", (0.1, 0.1, 0.08), xyz=(0.5, -0.3, 0.79), mass=0.2, friction=0.2))
+    robot = SimRobot(world, "tombatossals")
+    runner = LocalPrimitiveRunner(robot)
+    run_primitive(runner, "move_to", {"arm": "right", "target": vec(top_grasp_pose((0.5, -0.3, 0.80)))})
+    ev = run_primitive(runner, "slide", {"arm": "right", "target": [0.5, -0.29, 0.0], "target_velocity": 0.01,
+                                         "contact_velocity": 0.003, "preshape": "", "dwell": 0.1}, max_time=14.0)
+    end = outcome(ev)
+    assert end.event is Event.SUCCESS, end.detail
+    assert Event.CONTACT in labels(ev) and end.values["in_band_steps"] > 5
+    assert robot.ground_truth().object_poses["pad"][1, 3] > -0.297  # the pad slid along with the hand
+
+
+def test_gripper_close_until_force_hold_lift_on_melfa() -> None:
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(box("cube", (0.04, 0.04, 0.04), xyz=(0.45, 0.1, 0.77), mass=0.1, friction=1.0))
+    robot = SimRobot(world, "melfa")
+    runner = LocalPrimitiveRunner(robot)
+    T = robot.arm("arm").ee_pose()
+    T[:3, 3] = (0.45, 0.1, 0.775)
+    assert outcome(run_primitive(runner, "move_to", {"target": vec(T)})).event is Event.SUCCESS
+    grip = run_primitive(runner, "close_until_force", {})
+    assert outcome(grip).event is Event.SUCCESS and Event.GRASP_STABLE in labels(grip)
+    held = run_primitive(runner, "hold", {"duration": 0.3})
+    assert outcome(held).event is Event.SUCCESS
+    assert outcome(run_primitive(runner, "lift", {"distance": 0.05})).event is Event.SUCCESS
+    assert robot.ground_truth().object_poses["cube"][2, 3] > 0.81
