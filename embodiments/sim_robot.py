@@ -335,7 +335,6 @@ class SimRobot:
         self._lost: set[str] = set()
         self._nan_injected = False
         self._every = max(1, int(round(1.0 / (self.params.control_rate * world.params.timestep))))
-        self._last_tick = -1
         world.add_hook(self._hook)
         self.step(self.params.settle_time)
         for f in self._ft_of_arm.values():
@@ -486,11 +485,19 @@ class SimRobot:
             self._fail(fault)
             return
         self._q_s, self._qd_s = q, qd
-        for a in self._arms.values():
-            a._tick(dt)
-        for h in self._hands.values():
-            h._tick(dt)
-        mq, mqd, mask = self.mixer.mix(self.time)
+        try:
+            for a in self._arms.values():
+                a._tick(dt)
+            for h in self._hands.values():
+                h._tick(dt)
+            mq, mqd, mask = self.mixer.mix(self.time)
+        except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
+            # a controller fed by a corrupted state: a fault of the robot, not a crash of the world
+            self._fail(Fault("nan", f"controller error: {exc}"))
+            return
+        if not (np.all(np.isfinite(mq)) and np.all(np.isfinite(mqd))):
+            self._fail(Fault("nan", "non-finite joint command"))
+            return
         if mask.any():
             idx = np.nonzero(mask)[0]
             self.art.set_targets(idx, mq[idx], mqd[idx])

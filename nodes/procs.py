@@ -28,6 +28,8 @@ def write_config(path: Path, config: dict) -> Path:
 
 def spawn_node(config: Path, log: Path | None = None, env: dict[str, str] | None = None) -> subprocess.Popen:
     """``contactflow node CONFIG`` as a child process (its own process group)."""
+    if log is not None:
+        log.parent.mkdir(parents=True, exist_ok=True)
     out = open(log, "ab") if log else subprocess.DEVNULL  # noqa: SIM115 - handed to the child
     full_env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
     return subprocess.Popen(

@@ -154,7 +154,12 @@ class SphericalChecker:
         self.kin.update(q)
         self.model.update(self.kin)
         mid = (self.model.C1 + self.model.C2) / 2
-        for m, near in enumerate(self.tree.query_ball_point(mid, self._reach)):
+        # most s-topes have no obstacle point within reach: one vectorised nearest query skips them
+        d_near, _ = self.tree.query(mid, k=1, distance_upper_bound=float(self._reach.max()))
+        cand = np.nonzero(d_near <= self._reach)[0]
+        if len(cand) == 0:
+            return True
+        for m, near in zip(cand, self.tree.query_ball_point(mid[cand], self._reach[cand]), strict=True):
             if not near:
                 continue
             P = self.points[near]

@@ -202,6 +202,12 @@ class Primitive(Module):
             return False
         return float(np.linalg.norm(pos - p0)) < ratio * speed * (now - t0)
 
+    def relax(self) -> None:
+        """Stop and bring the joint targets back to the measured joints (unwinds a blocked command)."""
+        self._twist_cmd = None
+        if self.commands_arm:
+            self.arm.move_joints(self.arm.q(), speed=10.0)
+
     def halt(self) -> None:
         self._twist_cmd = None
         if self.commands_arm:

@@ -1,8 +1,10 @@
-"""Lift (§6.3.6): move the arm upward (world z) by a distance, watching that the grasp holds."""
+"""Lift (§6.3.6): move the arm upward (world z) by a distance, watching that the grasp holds and the arm follows."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive
 from contactflow.nodes.status import Event
@@ -30,7 +32,7 @@ class Lift(Primitive):
         self.goal = T.copy()
         self.goal[2, 3] += p.distance
         self.had_grasp = self.holding()
-        self.arm.move_pose(self.goal, speed=p.velocity)
+        self.twist(np.array([0.0, 0.0, p.velocity, 0.0, 0.0, 0.0]))
 
     def update(self) -> None:
         p = self.params
@@ -39,10 +41,10 @@ class Lift(Primitive):
             self.emit_once(Event.GRASP_LOST, "the hand emptied while lifting", {"lifted": lifted})
             self.fail("grasp lost", lifted=lifted)
             return
-        if self.arm.done():
-            if lifted >= 0.9 * p.distance:
-                self.succeed(lifted=lifted, contacts=len(self.pads_in_contact()))
-            else:
-                self.fail(f"lifted only {lifted:.3f} m", lifted=lifted)
+        if lifted >= p.distance:
+            self.succeed(lifted=lifted, contacts=len(self.pads_in_contact()))
+        elif self.blocked():
+            self.relax()
+            self.fail(f"blocked after {lifted:.3f} m: the grasped thing does not come up", lifted=lifted)
         elif self.elapsed > p.timeout:
             self.fail(f"lift not finished after {p.timeout} s", event=Event.TIMEOUT, lifted=lifted)
