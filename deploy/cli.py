@@ -217,9 +217,10 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
 
 
 @app.command()
-def demo(out: Path = Path("demo-report"), quick: bool = False) -> None:
-    """Start a small deployment on loopback and show it working (the README's main command)."""
-    mod = importlib.import_module("contactflow.deploy.demo")
+def demo(out: Path = Path("demo-report"), quick: bool = False,
+         pipeline: Annotated[bool, typer.Option(help="only the two-node service pipeline demo")] = False) -> None:
+    """The thesis §7.3 experiment on three simulated robots over zenoh, with a report (README's main command)."""
+    mod = importlib.import_module("contactflow.deploy.pipeline_demo" if pipeline else "contactflow.deploy.demo")
     code = mod.run(out, quick=quick)
     raise typer.Exit(code)
 

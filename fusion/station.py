@@ -34,6 +34,7 @@ class _Cue:
     hand: str
     ft_link: str
     links: tuple[str, ...]
+    min_force: float  # N, below this the wrist reading is noise
 
 
 @dataclass
@@ -53,9 +54,12 @@ class StationFusion:
             if not arm.hand:
                 continue
             hand = spec.hand(arm.hand)
-            ft_link = spec.ft(arm.ft).link if arm.ft else ""
+            ft = spec.ft(arm.ft) if arm.ft else None
+            ft_link = ft.link if ft is not None else ""
             prefixes = tuple(p for p in (hand.palm_link, *hand.fingertips) if p) or (ft_link,)
-            self.cues.append(_Cue(arm.name, arm.name, hand.name, ft_link, prefixes))
+            # 4 sigma above the sensor noise: an estimated wrench (Baxter) is far noisier
+            floor = max(self.params.min_force, 4.0 * ft.force_noise) if ft is not None else self.params.min_force
+            self.cues.append(_Cue(arm.name, arm.name, hand.name, ft_link, prefixes, floor))
         self.integrator = Integrator(IntegratorParams(timeout=0.3, wait_timeout=0.05, source_timeout=0.5))
         self.tracker = ContactTracker(TrackerParams(hold=self.params.hold))
         self.condensation = CondensationParams()
@@ -73,7 +77,7 @@ class StationFusion:
                 self.integrator.offer(f"{cue.name}/tactile", cloud, now, self.name, cue.hand)
             if cue.ft_link:
                 force = np.linalg.norm(robot.ft(cue.arm).in_sensor_frame()[0])
-                if force >= self.params.min_force:
+                if force >= cue.min_force:
                     caps = hand_capsules(robot, cue.links)
                     cloud, _ = wrist_hypotheses(robot, cue.arm, cue.ft_link, caps, now)
                     self.integrator.offer(f"{cue.name}/ft", cloud, now, self.name, cue.hand)

@@ -55,7 +55,7 @@ class HostedIO:
         self._lock = threading.Lock()
         self._latest: dict[str, Message] = {}
         self._queues: dict[str, deque[Message]] = {p.name: deque(maxlen=QUEUE_DEPTH) for p in hm.module.inputs}
-        self._seq = 0
+        self._seqs: dict[str, int] = {}  # one counter per stream, so a gap on a stream means loss
 
     @property
     def now(self) -> float:
@@ -92,9 +92,10 @@ class HostedIO:
             q.clear()
             return out
 
-    def _next_seq(self) -> int:
-        self._seq += 1
-        return self._seq
+    def _next_seq(self, stream: str) -> int:
+        n = self._seqs.get(stream, 0) + 1
+        self._seqs[stream] = n
+        return n
 
     def publish(self, port: str, msg: Message, inputs: list[MsgId] | None = None) -> None:
         pub = self._hm.publishers.get(port)
@@ -103,13 +104,13 @@ class HostedIO:
         if inputs is None:
             with self._lock:
                 inputs = [m.hdr.id for m in self._latest.values()]
-        stamp(msg, f"{self._hm.addr}/{port}", self._next_seq(), self.now, inputs)
+        stamp(msg, f"{self._hm.addr}/{port}", self._next_seq(port), self.now, inputs)
         pub(encode(msg))
         self._hm.counters.published += 1
 
     def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
         msg = EventMsg(event=event, module=str(self._hm.addr), detail=detail, values=values or {})
-        stamp(msg, str(self._hm.addr), self._next_seq(), self.now)
+        stamp(msg, str(self._hm.addr), self._next_seq("/evt"), self.now)
         self._hm.event_pub(encode(msg))
 
     def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:

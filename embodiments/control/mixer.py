@@ -49,6 +49,8 @@ class JointCommandMixer:
         qd = np.zeros_like(q) if qd is None else np.asarray(qd, dtype=np.float64)
         if q.shape != (len(idx),) or qd.shape != (len(idx),):
             raise ValueError(f"command from {source!r}: {len(idx)} joints but q {q.shape}, qd {qd.shape}")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            raise ValueError(f"command from {source!r}: non-finite position or velocity")
         self._sources[source] = _Command(idx, q, qd, float(weight), t)
 
     def mix(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -32,7 +32,7 @@ class Explore(Primitive):
         floor_z: float = -1.0  # m, contacts at or below this height are on the known support
         floor_margin: float = 0.015  # m
         lead: float = 0.03  # m, the object is this far ahead of the hand along the motion
-        retreat: float = 0.02  # m, back-off along -motion after the contact
+        preshape: str = ""  # hand preshape while exploring ("" = keep; Fig. 3.26a uses a compact one)
 
     def begin(self) -> None:
         p = self.params
@@ -46,11 +46,20 @@ class Explore(Primitive):
         self.d = d / max(np.linalg.norm(d), 1e-9)
         self.r.tare_ft(self.arm_name)
         self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
+        if p.preshape and self.hand_name:
+            self.hand.preshape(p.preshape)
+        self._ready = not (p.preshape and self.hand_name)
         self.k = 0
         self._dir: np.ndarray | None = None
 
     def update(self) -> None:
         p = self.params
+        if not self._ready:
+            if not (self.hand.done() or self.elapsed > 1.0):
+                return
+            self._ready = True
+            self.r.tare_ft(self.arm_name)
+            self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
         T = self.r.frame_pose(self.ee_frame)
         pos = T[:3, 3]
         f = self.wrench_in("world")[:3]

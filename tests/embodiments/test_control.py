@@ -57,6 +57,8 @@ def test_mixer_weights_concurrent_sources():
     assert np.allclose(q, [1.0, 1.5, 2.0]) and not mask.any()
     with pytest.raises(ValueError, match="unknown joint 'z'"):
         m.submit("x", ["z"], np.zeros(1))
+    with pytest.raises(ValueError, match="non-finite"):
+        m.submit("x", ["a"], np.array([np.nan]))
 
 
 def _scripted_run(realtime: bool = False) -> np.ndarray:
