@@ -42,6 +42,7 @@ SUBCOMMANDS = {
     "contacts": ("contactflow.fusion.cli", "Fused contact events: watch them live."),
     "deploy": ("contactflow.deploy.launcher_cli", "Deploy manifests across hosts."),
     "atd": ("contactflow.abstraction.atd_cli", "Abstract task descriptions: check and translate."),
+    "embodiments": ("contactflow.embodiments.cli", "Simulated embodiments: list, show, URDF."),
 }
 """Sub-applications contributed by the areas (a ``typer.Typer`` named ``app`` each)."""
 

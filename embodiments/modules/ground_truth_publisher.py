@@ -7,11 +7,13 @@ fusion never subscribe there.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from contactflow.embodiments.messages import ObjectPoses, TrueContacts
 from contactflow.embodiments.modules.backend import RobotBackend
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Status
 from contactflow.nodes.wire import NDArray
@@ -31,6 +33,11 @@ class GroundTruthPublisher(Module):
     def __init__(self, name: str, robot: RobotBackend, params: Params | None = None) -> None:
         super().__init__(name, params)
         self.robot = robot
+
+    @classmethod
+    def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        """Ground truth lives under ``eval/``, a part of the key space no primitive reads."""
+        return {port.name: ks.evaluation(robot, port.name) for port in cls.outputs}
 
     def step(self) -> Status:
         gt = self.robot.ground_truth()

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
+from contactflow.embodiments.primitives.profiles import hand_pose_for
 from contactflow.nodes.status import Event
 
 
@@ -68,9 +69,10 @@ class Explore(Primitive):
             moving = self._dir if self._dir is not None else self.d
             on_floor = bool(pos[2] <= p.floor_z + p.floor_margin) and abs(float(moving[2])) > 0.7
             self.emit_once(Event.CONTACT, "explored into a contact", {"on_floor": float(on_floor)})
-            vals = pose6(T)
-            vals["x"] += float(moving[0]) * p.lead
-            vals["y"] += float(moving[1]) * p.lead
+            # approach pose: the hand's grasp centre over the object, ``lead`` ahead of the contact
+            there = T.copy()
+            there[:2, 3] += moving[:2] * p.lead
+            vals = pose6(hand_pose_for(self.r.spec.name, there))
             vals.update(contact_x=float(pos[0]), contact_y=float(pos[1]), contact_z=float(pos[2]),
                         on_floor=float(on_floor), waypoint=float(self.k))
             if on_floor:

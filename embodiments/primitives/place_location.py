@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Primitive, pose6, top_grasp_pose
+from contactflow.embodiments.primitives.profiles import hand_pose_for
 from contactflow.nodes.status import Event
 
 
@@ -48,7 +49,8 @@ class PlaceLocation(Primitive):
         if p.mode == "random":
             rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
             x, y = rng.uniform(region[:2], region[2:])
-            self.succeed(**pose6(top_grasp_pose((x, y, p.support_z + p.height), p.yaw)))
+            # a blind grasp guess: the hand's grasp centre over the random spot
+            self.succeed(**pose6(hand_pose_for(self.r.spec.name, top_grasp_pose((x, y, p.support_z + p.height), p.yaw))))
             return
         if p.mode != "free":
             raise ValueError(f"{self.name}: params.mode must be free or random, got {p.mode!r}")

@@ -62,7 +62,7 @@ class RobustGrasp(Primitive):
         max_distance: float = 0.2  # m, travel along the grasp direction looking for a contact
         correction_velocity: float = 0.005  # m/s, alignment and sliding corrections (Vx, Vz)
         approach_velocity: float = 0.04  # m/s, forward motion before the first contact (not given in the thesis)
-        max_alignment: float = 0.08  # m, lateral travel of the alignment before giving up on it
+        max_alignment: float = 0.04  # m, lateral travel of the alignment before giving up on it
         closing_velocity: float = 0.8  # rad/s (m/s for a gripper), finger closing during the sliding grasp
         grasp_effort: float = 0.5  # 0..1 finger force limit while closing
         final_effort: float = 1.0  # 0..1 finger force limit after force adaptation
