@@ -188,7 +188,7 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None) -> 
     n_runs = runs if runs is not None else (1 if quick else 10)
     n_objects = 1 if quick else 5
     max_attempts = 2 if quick else 60
-    max_time = 40.0 if quick else 900.0
+    max_time = 30.0 if quick else 900.0
     results = []
     t_start = time.perf_counter()
     plan = [(s, k) for s in STRATEGIES for k in range(n_runs)]

@@ -33,8 +33,11 @@ LATENCY_COUNT = 400
 STACKS = ("raw", "contactflow")
 
 
-def _key(stack: str, size: str, phase: str) -> str:
-    return f"bench/{stack}/{size}/{phase}"
+ROUNDS = 3  # each case runs this often, the stacks interleaved; the median is reported
+
+
+def _key(stack: str, size: str, phase: str, rnd: int = 0) -> str:
+    return f"bench/{stack}/{size}/{phase}/{rnd}"
 
 
 def subscriber(port: int) -> None:
@@ -80,9 +83,9 @@ def subscriber(port: int) -> None:
     t.close()
 
 
-def _send(t: ZenohTransport, stack: str, size_name: str, phase: str, count: int, paced: bool) -> None:
+def _send(t: ZenohTransport, stack: str, size_name: str, phase: str, count: int, paced: bool, rnd: int) -> None:
     size = SIZES[size_name]
-    key = _key(stack, size_name, phase)
+    key = _key(stack, size_name, phase, rnd)
     if stack == "raw":
         pub = t.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK).put
     else:
@@ -90,8 +93,9 @@ def _send(t: ZenohTransport, stack: str, size_name: str, phase: str, count: int,
     body = np.random.default_rng(0).integers(0, 255, size, dtype=np.uint8)
     for i in range(count):
         if stack == "raw":
+            sent = time.time_ns()  # stamped before the payload is built, as our header is
             buf = bytearray(body.tobytes())
-            buf[:8] = time.time_ns().to_bytes(8, "little")
+            buf[:8] = sent.to_bytes(8, "little")
             pub(bytes(buf))
         else:
             msg = stamp(Array(array=NDArray.of(body)), "bench/pub/out", i + 1, 0.0)
@@ -111,16 +115,17 @@ def run(out_dir: Path, quick: bool = False) -> dict:
         while not t.alive("bench/alive/**") and time.monotonic() < deadline:
             time.sleep(0.1)
         scale = 10 if quick else 1
-        cases = [(size, stack) for size in SIZES for stack in STACKS]
+        rounds = 1 if quick else ROUNDS
+        cases = [(size, rnd, stack) for size in SIZES for rnd in range(rounds) for stack in STACKS]
         with Progress(console=console, transient=True) as progress:
             task = progress.add_task("messaging", total=len(cases))
-            for size, stack in cases:
-                progress.update(task, description=f"{stack} {size}")
-                _send(t, stack, size, "tput", max(COUNTS[size] // scale, 20), paced=False)
-                time.sleep(0.3)
+            for size, rnd, stack in cases:
+                progress.update(task, description=f"{stack} {size} round {rnd + 1}")
+                _send(t, stack, size, "tput", max(COUNTS[size] // scale, 20), paced=False, rnd=rnd)
+                time.sleep(0.2)
                 n_lat = max(LATENCY_COUNT // scale, 20) if SIZES[size] < (1 << 20) else max(100 // scale, 20)
-                _send(t, stack, size, "lat", n_lat, paced=True)
-                time.sleep(0.3)
+                _send(t, stack, size, "lat", n_lat, paced=True, rnd=rnd)
+                time.sleep(0.2)
                 progress.advance(task)
         t.publisher("bench/done")(b"")
         line, _ = sub.communicate(timeout=120)
@@ -129,20 +134,24 @@ def run(out_dir: Path, quick: bool = False) -> dict:
         if sub.poll() is None:
             sub.kill()
     stats = json.loads(line.strip().splitlines()[-1])
+
+    def med(stack: str, size: str, phase: str, field: str) -> float:
+        vals = [stats[k][field] for k in (_key(stack, size, phase, r) for r in range(rounds)) if k in stats]
+        return float(np.median(vals)) if vals else 0.0
+
     rows = []
     for size in SIZES:
-        raw_t, cf_t = stats[_key("raw", size, "tput")], stats[_key("contactflow", size, "tput")]
-        raw_l, cf_l = stats[_key("raw", size, "lat")], stats[_key("contactflow", size, "lat")]
+        raw_rate, cf_rate = med("raw", size, "tput", "rate"), med("contactflow", size, "tput", "rate")
+        raw_p99, cf_p99 = med("raw", size, "lat", "p99_us"), med("contactflow", size, "lat", "p99_us")
         rows.append({
-            "payload": size,
-            "raw_msgs_per_s": raw_t["rate"], "cf_msgs_per_s": cf_t["rate"],
-            "throughput_ratio": cf_t["rate"] / raw_t["rate"] if raw_t["rate"] else 0.0,
-            "raw_p50_us": raw_l["p50_us"], "cf_p50_us": cf_l["p50_us"],
-            "raw_p99_us": raw_l["p99_us"], "cf_p99_us": cf_l["p99_us"],
-            "p99_ratio": cf_l["p99_us"] / raw_l["p99_us"] if raw_l["p99_us"] else 0.0,
-            "received": {"raw": raw_t["n"], "cf": cf_t["n"]},
+            "payload": size, "rounds": rounds,
+            "raw_msgs_per_s": raw_rate, "cf_msgs_per_s": cf_rate,
+            "throughput_ratio": cf_rate / raw_rate if raw_rate else 0.0,
+            "raw_p50_us": med("raw", size, "lat", "p50_us"), "cf_p50_us": med("contactflow", size, "lat", "p50_us"),
+            "raw_p99_us": raw_p99, "cf_p99_us": cf_p99,
+            "p99_ratio": cf_p99 / raw_p99 if raw_p99 else 0.0,
         })
-    table = Table(title="contactflow messaging vs raw zenoh-python (2 processes, loopback)")
+    table = Table(title=f"contactflow messaging vs raw zenoh-python (2 processes, loopback, median of {rounds})")
     for col in ("payload", "raw msg/s", "cf msg/s", "ratio", "raw p50 µs", "cf p50 µs", "raw p99 µs",
                 "cf p99 µs", "p99 ratio"):
         table.add_column(col, justify="right")

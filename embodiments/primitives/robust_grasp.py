@@ -216,7 +216,10 @@ class RobustGrasp(Primitive):
         if not (p.finger_lost and self.spec.kind == "multi_finger" and len(pads) >= 3
                 and self.regrasps < p.max_regrasps):
             return False
-        touching = set(self.pads_in_contact())
+        # a finger touches when its pad senses or the object holds it open (joint configuration)
+        q = self.hand.positions()
+        touching = set(self.pads_in_contact()) | {
+            f for f, idx in self.groups.items() if np.abs(q[idx] - self.closed[idx]).max() > 0.15}
         f1, f2, f3 = pads[0], pads[1], pads[2]
         # the object sits under one external finger only: the middle finger missed it too
         if (f1 in touching) == (f3 in touching) or f2 in touching:

@@ -59,6 +59,7 @@ class Unscrew(Primitive):
         self.cycles = 0
         self.corrections = 0
         self.contacts: list[np.ndarray] = []
+        self.nominal: np.ndarray | None = None
         self._pinch()
 
     def _pinch(self) -> None:
@@ -71,10 +72,13 @@ class Unscrew(Primitive):
         return float(np.linalg.norm(a - b))
 
     def _record_contacts(self) -> None:
+        """Fingertip midpoint while both pinching fingers touch, in the frame of the start pose."""
         forces = self.pad_forces()
         pts = [self.r.frame_pose(self.tips[f])[:3, 3] for f in self.fingers if forces.get(f, 0.0) > 0.05]
         if len(pts) == len(self.fingers):
-            self.contacts.append(np.mean(pts, axis=0))
+            T = self.r.frame_pose(self.ee_frame)
+            local = T[:3, :3].T @ (np.mean(pts, axis=0) - T[:3, 3])
+            self.contacts.append(self.home[:3, 3] + self.home[:3, :3] @ local)
 
     def _regrasp(self, why: str) -> None:
         if self.io is not None:
@@ -94,9 +98,18 @@ class Unscrew(Primitive):
             self._record_contacts()
             if all(forces.get(f, 0.0) >= p.finger_grasping_force for f in self.fingers):
                 self.emit_once(Event.GRASP_STABLE, "cap pinched")
+                if self.nominal is None:
+                    # the grasping fingers' centre in the hand frame: where the cap should sit
+                    mid = np.mean([self.r.frame_pose(self.tips[f])[:3, 3] for f in self.fingers], axis=0)
+                    T = self.r.frame_pose(self.ee_frame)
+                    self.nominal = T[:3, :3].T @ (mid - T[:3, 3])
+                self.contacts = []
                 self.r.tare_ft(self.arm_name)
                 self.twisted = 0.0
-                self.twist(np.array([0.0, 0.0, 0.0, 0.0, 0.0, p.twist_velocity]), frame=self.ee_frame)
+                # rotate about the axis through the fingers' centre, not the hand frame origin
+                r = self.nominal if self.nominal is not None else np.zeros(3)
+                w = np.array([0.0, 0.0, p.twist_velocity])
+                self.twist(np.concatenate([-np.cross(w, r), w]), frame=self.ee_frame)
                 self.phase, self.t_phase = Phase.TWIST, self.r.time
             elif self._tip_gap() < p.finger_min_distance or self.r.time - self.t_phase > 3.0:
                 self.fail("fingers closed without pinching the cap", cycles=self.cycles)
@@ -112,6 +125,7 @@ class Unscrew(Primitive):
             if self.twisted >= np.deg2rad(p.twist_angle):
                 self.halt()
                 self.start_pull = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
+                self.r.tare_ft(self.arm_name)
                 self.twist(np.array([0.0, 0.0, -p.pull_velocity, 0.0, 0.0, 0.0]), frame=self.ee_frame)
                 self.phase, self.t_phase = Phase.PULL, self.r.time
             return
@@ -125,7 +139,7 @@ class Unscrew(Primitive):
                 self.succeed(cycles=self.cycles + 1, corrections=self.corrections, pulled=pulled)
             elif f > p.pull_force_limit or self._tip_gap() < p.finger_min_distance:
                 self.halt()
-                self._regrasp(f"pull resisted ({f:.1f} N)")
+                self._regrasp(f"pull resisted ({f:.1f} N, finger gap {self._tip_gap() * 1000:.0f} mm)")
             return
         if self.phase is Phase.REOPEN:
             if self.hand.done() or self.r.time - self.t_phase > 1.0:
@@ -134,10 +148,10 @@ class Unscrew(Primitive):
                     self.fail(f"cap not removed after {p.max_cycles} cycles", cycles=self.cycles)
                     return
                 goal = self.home.copy()
-                if p.recenter and self.contacts:
-                    # the averaged pinch contacts are the cap centre: move the grasp centre onto it
+                if p.recenter and self.contacts and self.nominal is not None:
+                    # the averaged contacts are the cap centre: move the fingers' centre onto it
                     c = np.mean(self.contacts, axis=0)
-                    off = c - self.home[:3, 3]
+                    off = c - (self.home[:3, 3] + self.home[:3, :3] @ self.nominal)
                     off -= (off @ self.home[:3, 2]) * self.home[:3, 2]
                     if np.linalg.norm(off) > 0.002:
                         goal[:3, 3] += off

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+from contactflow.embodiments.primitives.base import matrix6, pose6, top_grasp_pose
+from contactflow.embodiments.primitives.profiles import GRASP_CENTER
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import World, WorldParams, box, cylinder
@@ -41,7 +42,11 @@ def test_detect_objects_and_place_location(tomba) -> None:
     spot = outcome(run_primitive(runner, "place_location", {"region": [0.45, -0.4, 0.65, -0.2], "clearance": 0.06}))
     assert spot.event is Event.SUCCESS and np.hypot(spot.values["x"] - 0.55, spot.values["y"] + 0.3) >= 0.06
     rnd = outcome(run_primitive(runner, "place_location", {"mode": "random", "region": [0.4, 0.1, 0.5, 0.2]}))
-    assert 0.4 <= rnd.values["x"] <= 0.5 and 0.1 <= rnd.values["y"] <= 0.2
+    hand = matrix6(tuple(rnd.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "random spot")
+    offset = np.eye(4)
+    offset[:3, 3] = GRASP_CENTER["tombatossals"]
+    centre = hand @ offset  # the hand's grasp centre lands on the random spot
+    assert 0.4 <= centre[0, 3] <= 0.5 and 0.1 <= centre[1, 3] <= 0.2
 
 
 def test_explore_tells_objects_from_the_support(tomba) -> None:
@@ -103,3 +108,6 @@ def test_gripper_close_until_force_hold_lift_on_melfa() -> None:
     assert outcome(held).event is Event.SUCCESS
     assert outcome(run_primitive(runner, "lift", {"distance": 0.05})).event is Event.SUCCESS
     assert robot.ground_truth().object_poses["cube"][2, 3] > 0.81
+    # declared per-embodiment differences: no unscrew with a parallel gripper
+    refused = outcome(run_primitive(runner, "unscrew", {}))
+    assert refused.event is Event.ERROR and "parallel" in refused.detail

@@ -59,3 +59,15 @@ def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
     ev = run_primitive(runner, "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "torque_threshold": 0.1})
     assert outcome(ev).values["alignments"] >= 1
     assert Event.CONTACT in labels(ev)
+
+
+def test_naive_grasp_lifts_a_cylinder_from_the_vision_approach() -> None:
+    robot, runner = scene()
+    seen = outcome(run_primitive(runner, "detect_objects", {"standoff": 0.04}, max_time=2.0))
+    approach = [seen.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
+    assert outcome(run_primitive(runner, "move_to", {"arm": ARM, "target": approach})).event is Event.SUCCESS
+    grasp = run_primitive(runner, "naive_grasp", {"arm": ARM, "pregrasp_type": "open"})
+    assert Event.CONTACT in labels(grasp)
+    lift = run_primitive(runner, "lift", {"arm": ARM, "distance": 0.08})
+    assert outcome(lift).event is Event.SUCCESS
+    assert robot.ground_truth().object_poses["cyl"][2, 3] > 0.87  # came up with the hand
