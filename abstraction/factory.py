@@ -92,7 +92,7 @@ class Factory:
         "place": frozenset({Sensor.WRIST_FT}),
         "slide": frozenset({Sensor.WRIST_FT}),
         "push": frozenset({Sensor.WRIST_FT}),
-        "close_until_force": frozenset(),
+        "close_until_force": frozenset({Sensor.TACTILE}),  # the simulated primitive reads pad pressure
     }
     _params_used: dict[str, Any] = field(default_factory=dict, init=False, repr=False)
 

@@ -58,9 +58,15 @@ class SimExecutor:
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
         from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
 
+        from contactflow.abstraction.concrete import ConcreteRunner
+        from contactflow.abstraction.profiles import PROFILES
+
         with self._lock:
             robot = self.build()
             runner = LocalPrimitiveRunner(robot)
+            profile = PROFILES.get(self.robot_name)
+            concrete = ConcreteRunner(runner, robot.arms, profile.max_opening if profile else 0.1,
+                                      hand_at=lambda arm: robot.arm(arm).ee_pose()[:3, 3])
 
             def advance(dt: float) -> None:
                 runner.advance()
@@ -69,7 +75,7 @@ class SimExecutor:
                     self.monitor(robot)
 
             def make(_clock: SimTime):
-                return runner, advance
+                return concrete, advance
 
             engine = EngineExecutor(make, dt=self.dt, max_time=self.max_time, realtime=self.realtime)
             try:
