@@ -56,10 +56,9 @@ class SimExecutor:
 
     def __call__(self, translation: Translation, report: Callable[[AbstractProgress], None],
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
-        from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
-
         from contactflow.abstraction.concrete import ConcreteRunner
         from contactflow.abstraction.profiles import PROFILES
+        from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
 
         with self._lock:
             robot = self.build()

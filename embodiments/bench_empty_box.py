@@ -192,11 +192,15 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None) -> 
     results = []
     t_start = time.perf_counter()
     plan = [(s, k) for s in STRATEGIES for k in range(n_runs)]
+    partial = out_dir / "empty_box_runs.jsonl"  # one line per finished run, for long benchmarks
+    partial.write_text("")
     with Bar(transient=True) as bar:
         job = bar.add_task("empty the box", total=len(plan))
         for s, k in plan:
             bar.update(job, description=f"{s} run {k + 1}/{n_runs}")
             results.append(run_once(s, 100 + k, n_objects, max_attempts, max_time))
+            with partial.open("a") as f:
+                f.write(json.dumps(results[-1]) + "\n")
             bar.update(job, advance=1)
     rows = []
     for s in STRATEGIES:

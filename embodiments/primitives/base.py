@@ -174,10 +174,12 @@ class Primitive(Module):
         key = (tuple(np.round(np.asarray(v6, dtype=np.float64), 6)), frame)
         if key == self._twist_cmd:
             return
+        moving = self._twist_cmd is not None and any(self._twist_cmd[0])
         self._twist_cmd = key
         self._trace = []
         if not np.any(key[0]):
-            self.arm.stop()
+            if moving:
+                self._hold_measured()
             return
         self.arm.set_twist(np.asarray(v6, dtype=np.float64), frame=frame)
 
@@ -202,16 +204,21 @@ class Primitive(Module):
             return False
         return float(np.linalg.norm(pos - p0)) < ratio * speed * (now - t0)
 
+    def _hold_measured(self) -> None:
+        # holding the commanded joints would keep pressing whatever blocked the arm
+        if self.commands_arm and not self.r.failed:
+            self.arm.move_joints(self.arm.q(), speed=1000.0)
+
     def relax(self) -> None:
-        """Stop and bring the joint targets back to the measured joints (unwinds a blocked command)."""
+        """Stop and hold the measured joints (unwinds a blocked or pressing command)."""
         self._twist_cmd = None
-        if self.commands_arm:
-            self.arm.move_joints(self.arm.q(), speed=10.0)
+        self._hold_measured()
 
     def halt(self) -> None:
+        """Stop a twist this primitive commanded (other arm commands are left alone)."""
+        if self._twist_cmd is not None and any(self._twist_cmd[0]):
+            self._hold_measured()
         self._twist_cmd = None
-        if self.commands_arm:
-            self.arm.stop()
 
     # -- sensing helpers -----------------------------------------------------------------
     def wrench_in(self, frame: str) -> np.ndarray:
@@ -271,9 +278,9 @@ class Primitive(Module):
         return self._outcome
 
     def stop(self) -> None:
-        """Hold the arm where it is; the hand keeps its last command (a grasp stays closed)."""
+        """Hold the arm where it is measured; the hand keeps its last command (a grasp stays closed)."""
         if self.robot is not None:
-            self.halt()
+            self.relax()
         self.state = Status.STOPPED
 
     def begin(self) -> None:
@@ -298,7 +305,7 @@ class Primitive(Module):
             return self._outcome
         self.result.update({k: float(v) for k, v in values.items()})
         self.result.setdefault("duration", float(self.elapsed))
-        self.halt()
+        self.relax()
         self._outcome = status
         self.state = status
         self.emit_once(event, detail, dict(self.result))

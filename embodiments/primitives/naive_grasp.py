@@ -70,7 +70,10 @@ class NaiveGrasp(Primitive):
                 or bool(self.pads_in_contact())
             if contact:
                 self.emit_once(Event.CONTACT, "grasp approach touched")
-            if contact or travelled >= p.max_distance or self.blocked():
+            if self.blocked():
+                self.relax()
+                contact = True
+            if contact or travelled >= p.max_distance:
                 self.halt()
                 self.ramp = ClosingRamp(self.hand.positions(), self.closed, p.closing_velocity)
                 self._to(Phase.CLOSE)

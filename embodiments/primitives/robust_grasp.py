@@ -143,7 +143,10 @@ class RobustGrasp(Primitive):
             ty = float(w[3:] @ ydir)
             tx = float(w[3:] @ self.xdir)
             if not p.alignment:
-                if contact or travelled >= p.max_distance or self.blocked():
+                stuck = self.blocked()
+                if stuck:
+                    self.relax()
+                if contact or travelled >= p.max_distance or stuck:
                     self._start_slide()
                 else:
                     self._twist(self.dir * p.approach_velocity)
@@ -159,7 +162,11 @@ class RobustGrasp(Primitive):
                 aligned = aligned and aligned_y
                 if v[0] == 0.0 and vy != 0.0:
                     v = u * np.array([0.0, 0.0, 1.0])
-            if aligned or travelled >= p.max_distance or self.lateral >= p.max_alignment or self.blocked():
+            if self.blocked():
+                self.relax()
+                self._start_slide()
+                return
+            if aligned or travelled >= p.max_distance or self.lateral >= p.max_alignment:
                 self._start_slide()
                 return
             if v[0] != 0.0 or vy != 0.0:
@@ -177,7 +184,7 @@ class RobustGrasp(Primitive):
                     self.slides += 1
                 if self.blocked():
                     vz = 0.0
-                    self.halt()
+                    self.relax()
                 self._twist(self.dir * vz)
             stalled = self._ramp.observe(self.r.time, self.hand.positions())
             if (stalled and self.r.time - self._t_phase > 0.3) or self.r.time - self._t_phase > 6.0:

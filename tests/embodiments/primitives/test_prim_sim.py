@@ -71,3 +71,29 @@ def test_naive_grasp_lifts_a_cylinder_from_the_vision_approach() -> None:
     lift = run_primitive(runner, "lift", {"arm": ARM, "distance": 0.08})
     assert outcome(lift).event is Event.SUCCESS
     assert robot.ground_truth().object_poses["cyl"][2, 3] > 0.87  # came up with the hand
+
+
+def test_transport_waypoints_limits_and_force_field_avoidance() -> None:
+    robot, runner = scene(with_object=False)
+    start = top_grasp_pose((0.45, -0.3, 0.95))
+    run_primitive(runner, "move_to", {"arm": ARM, "target": vec(start)})
+    goal = top_grasp_pose((0.57, -0.3, 0.95))
+    via = top_grasp_pose((0.51, -0.3, 1.0))
+    # an obstacle cloud just beside the straight line from the waypoint to the goal
+    obstacle = [v for x in np.linspace(0.53, 0.55, 3) for v in (x, -0.33, 0.975)]
+    runner.start("t", "transport", {"arm": ARM, "target": vec(goal), "waypoints": vec(via),
+                                    "velocity_limits": [0.05, 0.05, 0.05, 0.3, 0.3, 0.3], "obstacles": obstacle,
+                                    "repulsion": 0.0002})
+    ys, zs, events = [], [], []
+    while robot.time < 30.0 and not any(e.event in (Event.SUCCESS, Event.FAILURE, Event.ERROR) for e in events):
+        runner.advance()
+        robot.step(0.01)
+        events += runner.poll()
+        p = robot.frame_pose("right_grasp")[:3, 3]
+        ys.append(p[1])
+        zs.append(p[2])
+    runner.stop("t")
+    assert events[-1].event is Event.SUCCESS, events[-1].detail
+    assert max(zs) > 0.99  # went through the waypoint
+    assert max(ys) > -0.295  # pushed away from the obstacle points (they sit at y = -0.33)
+    assert np.linalg.norm(robot.frame_pose("right_grasp")[:3, 3] - goal[:3, 3]) < 0.01
