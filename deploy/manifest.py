@@ -131,16 +131,6 @@ class Manifest:
         return [h.name for h in self.hosts.values() if role in h.roles]
 
 
-def _keys(doc: YamlDoc, path: PathKey, allowed: set[str]) -> dict:
-    data = doc.get(path, dict) if path else doc.data
-    if not isinstance(data, dict):
-        raise doc.error(path, "expected a mapping")
-    for k in data:
-        if k not in allowed:
-            raise doc.error(path + (k,), f"unknown field (allowed: {', '.join(sorted(allowed))})")
-    return data
-
-
 def _name(doc: YamlDoc, path: PathKey, value: str, what: str) -> str:
     try:
         return segment(value, what)
@@ -183,7 +173,7 @@ def _check_node_modules(doc: YamlDoc, path: PathKey, site: str, host: str, node:
 
 
 def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, port: int) -> NodeSpec:
-    _keys(doc, path, _NODE)
+    doc.mapping(path, _NODE)
     robot = _name(doc, path + ("robot",), doc.get(path + ("robot",), str, "site"), "robot")
     clock = _choice(doc, path + ("clock",), ("wall", "sim"), "wall")
     port = _port(doc, path + ("port",), port)
@@ -193,11 +183,11 @@ def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, po
 
 
 def parse_manifest(doc: YamlDoc) -> Manifest:
-    _keys(doc, (), _TOP)
+    doc.mapping((), _TOP)
     site = _name(doc, ("site",), doc.get(("site",), str, "default"), "site")
     topo = Topology()
     if doc.get(("zenoh",), dict, None) is not None:
-        _keys(doc, ("zenoh",), _ZENOH)
+        doc.mapping(("zenoh",), _ZENOH)
         lease = doc.get(("zenoh", "lease_ms"), int, 1000)
         if not 200 <= lease <= 60000:
             raise doc.error(("zenoh", "lease_ms"), f"{lease} ms is not in 200..60000")
@@ -210,7 +200,7 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
     for hname in doc.get(("hosts",), dict):
         hp: PathKey = ("hosts", hname)
         _name(doc, hp, hname, "host")
-        _keys(doc, hp, _HOST)
+        doc.mapping(hp, _HOST)
         address = doc.get(hp + ("address",), str, "127.0.0.1")
         if address in addresses and address != "127.0.0.1":
             raise doc.error(hp + ("address",), f"address {address} is already host {addresses[address]!r}")
@@ -245,7 +235,7 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
     for rname in doc.get(("robots",), dict, {}):
         rp: PathKey = ("robots", rname)
         _name(doc, rp, rname, "robot")
-        _keys(doc, rp, _ROBOT)
+        doc.mapping(rp, _ROBOT)
         control = doc.get(rp + ("control",), str)
         if control not in hosts:
             raise doc.error(rp + ("control",), f"host {control!r} is not in hosts")
@@ -276,7 +266,7 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
     sec = Security()
     if doc.get(("security",), dict, None) is not None:
         sp: PathKey = ("security",)
-        _keys(doc, sp, _SECURITY)
+        doc.mapping(sp, _SECURITY)
         certs = doc.get(sp + ("certs",), str, "certs")
         certs_path = Path(certs) if Path(certs).is_absolute() else Path(doc.file).parent / certs
         lists = {}

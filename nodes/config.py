@@ -96,15 +96,6 @@ def parse_source(text: str) -> Source:
     return Source(robot=robot, module=module, port=port)
 
 
-def _check_keys(doc: YamlDoc, path: tuple, allowed: set[str]) -> None:
-    data = doc.get(path, dict) if path else doc.data
-    if not isinstance(data, dict):
-        raise doc.error(path, "expected a mapping")
-    for k in data:
-        if k not in allowed:
-            raise doc.error(path + (k,), f"unknown field (allowed: {', '.join(sorted(allowed))})")
-
-
 def _str_list(doc: YamlDoc, path: tuple) -> tuple[str, ...]:
     items = doc.get(path, list, [])
     for i, _ in enumerate(items):
@@ -115,7 +106,7 @@ def _str_list(doc: YamlDoc, path: tuple) -> tuple[str, ...]:
 def parse_zenoh(doc: YamlDoc, path: tuple) -> ZenohSettings:
     if doc.get(path, dict, None) is None:
         return ZenohSettings()
-    _check_keys(doc, path, _ZENOH_KEYS)
+    doc.mapping(path, _ZENOH_KEYS)
     mode = doc.get(path + ("mode",), str, "peer")
     if mode not in ("peer", "client", "router"):
         raise doc.error(path + ("mode",), f"{mode!r} is not peer, client or router")
@@ -132,7 +123,7 @@ def parse_zenoh(doc: YamlDoc, path: tuple) -> ZenohSettings:
 
 
 def _parse_module(doc: YamlDoc, path: tuple, robot_default: str) -> ModuleConfig:
-    _check_keys(doc, path, _MODULE_KEYS)
+    doc.mapping(path, _MODULE_KEYS)
     name = doc.get(path + ("name",), str)
     type_name = doc.get(path + ("type",), str)
     robot = doc.get(path + ("robot",), str, robot_default)
@@ -181,7 +172,7 @@ def _parse_module(doc: YamlDoc, path: tuple, robot_default: str) -> ModuleConfig
 
 
 def parse_node_config(doc: YamlDoc) -> NodeConfig:
-    _check_keys(doc, (), _NODE_KEYS)
+    doc.mapping((), _NODE_KEYS)
     site = doc.get(("site",), str, "default")
     node = doc.get(("node",), str)
     host = doc.get(("host",), str, node)

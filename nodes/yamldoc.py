@@ -83,6 +83,16 @@ class YamlDoc:
     def error(self, path: PathKey, problem: str) -> ConfigError:
         return ConfigError(f"{self.file}:{self.line(path)}: {_dotted(path)}: {problem}")
 
+    def mapping(self, path: PathKey, allowed: set[str]) -> dict:
+        """The mapping at ``path``; a key outside ``allowed`` is an error naming its line."""
+        data = self.get(path, dict) if path else self.data
+        if not isinstance(data, dict):
+            raise self.error(path, "expected a mapping")
+        for k in data:
+            if k not in allowed:
+                raise self.error(path + (k,), f"unknown field (allowed: {', '.join(sorted(allowed))})")
+        return data
+
     def get(self, path: PathKey, kind: type | tuple[type, ...], default: Any = ..., ) -> Any:
         """The value at ``path`` checked against ``kind``; missing → ``default`` or an error."""
         cur: Any = self.data
