@@ -9,7 +9,7 @@ from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, run_task
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.tasks import load
-from contactflow.embodiments.world import World, WorldParams, cylinder
+from contactflow.embodiments.world import World, WorldParams, box, cylinder
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.taskengine import ProgressKind
 from contactflow.nodes.taskgraph import TaskError
@@ -45,3 +45,20 @@ def test_pick_and_place_runs_end_to_end() -> None:
     assert obj[2, 3] == pytest.approx(0.81, abs=0.015)  # standing on the table again
     assert np.hypot(obj[0, 3] - 0.55, obj[1, 3] + 0.3) > 0.1  # somewhere else
     assert engine.results_of(res.run)["detect"]["count"] == 1
+
+
+def test_clear_the_table_cycles_until_no_object_is_left() -> None:
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
+    world.add_object(box("cube", (0.055, 0.055, 0.07), xyz=(0.5, -0.15, 0.785), mass=0.15, friction=0.8))
+    robot = SimRobot(world, "tombatossals")
+    tasks, _ = load()
+    picks: list[str] = []
+    res, _ = run_task(tasks["clear_table"], robot, {}, library=tasks, max_time=90.0,
+                      on_progress=lambda p: picks.append(p.node) if p.kind is ProgressKind.ENTERED
+                      and p.node == "grasp" else None)
+    assert res.status is Status.SUCCESS and res.label == "done", res
+    assert len(picks) == 2  # one grasp per object, then detect found nothing (Fig. 3.1c)
+    poses = robot.ground_truth().object_poses
+    assert all(poses[n][1, 3] > -0.02 for n in ("cyl", "cube"))  # both in the drop region
