@@ -17,6 +17,7 @@ class ArmLike(Protocol):
 
     def ee_pose(self, frame: str = "world") -> np.ndarray: ...
     def q(self) -> np.ndarray: ...
+    def qd(self) -> np.ndarray: ...
     def move_pose(self, T: np.ndarray, frame: str = "world", speed: float = 0.1) -> None: ...
     def move_joints(self, q: np.ndarray, speed: float | None = None) -> None: ...
     def set_twist(self, twist: np.ndarray, frame: str = "world", duration: float | None = None) -> None: ...
@@ -204,6 +205,24 @@ class Primitive(Module):
             return False
         return float(np.linalg.norm(pos - p0)) < ratio * speed * (now - t0)
 
+    def _wound_up(self, error: float = 0.05, speed: float = 0.02, duration: float = 0.15) -> bool:
+        """Joint targets running away from joints that do not move (the fault monitor's stuck
+        condition, caught earlier): the arm pushes against something it cannot move."""
+        if not self.commands_arm:
+            return False
+        q_cmd = getattr(self.arm, "q_cmd", None)
+        if q_cmd is None:
+            return False
+        stuck = bool(np.max(np.abs(np.asarray(q_cmd) - self.arm.q()), initial=0.0) > error
+                     and np.max(np.abs(self.arm.qd()), initial=0.0) < speed)
+        now = self.r.time
+        if not stuck:
+            self._stuck_since = None
+            return False
+        if self._stuck_since is None:
+            self._stuck_since = now
+        return now - self._stuck_since >= duration
+
     def _hold_measured(self) -> None:
         # holding the commanded joints would keep pressing whatever blocked the arm
         if self.commands_arm and not self.r.failed:
@@ -266,6 +285,7 @@ class Primitive(Module):
         self.result = {}
         self._outcome = Status.RUNNING
         self.state = Status.RUNNING
+        self._stuck_since: float | None = None
         self.begin()
 
     def step(self) -> Status:
@@ -274,6 +294,10 @@ class Primitive(Module):
         if self.r.failed:
             self.emit_once(Event.HARDWARE_FAILURE, "robot stopped by a hardware fault")
             return self.fail("hardware failure")
+        if self._wound_up():
+            self.relax()
+            self.emit_once(Event.CONTACT, "the arm is blocked")
+            return self.fail("arm blocked: its joints stopped short of their targets")
         self.update()
         return self._outcome
 
