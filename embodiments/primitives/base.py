@@ -213,8 +213,8 @@ class Primitive(Module):
         q_cmd = getattr(self.arm, "q_cmd", None)
         if q_cmd is None:
             return False
-        stuck = bool(np.max(np.abs(np.asarray(q_cmd) - self.arm.q()), initial=0.0) > error
-                     and np.max(np.abs(self.arm.qd()), initial=0.0) < speed)
+        lag = np.abs(np.asarray(q_cmd) - self.arm.q())
+        stuck = bool(np.any((lag > error) & (np.abs(self.arm.qd()) < speed)))
         now = self.r.time
         if not stuck:
             self._stuck_since = None
