@@ -17,7 +17,7 @@ from contactflow.abstraction.profiles import RobotProfile
 from contactflow.abstraction.translator import Translation, TranslationError, translate
 from contactflow.nodes.taskgraph import REQUIRED, NodeKind
 
-HAND_TIME = {"robust_grasp": 4.0, "naive_grasp": 2.0, "close_until_force": 2.0, "release": 1.0,
+HAND_TIME = {"robust_grasp": 4.0, "naive_grasp": 2.0, "close_until_force": 2.0, "close_until_stall": 2.0, "release": 1.0,
              "hold": 0.5}
 """s, nominal duration of hand primitives (robust grasp includes its corrections)."""
 SETTLE = 0.5  # s added to every arm motion (acceleration, contact checks)

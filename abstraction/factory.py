@@ -93,6 +93,7 @@ class Factory:
         "slide": frozenset({Sensor.WRIST_FT}),
         "push": frozenset({Sensor.WRIST_FT}),
         "close_until_force": frozenset({Sensor.TACTILE}),  # the simulated primitive reads pad pressure
+        "close_until_stall": frozenset({Sensor.GRIPPER_EFFORT}),
     }
     _params_used: dict[str, Any] = field(default_factory=dict, init=False, repr=False)
 
@@ -162,7 +163,7 @@ class Factory:
         if not shape:
             return ""
         if shape in self.robot.hand_shapes:
-            return shape
+            return self.robot.hand_shapes[shape]
         if self.robot.hand is HandKind.PARALLEL_GRIPPER:
             mapped = "open" if (shape.endswith("preshape") or shape == "open") else "closed"
             notes.append(f"hand shape {shape!r} approximated by {mapped!r} on the gripper")
@@ -219,6 +220,10 @@ class Factory:
                 self._reach(obj.location, f"state {state.name!r}: object {oname!r} at")
         if len(state.path) > 1:
             p["waypoints"] = _flat(state.path)
+        obj = atd.objects.get(state.target_object) if state.target_object else atd.object_of(state)
+        size = state.object_size or (obj.size if obj is not None else None)
+        if size is not None:
+            p["size"] = list(size)  # m, world extents: how close the hand may come
 
     # -- the abstract primitives -----------------------------------------------------------
     def node(self, state: AtdState, atd: Atd) -> PrimitiveChoice:
@@ -241,6 +246,8 @@ class Factory:
         self._goal(atd, state, p, standoff=0.10 if free else 0.0)
         if free and atd.obstacles:
             p["obstacles"] = self._obstacles(atd)
+        if kind is AbstractPrimitive.PUSH and concrete != "push":
+            p["pushes"] = True  # an arm motion that moves the object to the target ahead of the hand
         if concrete == "place":
             p["contact_threshold"] = self.stop_force()
             p["filter_hz"] = self.filter_hz()
@@ -386,7 +393,7 @@ class MelfaFactory(Factory):
             obj = atd.object_of(state)
             helpers.append(Helper("grip", "hold", {"force": self.grasp_force(obj)}))
         if kind is AbstractPrimitive.PLACE:
-            p.update(motion="line", stop_sensor="tactile", stop_force=1.0)
+            p.update(motion="line", stop_sensor="tactile", stop_force=1.0, until_contact=True)
             notes.append("place runs as a guarded transport stopping on tactile change (Table 7.4)")
         return p, helpers
 
@@ -403,7 +410,7 @@ class BaxterFactory(Factory):
     """Parallel gripper with a noisy wrist wrench: filtered thresholds, two grasp monitors."""
 
     TABLE: ClassVar[dict[AbstractPrimitive, tuple[str, ...]]] = {
-        AbstractPrimitive.GRASP: ("close_until_force", "naive_grasp"),
+        AbstractPrimitive.GRASP: ("close_until_force", "close_until_stall", "naive_grasp"),
         AbstractPrimitive.MOVE: ("move_to",),
         AbstractPrimitive.PUSH: ("push", "move_to"),
         AbstractPrimitive.TRANSPORT: ("transport",),

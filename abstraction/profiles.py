@@ -8,8 +8,8 @@ factories choose between are the translation extras of each robot below.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 from contactflow.abstraction.frames import WORKCELL, TaskFrame
@@ -65,7 +65,7 @@ class RobotProfile:
     sensors: frozenset[Sensor]
     capabilities: frozenset[str]  # concrete primitive types this robot runs
     workspace: Workspace
-    hand_shapes: frozenset[str] = frozenset({"open"})
+    hand_shapes: Mapping[str, str] = field(default_factory=lambda: {"open": "open"})  # ATD shape -> preshape
     max_payload: float = 1.0  # kg
     max_opening: float = 0.1  # m, widest object the hand takes
     wrench_noise: float = 0.2  # N, standard deviation of the wrist force reading
@@ -86,7 +86,7 @@ class _Extras:
     """What translation needs beyond the embodiment registry (thesis Tables 7.3-7.4)."""
 
     capabilities: frozenset[str]
-    hand_shapes: frozenset[str]
+    hand_shapes: Mapping[str, str]  # ATD hand shape -> the hand's own preshape
     max_opening: float  # m
     wrench_noise: float  # N
     speed: float  # m/s
@@ -95,15 +95,17 @@ class _Extras:
 _EXTRAS = {
     "tombatossals": _Extras(
         _ARM | {"robust_grasp", "naive_grasp", "place", "slide", "explore", "unscrew", "push", "pull", "touch"},
-        frozenset({"open", "pinch_grasp_preshape", "pinch_grasp", "cylindrical", "cylindrical_preshape",
-                   "spherical", "spherical_preshape"}),
+        {"open": "open", "closed": "closed", "pinch_grasp_preshape": "open", "pinch_grasp": "pinch",
+         "cylindrical_preshape": "open", "cylindrical": "cylindrical", "spherical_preshape": "open",
+         "spherical": "spherical"},
         max_opening=0.14, wrench_noise=0.2, speed=0.1),
-    "melfa": _Extras(_ARM | {"close_until_force"}, frozenset({"open", "closed"}),
+    "melfa": _Extras(_ARM | {"close_until_force"}, {"open": "open", "closed": "closed"},
                      max_opening=0.08, wrench_noise=0.05, speed=0.25),
     "baxter": _Extras(
-        _ARM | {"close_until_force", "naive_grasp", "place", "slide", "push", "pull", "touch", "explore"},
-        frozenset({"open", "closed"}),
-        max_opening=0.09, wrench_noise=2.0, speed=0.2),  # wrist wrench estimated from efforts: noisy
+        _ARM | {"close_until_force", "close_until_stall", "naive_grasp", "place", "slide", "push", "pull", "touch",
+                "explore"},
+        {"open": "open", "closed": "closed"},
+        max_opening=0.055, wrench_noise=2.0, speed=0.2),  # wrist wrench estimated from efforts: noisy
 }
 
 

@@ -34,11 +34,15 @@ class SimExecutor:
         self.max_time = max_time
         self.monitor_factory = monitor_factory
         self.robot: Any = None
+        self.hands: dict[str, Any] = {}
         self.monitor: ContactMonitor | None = None
         self._lock = threading.Lock()
 
     def build(self) -> Any:
         """Create the world, its scene and the robot (once; SAPIEN is imported only here)."""
+        from contactflow.abstraction.concrete import HandGeometry
+        from contactflow.embodiments.hand_geometry import hand_points
+        from contactflow.embodiments.primitives.profiles import GRASP_CENTER
         from contactflow.embodiments.scenes import SCENES
         from contactflow.embodiments.sim_robot import SimRobot
         from contactflow.embodiments.world import World, WorldParams
@@ -49,6 +53,8 @@ class SimExecutor:
             world = World(WorldParams())
             SCENES[self.scene](world)
             self.robot = SimRobot(world, self.robot_name)
+            self.hands = {arm: HandGeometry(hand_points(self.robot, arm), grasp_center=GRASP_CENTER.get(self.robot_name, (0.0, 0.0, 0.0)))
+                          for arm in self.robot.arms}
             self.robot.step(0.3)  # let objects settle on the table
             if self.monitor_factory is not None:
                 self.monitor = self.monitor_factory(self.robot)
@@ -65,7 +71,7 @@ class SimExecutor:
             runner = LocalPrimitiveRunner(robot)
             profile = PROFILES.get(self.robot_name)
             concrete = ConcreteRunner(runner, robot.arms, profile.max_opening if profile else 0.1,
-                                      hand_at=lambda arm: robot.arm(arm).ee_pose()[:3, 3])
+                                      hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=self.hands)
 
             def advance(dt: float) -> None:
                 runner.advance()

@@ -8,9 +8,9 @@ from contactflow.embodiments.world import World, box, cylinder
 
 
 def thesis_7_3(world: World) -> None:
-    """§7.3 (Fig. 7.4): a box stands in front of the target; push it aside, then pick the target."""
+    """§7.3 (Fig. 7.4): a low box (a tissue box) stands in front of the target; push it aside, then pick the target."""
     world.add_table()
-    world.add_object(box("obstacle_box", (0.05, 0.05, 0.10), xyz=(0.50, 0.0, 0.80), mass=0.2, friction=0.5))
+    world.add_object(box("obstacle_box", (0.08, 0.08, 0.06), xyz=(0.50, 0.0, 0.78), mass=0.2, friction=0.5))
     world.add_object(cylinder("target", 0.025, 0.12, xyz=(0.62, 0.0, 0.81), mass=0.15, friction=0.9))
 
 

@@ -277,7 +277,10 @@ class Primitive(Module):
         spec = self.r.spec.hand(self.hand_name)
         groups = finger_groups(spec)
         closed = np.asarray(spec.preshapes["closed"], dtype=np.float64)
-        return blocked_fingers(self.hand.positions(), closed, groups) >= min(min_fingers, len(groups))
+        travel = float(np.abs(np.asarray(spec.preshapes["open"], dtype=np.float64) - closed).max())
+        # a gripper's jaws travel centimetres, not radians: held open means a fifth of their travel
+        margin = min(0.15, 0.2 * travel)
+        return blocked_fingers(self.hand.positions(), closed, groups, margin) >= min(min_fingers, len(groups))
 
     # -- lifecycle -----------------------------------------------------------------------
     def start(self) -> None:

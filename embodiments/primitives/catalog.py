@@ -6,6 +6,7 @@ CATALOG = {
     "robust_grasp": f"{_P}.robust_grasp:RobustGrasp",
     "naive_grasp": f"{_P}.naive_grasp:NaiveGrasp",
     "close_until_force": f"{_P}.close_until_force:CloseUntilForce",
+    "close_until_stall": f"{_P}.close_until_stall:CloseUntilStall",
     "transport": f"{_P}.transport:Transport",
     "place": f"{_P}.place:Place",
     "release": f"{_P}.release:Release",

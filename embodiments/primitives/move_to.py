@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
 from contactflow.embodiments.primitives.motion import pose_error, target_pose
 from contactflow.nodes.status import Event, Status
@@ -26,9 +28,13 @@ class MoveTo(Primitive):
         abort_force: float = 15.0  # N, unexpected contact
         tolerance: float = 0.01  # m, final position error accepted
         timeout: float = 20.0  # s
+        guarded: bool = False  # a contact over abort_force ends the motion with SUCCESS (a guarded move)
+        preshape: str = ""  # hand preshape taken at the start ("" = keep)
 
     def begin(self) -> None:
         p = self.params
+        if p.preshape and self.hand_name:
+            self.hand.preshape(p.preshape)
         self.goal = target_pose(self, p.target, "target")
         if p.standoff:
             self.goal[:3, 3] -= self.goal[:3, 2] * p.standoff
@@ -49,11 +55,21 @@ class MoveTo(Primitive):
         if self.elapsed > p.timeout:
             self.fail(f"not at the target after {p.timeout} s", event=Event.TIMEOUT)
             return
+        if p.guarded and not self.planned:
+            f = self.wrench_in("world")[:3]
+            if np.linalg.norm(f) >= p.abort_force:
+                self.halt()
+                self.emit_once(Event.CONTACT, f"guarded move stopped on contact (|F| = {np.linalg.norm(f):.1f} N)")
+                self.succeed(contact=1.0, force=float(np.linalg.norm(f)), **pose6(self.r.frame_pose(self.ee_frame)))
+                return
         if not self.arm.done():
             return
         if self.arm.status is Status.FAILURE:
             if getattr(self.arm, "abort_reason", "") == "contact":
                 self.emit_once(Event.CONTACT, "unexpected contact while moving")
+                if p.guarded:
+                    self.succeed(contact=1.0, **pose6(self.r.frame_pose(self.ee_frame)))
+                    return
             self.fail(f"motion aborted ({getattr(self.arm, 'abort_reason', '')})")
             return
         cur = self.r.frame_pose(self.ee_frame)

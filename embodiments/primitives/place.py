@@ -29,6 +29,7 @@ class Place(Primitive):
         surface_normal: tuple[float, ...] = (0.0, 0.0, 1.0)  # world, normal of the supporting surface
         velocity: float = 0.005  # m/s, toward the surface
         max_distance: float = 0.3  # m, travel before giving up
+        filter_hz: float = 0.0  # Hz, low-pass cut-off on the wrist force (0 = none; for noisy estimated wrenches)
 
     def begin(self) -> None:
         p = self.params
@@ -38,10 +39,18 @@ class Place(Primitive):
         self.n = n / np.linalg.norm(n)
         self.r.tare_ft(self.arm_name)
         self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
+        self.f = np.zeros(3)
 
     def update(self) -> None:
         p = self.params
-        f = self.wrench_in("world")[:3]
+        raw = self.wrench_in("world")[:3]
+        if p.filter_hz > 0:
+            dt = 1.0 / p.rate_hz
+            a = dt / (dt + 1.0 / (2 * np.pi * p.filter_hz))
+            self.f = self.f + a * (raw - self.f)
+        else:
+            self.f = raw
+        f = self.f
         v = place_velocity(f, self.n, p.velocity, p.force_threshold)
         T = self.r.frame_pose(self.ee_frame)
         travelled = float((self.p0 - T[:3, 3]) @ self.n)

@@ -74,14 +74,20 @@ class Transport(Primitive):
         influence: float = 0.1  # m, force-field influence distance
         repulsion: float = 0.0005  # m^3/s, force-field gain
         tolerance: float = 0.005  # m, target reached
+        waypoint_tolerance: float = 0.02  # m, a waypoint is passed through, not reached exactly
+        settle_tolerance: float = 0.012  # m, a hand that stops this close (e.g. sagging under a load) has arrived
         rot_tolerance: float = 0.05  # rad
         stuck_time: float = 1.0  # s without progress = local minimum
         stuck_progress: float = 0.005  # m of progress expected in stuck_time
         planning_timeout: float = 2.0  # s
         timeout: float = 30.0  # s
+        guarded: bool = False  # a contact over force_threshold ends the motion with SUCCESS (a guarded move)
+        preshape: str = ""  # hand preshape taken at the start ("" = keep)
 
     def begin(self) -> None:
         p = self.params
+        if p.preshape and self.hand_name:
+            self.hand.preshape(p.preshape)
         goal = target_pose(self, p.target, "target", relative=p.relative)
         w = np.asarray(p.waypoints, dtype=np.float64)
         if w.size % 6:
@@ -140,14 +146,20 @@ class Transport(Primitive):
                 return
             if self.arm.status is Status.FAILURE:
                 self.emit_once(Event.CONTACT, "unexpected contact during the planned motion")
+                if p.guarded:
+                    self.succeed(contact=1.0, force=float(np.linalg.norm(f)), **pose6(cur))
+                    return
                 self.fail("collision during the planned motion", force=float(np.linalg.norm(f)))
                 return
             self.mode = "velocity"
             self.progress = (self.r.time, pose_error(cur, goal)[0])
         err = np.concatenate([goal[:3, 3] - cur[:3, 3], rotvec_error(goal[:3, :3], cur[:3, :3])])
         dp, dr = float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
-        if dp <= p.tolerance and dr <= p.rot_tolerance:
-            if self.k + 1 < len(self.goals):
+        last = self.k + 1 == len(self.goals)
+        t0, d0 = self.progress
+        settled = self.r.time - t0 >= p.stuck_time and d0 - dp < p.stuck_progress and dp <= p.settle_tolerance
+        if (dp <= (p.tolerance if last else p.waypoint_tolerance) or settled) and dr <= p.rot_tolerance:
+            if not last:
                 self.k += 1
                 self._enter_goal()
                 return
@@ -156,6 +168,10 @@ class Transport(Primitive):
         v = transport_velocity(err, p.gain, f, p.force_threshold)
         if not v.any():
             self.emit_once(Event.CONTACT, f"|F| = {np.linalg.norm(f):.1f} N over the threshold")
+            if p.guarded:
+                self.halt()
+                self.succeed(contact=1.0, force=float(np.linalg.norm(f)), **pose6(cur))
+                return
             self.fail("stopped by an unexpected contact", force=float(np.linalg.norm(f)))
             return
         v[:3] += force_field(cur[:3, 3], self.obstacles, p.influence, p.repulsion)
