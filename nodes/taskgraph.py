@@ -24,7 +24,7 @@ from typing import Any
 from contactflow.nodes.status import Event
 
 KNOWN_PRIMITIVES = frozenset({
-    "robust_grasp", "naive_grasp", "close_until_force", "transport", "place", "release",
+    "robust_grasp", "naive_grasp", "close_until_force", "close_until_stall", "transport", "place", "release",
     "slide", "explore", "unscrew", "hold", "lift", "push", "pull", "touch", "move_to",
     "detect_objects", "place_location", "wait_event",
 })

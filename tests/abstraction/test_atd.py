@@ -56,7 +56,7 @@ def test_yaml_form_equals_xml_form():
 def test_experiment_atds_carry_objects_and_obstacles():
     push = load_atd(path("push_away.xml"))
     box = push.objects["obstacle_box"]
-    assert box.mass == 0.2 and box.approach == (1.0, 0.0, 0.0) and box.location == (0.0, 0.5, 0.05)
+    assert box.mass == 0.2 and box.approach == (1.0, 0.0, 0.0) and box.location == (0.0, 0.5, 0.03)
     assert [o.name for o in push.obstacles] == ["table"]
     pp = load_atd(path("pick_place_behind.xml"))
     assert len(pp.states) == 9 and pp.state("carry_behind").path[-1] == (-0.15, 0.55, 0.2)

@@ -20,7 +20,9 @@ def test_bids_for_pick_and_place():
 
 
 def test_refused_bid_lists_reasons():
-    text = path("push_away.xml").read_text().replace("0.15 0.50 0.05</target>", "2.5 0.50 0.05</target>")
+    text = path("push_away.xml").read_text()
+    assert "0.15 0.50 0.03</target>" in text
+    text = text.replace("0.15 0.50 0.03</target>", "2.5 0.50 0.03</target>")
     atd = parse_atd(text, "far.xml")
     b = bid(atd, MELFA)
     assert not b.ok and b.duration == math.inf

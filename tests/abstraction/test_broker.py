@@ -96,7 +96,8 @@ def test_named_robot_and_capabilities(site_factory):
 
 def test_refused_with_reasons_per_robot_when_none_can_translate(site_factory):
     site = site_factory({n: fake_executor() for n in ("tombatossals", "melfa", "baxter")})
-    far = PUSH.replace("<location>0.0 0.50 0.05</location>", "<location>9.0 9.0 0.05</location>")
+    assert "<location>0.0 0.50 0.03</location>" in PUSH
+    far = PUSH.replace("<location>0.0 0.50 0.03</location>", "<location>9.0 9.0 0.03</location>")
     follow = site.run(far)
     assert not follow.reply.ok
     assert set(follow.reply.refusals) == {"tombatossals", "melfa", "baxter"}

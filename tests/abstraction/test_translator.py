@@ -57,8 +57,8 @@ def test_factories_choose_their_own_primitives_and_parameters():
     assert melfa["grasp_object"].type == "close_until_force"
     assert melfa["approach"].type == "move_to" and melfa["put_down"].type == "transport"
     assert [h.type for h in melfa["carry_behind"].helpers if h.name == "grip"] == ["hold"]
-    # baxter's grippers have no pads to close until a force on: it falls back to the naive grasp
-    assert baxter["grasp_object"].type == "naive_grasp" and baxter["put_down"].type == "place"
+    # baxter's grippers have no pads to close until a force on: they close until the jaws stall
+    assert baxter["grasp_object"].type == "close_until_stall" and baxter["put_down"].type == "place"
     # the noisy wrist wrench raises baxter's contact thresholds and lowers its filter
     assert baxter["put_down"].params["contact_threshold"] > tomb["put_down"].params["contact_threshold"]
     assert baxter["preshape_hand"].params["filter_hz"] < tomb["preshape_hand"].params["filter_hz"]
@@ -67,9 +67,11 @@ def test_factories_choose_their_own_primitives_and_parameters():
     assert baxter["preshape_hand"].params["filter_hz"] < melfa["preshape_hand"].params["filter_hz"]
     # grasp force from the object's mass (0.15 kg) on the grippers
     assert 5.0 <= melfa["grasp_object"].params["grasp_force"] <= 40.0
-    # hand shapes: kept on the multi-finger hand, approximated on grippers
-    assert tomb["preshape_hand"].params["hand_shape"] == "pinch_grasp_preshape"
+    # hand shapes: mapped to the multi-finger hand's own preshapes, approximated on grippers
+    assert tomb["preshape_hand"].params["hand_shape"] == "open"
+    assert tomb["grasp_object"].params["preshape"] == "pinch"
     assert melfa["preshape_hand"].params["hand_shape"] == "open"
+    assert "preshape" not in melfa["grasp_object"].params
 
 
 def test_baxter_needs_gripper_and_wrist_for_stable_grasp_of_a_heavy_object():
@@ -113,7 +115,7 @@ def test_refusals_name_the_robot_state_and_reason():
             with pytest.raises(TranslationError, match="exceeds .* payload"):
                 translate(parse_atd(heavy, "heavy.xml"), factory_for(PROFILES[robot]))
 
-    wide = path("grasp_retry.xml").read_text().replace("0.06 0.06 0.12", "0.09 0.09 0.12")
+    wide = path("grasp_retry.xml").read_text().replace("0.05 0.05 0.12", "0.09 0.09 0.12")
     with pytest.raises(TranslationError, match="melfa's hand opens to 0.080 m"):
         translate(parse_atd(wide, "wide.xml"), factory_for(MELFA))
 

@@ -1,0 +1,93 @@
+"""Concrete parameters from factory ones: hand geometry keeps approaches off objects, pushes low and aimed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contactflow.abstraction.concrete import HandGeometry, concretize, top_down
+from contactflow.embodiments.transforms import xyz_rpy_to_matrix
+
+
+def box_points(lo, hi) -> np.ndarray:
+    return np.array([[hi[i] if (k >> i) & 1 else lo[i] for i in range(3)] for k in range(8)], dtype=float)
+
+
+# a parallel gripper: thin fingers reaching 5 cm below a wide body (a panda hand in its grasp frame)
+GRIPPER = HandGeometry(np.vstack([
+    box_points((-0.01, -0.05, -0.05), (0.01, -0.03, 0.0)),  # finger
+    box_points((-0.01, 0.03, -0.05), (0.01, 0.05, 0.0)),  # finger
+    box_points((-0.03, -0.10, -0.14), (0.03, 0.10, -0.05)),  # body, above the fingers
+]))
+BOX = [0.08, 0.08, 0.06]
+BOX_AT = [0.5, 0.0, 0.78]
+
+
+def hand_parts(params: dict, hand: HandGeometry) -> np.ndarray:
+    T = xyz_rpy_to_matrix(params["target"][:3], params["target"][3:])
+    return hand.points @ T[:3, :3].T + T[:3, 3]
+
+
+def test_side_approach_keeps_the_hand_off_the_object_and_its_low_parts_in_front_of_it():
+    out = concretize("move_to", {"target": BOX_AT, "approach": [0.0, -1.0, 0.0], "standoff": 0.1, "size": BOX},
+                     ["arm"], hands={"arm": GRIPPER})
+    pts = hand_parts(out, GRIPPER)
+    lo, hi = np.array(BOX_AT) - np.array(BOX) / 2, np.array(BOX_AT) + np.array(BOX) / 2
+    inside = np.all((pts > lo) & (pts < hi), axis=1)
+    assert not inside.any()
+    beside = pts[pts[:, 2] < hi[2]]
+    assert beside[:, 1].min() > hi[1]  # what is at the object's height is on its near side
+    assert pts[:, 2].min() == pytest.approx(lo[2] + 0.02, abs=1e-6)  # lowest part just above the bottom
+    assert beside[:, 0].min() < BOX_AT[0] < beside[:, 0].max()  # and it covers the object's middle
+
+
+def test_without_hand_geometry_the_approach_is_the_plain_standoff():
+    out = concretize("move_to", {"target": BOX_AT, "approach": [0.0, -1.0, 0.0], "standoff": 0.1}, ["arm"])
+    assert out["target"][:3] == pytest.approx([0.5, 0.1, 0.78])
+
+
+def test_top_approach_puts_the_grasp_centre_over_the_object():
+    hand = HandGeometry(GRIPPER.points, grasp_center=(-0.05, 0.02, 0.0))
+    out = concretize("transport", {"target": [0.6, 0.0, 0.81], "approach": [0, 0, -1], "standoff": 0.1},
+                     ["left", "right"], hands={"left": hand})
+    T = xyz_rpy_to_matrix(out["target"][:3], out["target"][3:])
+    centre = T[:3, :3] @ np.array(hand.grasp_center) + T[:3, 3]
+    assert centre == pytest.approx([0.6, 0.0, 0.91], abs=1e-9)
+    assert T[:3, 2] == pytest.approx([0, 0, -1], abs=1e-9)
+
+
+def test_push_target_is_where_the_object_ends_not_the_hand():
+    R = top_down(0.0)
+    current = np.eye(4)
+    current[:3, :3] = R
+    current[:3, 3] = (0.5, 0.1, 0.8)
+    out = concretize("transport", {"target": [0.5, -0.15, 0.78], "size": BOX, "pushes": True, "motion": "line",
+                                   "stop_force": 3.0, "stop_sensor": "wrist_ft"},
+                     ["arm"], hand_at=lambda arm: current, hands={"arm": GRIPPER})
+    reach = GRIPPER.reach(R, np.array([0.0, -1.0, 0.0]), 0.78 + 0.03 - 0.8)
+    assert out["target"][1] == pytest.approx(-0.15 + 0.04 + reach)
+    assert out["target"][2] == pytest.approx(0.8)  # the hand keeps its height and heading
+    assert "guarded" not in out  # contact is what a push is made of
+
+
+def test_guarded_moves_end_on_contact_only_when_contact_is_the_goal():
+    to_object = concretize("transport", {"target": BOX_AT, "approach": [0, 0, -1], "motion": "line",
+                                         "stop_force": 3.0, "stop_sensor": "wrist_ft"}, ["arm"])
+    assert to_object["guarded"] is True and to_object["force_threshold"] == 3.0
+    lift = concretize("transport", {"target": [0.5, 0.0, 1.0], "motion": "line", "stop_force": 3.0,
+                                    "stop_sensor": "wrist_ft"}, ["arm"])
+    assert lift["guarded"] is False and lift["force_threshold"] >= 10.0
+    assert lift["velocity_limits"][:3] == [0.05] * 3  # straight and slow, no planner
+    place = concretize("transport", {"target": [0.5, 0.0, 0.8], "motion": "line", "stop_force": 1.0,
+                                     "stop_sensor": "tactile", "until_contact": True}, ["arm"])
+    assert place["guarded"] is True
+
+
+def test_pusher_refuses_postures_whose_low_parts_miss_the_object():
+    # a hand whose only low part is a thumb far off to one side cannot push pointing down
+    thumb = HandGeometry(np.vstack([box_points((0.04, 0.13, -0.01), (0.07, 0.16, 0.01)),
+                                    box_points((-0.18, -0.09, -0.15), (0.07, 0.09, -0.05))]))
+    R, height = thumb.pusher(np.array([0.0, -1.0, 0.0]), np.array(BOX))
+    low = thumb.band(R, BOX[2] - height)
+    side = low @ np.array([1.0, 0.0, 0.0])
+    assert side.min() < 0.0 < side.max()
