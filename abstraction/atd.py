@@ -33,7 +33,6 @@ from xml.etree.ElementTree import Element, ParseError
 
 import defusedxml
 import defusedxml.ElementTree as DET
-import yaml
 
 from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.primitives import (
@@ -459,20 +458,13 @@ def _yaml_props(doc: LocatedYaml, what: str) -> dict[str, Any]:
 
 
 def _parse_yaml(text: str, file: str) -> Atd:
-    loader = yaml.SafeLoader(text)
     try:
-        root = loader.get_single_node()
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f":{mark.line + 1}" if mark is not None else ""
-        raise AtdError([f"{file}{line}: not valid YAML: {getattr(exc, 'problem', exc)}"]) from None
-    finally:
-        loader.dispose()
-    if root is None:
-        raise AtdError([f"{file}: empty ATD"])
+        doc = LocatedYaml.compose(text, file, "ATD")
+    except TaskError as exc:
+        raise AtdError(exc.issues) from None
     issues: list[str] = []
     try:
-        top = LocatedYaml(root, loader, file).mapping("ATD", {"statemachine"})
+        top = doc.mapping("ATD", {"statemachine"})
         if "statemachine" not in top:
             raise AtdError([f"{file}:1: the ATD needs a top-level 'statemachine'"])
         sm = top["statemachine"].mapping(

@@ -44,7 +44,25 @@ class SimRobotParams:
     faults: FaultParams = FaultParams()
 
 
-class ArmHandle:
+class _Commanded:
+    """A part of the robot that runs one command at a time and reports its :class:`Status`."""
+
+    robot: SimRobot
+    status: Status
+
+    def done(self) -> bool:
+        return self.status in (Status.SUCCESS, Status.FAILURE)
+
+    def wait(self, timeout: float) -> Status:
+        """Step the world until the command finishes or ``timeout`` s pass."""
+        dt = 1.0 / self.robot.params.control_rate
+        t_end = self.robot.time + timeout
+        while not self.done() and self.robot.time < t_end and not self.robot.failed:
+            self.robot.step(dt)
+        return self.status
+
+
+class ArmHandle(_Commanded):
     """Commands and state of one arm (see API.md)."""
 
     def __init__(self, robot: SimRobot, spec: ArmSpec) -> None:
@@ -72,17 +90,6 @@ class ArmHandle:
 
     def ee_pose(self, frame: str = "world") -> np.ndarray:
         return self.robot.frame_pose(self.spec.ee_frame, frame)
-
-    def done(self) -> bool:
-        return self.status in (Status.SUCCESS, Status.FAILURE)
-
-    def wait(self, timeout: float) -> Status:
-        """Step the world until the command finishes or ``timeout`` s pass."""
-        dt = 1.0 / self.robot.params.control_rate
-        t_end = self.robot.time + timeout
-        while not self.done() and self.robot.time < t_end and not self.robot.failed:
-            self.robot.step(dt)
-        return self.status
 
     # -- commands --------------------------------------------------------------------------
     def _start(self, mode: str) -> None:
@@ -208,7 +215,7 @@ class ArmHandle:
         r.mixer.submit(f"arm/{self.name}", self.joints, self.q_cmd, qd, 1.0, r.time)
 
 
-class HandHandle:
+class HandHandle(_Commanded):
     """Commands and state of one hand (see API.md)."""
 
     def __init__(self, robot: SimRobot, spec: HandSpec) -> None:
@@ -228,16 +235,6 @@ class HandHandle:
 
     def positions(self) -> np.ndarray:
         return self.encoders.read()[0]
-
-    def done(self) -> bool:
-        return self.status in (Status.SUCCESS, Status.FAILURE)
-
-    def wait(self, timeout: float) -> Status:
-        dt = 1.0 / self.robot.params.control_rate
-        t_end = self.robot.time + timeout
-        while not self.done() and self.robot.time < t_end and not self.robot.failed:
-            self.robot.step(dt)
-        return self.status
 
     def set_fingers(self, q: np.ndarray, effort: float = 1.0) -> None:
         q = np.asarray(q, dtype=np.float64)

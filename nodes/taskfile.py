@@ -64,6 +64,22 @@ class LocatedYaml:
                  key: yaml.Node | None = None) -> None:
         self.node, self._loader, self.file, self.key = node, loader, file, key
 
+    @classmethod
+    def compose(cls, text: str, file: str, what: str) -> LocatedYaml:
+        """The document's root node; :class:`TaskError` naming the line when it is no YAML or empty."""
+        loader = yaml.SafeLoader(text)
+        try:
+            root = loader.get_single_node()
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            line = f":{mark.line + 1}" if mark is not None else ""
+            raise TaskError([f"{file}{line}: not valid YAML: {getattr(exc, 'problem', exc)}"]) from None
+        finally:
+            loader.dispose()
+        if root is None:
+            raise TaskError([f"{file}: empty {what}"])
+        return cls(root, loader, file)
+
     @property
     def where(self) -> Where:
         """The line of the element's key when it has one (a block value starts below it)."""
@@ -256,18 +272,7 @@ def _task(name: str, doc: LocatedYaml) -> TaskGraph:
 
 def parse_tasks(text: str, file: str = "<memory>") -> tuple[dict[str, TaskGraph], str]:
     """Parse (without validating) a task file; returns the tasks and the main task's name."""
-    loader = yaml.SafeLoader(text)
-    try:
-        root = loader.get_single_node()
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f":{mark.line + 1}" if mark is not None else ""
-        raise TaskError([f"{file}{line}: not valid YAML: {getattr(exc, 'problem', exc)}"]) from None
-    finally:
-        loader.dispose()
-    if root is None:
-        raise TaskError([f"{file}: empty task file"])
-    doc = LocatedYaml(root, loader, file)
+    doc = LocatedYaml.compose(text, file, "task file")
     top = dict(doc.items("task file"))
     if "tasks" in top:
         extra = sorted(set(top) - {"tasks", "main"})
