@@ -1,9 +1,10 @@
 """The robot side of the broker: advertise capabilities, bid on ATDs, run the ESTD, report.
 
 A robot agent lives on the robot's control node. It announces the robot with a liveliness
-token, answers ``caps``, ``translate`` (a dry run that bids), ``run`` and ``cancel``
-queryables, and runs the translated task with an :class:`Executor`, streaming progress in
-the ATD's own state and transition names on ``broker/progress/<task_id>``.
+token, answers ``caps``, ``translate`` (a dry run whose bid carries the ESTD), ``run`` (that
+ESTD, sent back by the broker and checked before it runs) and ``cancel`` queryables, and
+runs the task with an :class:`Executor`, streaming progress in the ATD's own state and
+transition names on ``broker/progress/<task_id>``.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any, Protocol
 
 from contactflow.abstraction.atd import AtdError, parse_atd
 from contactflow.abstraction.bid import bid
+from contactflow.abstraction.estd import EstdError, estd_message, received
 from contactflow.abstraction.messages import (
     AbstractProgressMsg,
     Bid,
@@ -43,7 +45,7 @@ class Executor(Protocol):
 
 
 def dry_run(profile: RobotProfile, atd_text: str, file: str) -> tuple[Bid, Translation | None]:
-    """Parse and translate for ``profile``: a bid, and the translation when it succeeded."""
+    """Parse and translate for ``profile``: a bid (carrying the ESTD), and the translation when it succeeded."""
     try:
         atd = parse_atd(atd_text, file)
     except AtdError as exc:
@@ -52,7 +54,8 @@ def dry_run(profile: RobotProfile, atd_text: str, file: str) -> tuple[Bid, Trans
     if not b.ok or b.translation is None:
         return Bid(robot=profile.name, ok=False, reasons=list(b.reasons)), None
     tr = b.translation
-    return Bid(robot=profile.name, ok=True, notes=list(tr.notes), estimated_duration=b.duration), tr
+    return Bid(robot=profile.name, ok=True, notes=list(tr.notes), estimated_duration=b.duration,
+               estd=estd_message(tr)), tr
 
 
 @dataclass
@@ -130,9 +133,12 @@ class RobotAgent:
         except WireError as exc:
             self.rejected += 1
             return encode(RunReply(ok=False, robot=self.profile.name, error=str(exc)))
-        bid, tr = dry_run(self.profile, req.atd, req.file)
-        if tr is None:
-            return encode(RunReply(ok=False, robot=self.profile.name, error="; ".join(bid.reasons)))
+        try:
+            tr = received(req.estd, self.profile, f"{key} (task {req.task_id}, {req.file})")
+        except EstdError as exc:
+            self.rejected += 1
+            self.log.warning("%s", exc)
+            return encode(RunReply(ok=False, robot=self.profile.name, error=str(exc)))
         with self._lock:
             if self._job is not None and self._job.thread.is_alive():
                 return encode(RunReply(ok=False, robot=self.profile.name,

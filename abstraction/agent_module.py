@@ -6,8 +6,7 @@ from dataclasses import dataclass
 
 from contactflow.abstraction.agent import RobotAgent
 from contactflow.abstraction.profiles import PROFILES
-from contactflow.abstraction.testing import fake_executor
-from contactflow.embodiments.messages import DepthImage
+from contactflow.embodiments.messages import DepthImage, ObjectPoses
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
 from contactflow.nodes.params import ParamError
 from contactflow.nodes.status import Status
@@ -17,9 +16,10 @@ from contactflow.nodes.wire import NDArray, encode, stamp
 class RobotAgentModule(Module):
     """Advertises the robot, bids on ATDs and runs the ESTDs it is given.
 
-    ``executor: sim`` runs the task on the robot's simulated embodiment (primitives reading
-    physics sensors); ``executor: scripted`` plays every primitive as succeeding after
-    ``primitive_duration`` s — for exercising dispatch and failover without physics.
+    The task runs on the robot's simulated embodiment (primitives reading physics sensors).
+    The station also publishes its world's object poses on the evaluation keys (ground truth
+    no primitive reads) when the world is built and whenever a task ends, so a deployment can
+    check what a task physically did.
     """
 
     layer = Layer.TASK
@@ -30,33 +30,58 @@ class RobotAgentModule(Module):
     class Params:
         rate_hz: float = 1.0  # Hz, status heartbeat
         robot: str = "tombatossals"  # embodiment name
-        executor: str = "sim"  # sim | scripted
+        executor: str = "sim"  # sim (the only one: the robot's simulated embodiment)
         realtime: float = 1.0  # pace of the task loop (1 = real time, 0 = as fast as possible)
-        primitive_duration: float = 1.0  # s, scripted executor only
-        scene: str = "thesis_7_3"  # sim executor: the station's world (embodiments/scenes.py)
-        fusion: bool = True  # sim executor: fuse the robot's contact cues and publish contact events
+        scene: str = "thesis_7_3"  # the station's world (embodiments/scenes.py)
+        fusion: bool = True  # fuse the robot's contact cues and publish contact events
         camera_hz: float = 1.0  # Hz of simulated time, depth frames of the robot's camera (0 = none)
 
         def validate(self) -> None:
             if self.robot not in PROFILES:
                 raise ValueError(f"robot: {self.robot!r} is not one of {sorted(PROFILES)}")
-            if self.executor not in ("sim", "scripted"):
-                raise ValueError(f"executor: {self.executor!r} is not sim or scripted")
+            if self.executor != "sim":
+                raise ValueError(f"executor: {self.executor!r} is not sim")
+            if self.realtime < 0:
+                raise ValueError(f"realtime: {self.realtime} is negative")
 
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)
         self._agent: RobotAgent | None = None
+        self._truth_seq = 0
+        self._truth_pub = None
 
     def _executor(self):
-        p = self.params
-        if p.executor == "scripted":
-            return fake_executor(duration=p.primitive_duration, realtime=p.realtime)
         from contactflow.abstraction.sim_executor import SimExecutor
 
-        return SimExecutor(p.robot, scene=p.scene, realtime=p.realtime, monitor_factory=self._station_monitor)
+        p = self.params
+        sim = SimExecutor(p.robot, scene=p.scene, realtime=p.realtime, monitor_factory=self._station_monitor)
+
+        def run(translation, report, cancel, params):
+            try:
+                return sim(translation, report, cancel, params)
+            finally:
+                # before the agent's final report: whoever waits for the end finds the world as it left it
+                if sim.robot is not None:
+                    self._publish_truth(sim.robot)
+
+        return run
+
+    def _publish_truth(self, robot) -> None:
+        import numpy as np
+
+        gt = robot.ground_truth()
+        names = sorted(gt.object_poses)
+        poses = np.stack([gt.object_poses[n] for n in names]) if names else np.zeros((0, 4, 4))
+        self._truth_seq += 1
+        msg = stamp(ObjectPoses(names=names, poses=NDArray.of(np.asarray(poses, dtype=np.float64))),
+                    f"{self.params.robot}/{self.io.node}/{self.name}/truth", self._truth_seq, robot.time)
+        if self._truth_pub is None:
+            self._truth_pub = self.io.transport.publisher(self.io.keyspace.evaluation(self.params.robot, "object_poses"))
+        self._truth_pub(encode(msg))
 
     def _station_monitor(self, robot):
         """Called once the world exists: the per-tick hook publishing contact events and depth."""
+        self._publish_truth(robot)
         hooks = []
         if self.params.fusion:
             hooks.append(self._contact_monitor(robot))
@@ -87,7 +112,7 @@ class RobotAgentModule(Module):
 
     def _contact_monitor(self, robot):
         from contactflow.fusion.messages import ContactEventMsg
-        from contactflow.fusion.station import StationFusion
+        from contactflow.fusion.station import StationFusion, cloud_publisher
 
         pub = self.io.transport.publisher(self.io.keyspace.fused(self.params.robot, "events"))
         seq = 0
@@ -99,7 +124,9 @@ class RobotAgentModule(Module):
                         seq, event.t)
             pub(encode(msg))
 
-        return StationFusion(robot, publish)
+        source = f"{self.params.robot}/{self.io.node}/{self.name}"
+        return StationFusion(robot, publish, publish_cloud=cloud_publisher(self.io.transport, source),
+                             keyspace=self.io.keyspace)
 
     def start(self) -> None:
         try:

@@ -3,7 +3,8 @@
 The broker answers ``broker/dispatch``. For each request it validates the ATD (an invalid
 one is never dispatched), asks every candidate robot for a dry-run translation and a bid
 (one wildcard query on ``broker/robots/*/translate``), picks the best (``any``), every
-capable robot (``all``) or the named one, and starts the task there. Robots stream progress
+capable robot (``all``) or the named one, and starts the task there by sending each the
+ESTD its bid carried (the translation chosen at bid time). Robots stream progress
 on ``broker/progress/<task_id>``; the broker adds its own reports there (assigned,
 failover, refused, and the task's end). When a running robot's liveliness token vanishes or
 it ends with ``hardware_failure``, the task is re-dispatched to the next capable robot.
@@ -118,6 +119,7 @@ class Broker:
             except DispatchRefused as exc:
                 exc.refusals.update(refusals)
                 raise DispatchRefused(exc.refusals) from None
+            by_robot = {b.robot: b for b in bids}
             started = []
             for robot in chosen:
                 # recorded and reported before the run request: a fast robot may finish first
@@ -125,7 +127,7 @@ class Broker:
                     record.running.add(robot)
                 self._report(record.task_id, "assigned", robot_detail=robot,
                              detail=f"running on {robot} (attempt {record.attempt})")
-                reply = self._run_on(record, robot)
+                reply = self._run_on(record, by_robot[robot])
                 if reply.ok:
                     started.append(robot)
                 else:
@@ -138,8 +140,11 @@ class Broker:
             if record.target == "all":
                 raise DispatchRefused(refusals)
 
-    def _run_on(self, record: TaskRecord, robot: str) -> RunReply:
-        req = encode(RunRequest(task_id=record.task_id, atd=record.atd, file=record.file, attempt=record.attempt,
+    def _run_on(self, record: TaskRecord, bid: Bid) -> RunReply:
+        robot = bid.robot
+        if bid.estd is None:
+            return RunReply(ok=False, robot=robot, error="its bid carried no ESTD")
+        req = encode(RunRequest(task_id=record.task_id, estd=bid.estd, file=record.file, attempt=record.attempt,
                                 params=record.params))
         replies = self.transport.query(self.ks.robot_service(robot, "run"), req, self.bid_timeout)
         if not replies:

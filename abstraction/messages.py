@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import msgspec
+
 from contactflow.nodes.wire import Message
 
 
@@ -27,8 +29,24 @@ class TranslateRequest(Message, tag="translate_request"):
     file: str = "<dispatch>"
 
 
+class EdgeEvents(msgspec.Struct, frozen=True, kw_only=True):
+    """The concrete triggers of one ESTD edge that stand for one abstract event of its ATD transition."""
+
+    edge: str  # ESTD edge id
+    event: str  # abstract event (Table 7.2)
+    groups: list[list[str]]  # trigger groups (all of), each any of "event" or "source.event"
+
+
+class Estd(msgspec.Struct, frozen=True, kw_only=True):
+    """An embodiment-specific task description as chosen at bid time: what the robot runs as is."""
+
+    robot: str  # the robot it was translated for
+    task: str  # a task file (nodes/taskfile.py) holding the ESTD; node and edge labels are ATD names
+    events: list[EdgeEvents] = []  # how progress maps back to the ATD's abstract events
+
+
 class Bid(Message, tag="bid"):
-    """A robot's answer to a dry run: can it, and how well."""
+    """A robot's answer to a dry run: can it, and how well; with the translation it would run."""
 
     robot: str
     ok: bool
@@ -36,16 +54,19 @@ class Bid(Message, tag="bid"):
     notes: list[str] = []
     estimated_duration: float = 0.0  # s
     busy: bool = False
+    estd: Estd | None = None  # the translation, when ``ok``
 
 
 PlanValue = float | str | list[float]
 
 
 class RunRequest(Message, tag="run_request"):
+    """Run this ESTD (the one the robot's bid carried); the robot checks it before running it."""
+
     max_bytes = 256 << 10
     task_id: str
-    atd: str
-    file: str = "<dispatch>"
+    estd: Estd
+    file: str = "<dispatch>"  # the ATD's file, to name it in messages
     attempt: int = 1
     params: dict[str, PlanValue] = {}  # plan parameters (e.g. an object location from perception)
 

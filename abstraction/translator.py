@@ -72,7 +72,7 @@ class AbstractProgress:
 class Translation:
     """An ESTD with the book-keeping that traces it back to its ATD."""
 
-    atd: Atd
+    atd: Atd | None  # None when rebuilt from a received ESTD (abstraction/estd.py)
     robot: str
     estd: TaskGraph
     states: Mapping[str, str]  # ESTD node id -> ATD state name

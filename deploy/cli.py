@@ -15,6 +15,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 from rich.logging import RichHandler
+from rich.markup import escape
 from rich.table import Table
 
 from contactflow.nodes.keys import KeySpace
@@ -92,11 +93,11 @@ def list_nodes(site: Site = None, connect: Connect = None, wait: float = 1.3) ->
     sub.close()
     t.close()
     table = Table(title=f"site {ks.site}: {len(nodes)} nodes, {len(modules)} modules")
-    for col in ("host/node", "module", "layer", "state", "rate Hz", "steps", "rejected", "detail"):
+    for col in ("host/node", "module", "layer", "state", "rate Hz", "steps", "rejected", "gaps", "detail"):
         table.add_column(col)
     for n in sorted(nodes):
         host, node_name = n.split("/")[-2:]
-        table.add_row(f"[bold]{host}/{node_name}[/]", "", "", "[green]alive[/]", "", "", "", "")
+        table.add_row(f"[bold]{host}/{node_name}[/]", "", "", "[green]alive[/]", "", "", "", "", "")
         for m in sorted(modules):
             robot, mnode, mname = m.split("/")[-3:]
             if mnode != node_name:
@@ -104,8 +105,14 @@ def list_nodes(site: Site = None, connect: Connect = None, wait: float = 1.3) ->
             s = statuses.get(f"{robot}/{mnode}/{mname}")
             table.add_row("", f"{robot}/{mname}", s.layer if s else "?", str(s.state) if s else "?",
                           f"{s.rate_hz:g}" if s else "", str(s.steps) if s else "",
-                          str(s.rejected) if s else "", (s.detail[:40] if s else ""))
+                          str(s.rejected) if s else "", _gaps(s.gaps) if s else "", (s.detail[:40] if s else ""))
     console.print(table)
+
+
+def _gaps(gaps: dict[str, int]) -> str:
+    """Missed messages per input port, loss shown in red; "0" when nothing was missed."""
+    lost = {port: n for port, n in sorted(gaps.items()) if n}
+    return " ".join(f"[red]{port}:{n}[/]" for port, n in lost.items()) if lost else "0"
 
 
 @app.command()
@@ -139,16 +146,23 @@ def ctl(module: Annotated[str, typer.Argument(help="[robot/]module")],
     if not replies:
         console.print(f"[red]no module answers on {ks.control(r or robot, '*', mname)}[/]")
         raise typer.Exit(1)
+    failed = False
     for key, payload in replies:
-        reply = decode(payload, ControlReply, key)
+        try:
+            reply = decode(payload, ControlReply, key)
+        except WireError as exc:
+            console.print(f"[red]{escape(str(exc))}[/]")
+            failed = True
+            continue
         colour = "green" if reply.ok else "red"
-        console.print(f"[{colour}]{key}: {'ok' if reply.ok else reply.error}[/] state={reply.state}")
+        console.print(f"[{colour}]{escape(key)}: {'ok' if reply.ok else escape(reply.error)}[/] state={reply.state}")
         if reply.description:
-            console.print(reply.description)
+            console.print(escape(reply.description))
         elif reply.params:
             console.print(reply.params)
-        if not reply.ok:
-            raise typer.Exit(1)
+        failed = failed or not reply.ok
+    if failed:
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -164,13 +178,13 @@ def echo(keyexpr: Annotated[str, typer.Argument(help="key expression, e.g. 'cf/d
         try:
             view = to_builtins(decode_any(payload, key))
         except WireError as exc:
-            console.print(f"[red]{exc}[/]")
+            console.print(f"[red]{escape(str(exc))}[/]")
             return
         seen += 1
         if raw:
             console.print_json(json.dumps({"key": key, "msg": view}, default=str))
         else:
-            console.print(f"[cyan]{key}[/] {view}")
+            console.print(f"[cyan]{escape(key)}[/] {escape(str(view))}")
         if count and seen >= count:
             done.set()
 

@@ -6,23 +6,34 @@ Melfa and Baxter. Each robot station simulates its own world. The demo then disp
 (push the box away) and ATD 2 (pick the target behind it) with ``--on all``, shows the
 abstract progress and the fused contact events live, and writes a report folder:
 ``summary.json``, ``timeline.png``, ``contacts.png`` and the camera frames it received.
+
+Each station publishes its world's object poses on the evaluation keys (ground truth); the
+demo checks with them what each task physically did (the pushed box moved towards its
+target, the placed object ended near its place location). The exit code is non-zero unless
+every task was dispatched to every robot, ended in success on each, and passed those checks.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from rich.console import Console
 from rich.progress import Progress
 
+from contactflow.abstraction.atd import Atd, parse_atd
 from contactflow.abstraction.cli import progress_table
 from contactflow.abstraction.client import TaskFollow, close, dispatch
+from contactflow.abstraction.frames import TaskFrame, to_world
 from contactflow.abstraction.messages import AbstractProgressMsg
-from contactflow.embodiments.messages import DepthImage
+from contactflow.abstraction.primitives import AbstractPrimitive
+from contactflow.abstraction.profiles import PROFILES
+from contactflow.embodiments.messages import DepthImage, ObjectPoses
 from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
@@ -33,14 +44,51 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "abstraction" / "examples"
 ATDS = ("push_away.xml", "pick_place_behind.xml")
 ROBOTS = ("tombatossals", "melfa", "baxter")
 REC = "contactflow.recognition"
+QUICK_CAMERA_HZ = 0.25  # Hz of simulated time: --quick feeds the vision nodes fewer depth frames
+PUSH_PROGRESS = 0.02  # m, how much closer to its target (top view) a pushed object must end
+PLACE_TOLERANCE = 0.06  # m, how far (top view) from its place location a placed object may end (about its diameter)
+PLACE_HEIGHT = 0.02  # m, how far its centre may end above or below the place location (fallen over: further)
+Positions = Mapping[str, Sequence[float]]  # object name -> world position (m)
 
 
-def agent(robot: str) -> dict:
+def physical_checks(atd: Atd, frame: TaskFrame, before: Positions, after: Positions) -> list[dict]:
+    """What the ATD's push and place states should have done to their objects, checked on ground truth."""
+    world = to_world(atd, frame)
+    out = []
+    for state in world.states:
+        if state.type not in (AbstractPrimitive.PUSH, AbstractPrimitive.PLACE) or state.goal is None:
+            continue
+        obj = world.object_of(state)
+        if obj is None:
+            continue
+        check: dict = {"state": state.name, "kind": str(state.type), "object": obj.name,
+                       "goal": [round(v, 4) for v in state.goal]}
+        if obj.name not in before or obj.name not in after:
+            out.append({**check, "ok": False, "why": f"no ground truth for {obj.name!r}"})
+            continue
+        d0, d1 = (math.dist(p[:2], state.goal[:2]) for p in (before[obj.name], after[obj.name]))
+        check.update(start=[round(float(v), 4) for v in before[obj.name]],
+                     end=[round(float(v), 4) for v in after[obj.name]],
+                     distance_before=round(d0, 4), distance_after=round(d1, 4))
+        if state.type is AbstractPrimitive.PUSH:
+            ok = d1 <= d0 - PUSH_PROGRESS
+            why = f"moved {d0 - d1:.3f} m towards its target (needs {PUSH_PROGRESS} m)"
+        else:
+            dz = float(after[obj.name][2]) - state.goal[2]
+            ok = d1 <= PLACE_TOLERANCE and abs(dz) <= PLACE_HEIGHT
+            why = (f"ended {d1:.3f} m from its place location (tolerance {PLACE_TOLERANCE} m), "
+                   f"{dz:+.3f} m in height (tolerance {PLACE_HEIGHT} m)")
+        out.append({**check, "ok": ok, "why": why})
+    return out
+
+
+def agent(robot: str, camera_hz: float = 1.0) -> dict:
     return {"name": "agent", "type": "robot_agent", "robot": robot,
-            "params": {"robot": robot, "executor": "sim", "realtime": 0.0, "scene": "thesis_7_3"}}
+            "params": {"robot": robot, "executor": "sim", "realtime": 0.0, "scene": "thesis_7_3",
+                       "camera_hz": camera_hz}}
 
 
-def layout(site: str) -> dict[str, dict]:
+def layout(site: str, camera_hz: float = 1.0) -> dict[str, dict]:
     """Node configurations: Tombatossals' three computers by role, one station per other robot."""
     hub = free_port()
 
@@ -54,7 +102,7 @@ def layout(site: str) -> dict[str, dict]:
     nodes = {
         "tombatossals_control": {"host": "control", "robot": "tombatossals", "zenoh": zen(hub, first=True),
                                  "modules": [{"name": "broker", "type": "broker", "robot": "site"},
-                                             agent("tombatossals")]},
+                                             agent("tombatossals", camera_hz)]},
         "tombatossals_vision3d": {"host": "vision3d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
             {"name": "cloud", "type": f"{REC}.services.cloud_builder:CloudBuilder", "inputs": {"depth": depth}},
             {"name": "plane", "type": f"{REC}.services.plane_detector:PlaneDetector", "inputs": {"cloud": "cloud.cloud"}},
@@ -67,8 +115,8 @@ def layout(site: str) -> dict[str, dict]:
             {"name": "shape", "type": f"{REC}.primitives.classify_shape:ClassifyShape", "autostart": True,
              "inputs": {"depth": depth, "objects": "objects.objects"}, "params": {"timeout": 0.0}},
         ]},
-        "melfa_station": {"host": "melfa_pc", "robot": "melfa", "zenoh": zen(free_port()), "modules": [agent("melfa")]},
-        "baxter_station": {"host": "baxter_pc", "robot": "baxter", "zenoh": zen(free_port()), "modules": [agent("baxter")]},
+        "melfa_station": {"host": "melfa_pc", "robot": "melfa", "zenoh": zen(free_port()), "modules": [agent("melfa", camera_hz)]},
+        "baxter_station": {"host": "baxter_pc", "robot": "baxter", "zenoh": zen(free_port()), "modules": [agent("baxter", camera_hz)]},
     }
     for name, cfg in nodes.items():
         cfg.update(site=site, node=name)
@@ -82,6 +130,7 @@ class Record:
     contacts: list[dict] = field(default_factory=list)
     objects: list[int] = field(default_factory=list)
     frames: list[DepthImage] = field(default_factory=list)
+    truth: dict[str, list[dict[str, list[float]]]] = field(default_factory=dict)  # robot -> object positions
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
@@ -149,11 +198,15 @@ def _plots(out: Path, rec: Record, tasks: list[dict]) -> None:
 
 
 def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
+    """Run the demo into ``out``; 0 only when both ATDs succeeded on every robot as checked on ground truth.
+
+    ``quick`` runs the same experiment with the stations' cameras at a lower rate (less vision work).
+    """
     console = console or Console()
     out.mkdir(parents=True, exist_ok=True)
     site = f"demo{int(time.time()) % 100000}"
     ks = KeySpace(site)
-    nodes = layout(site)
+    nodes = layout(site, camera_hz=QUICK_CAMERA_HZ if quick else 1.0)
     hub = nodes["tombatossals_control"]["zenoh"]["listen"][0]
     rec = Record()
     procs = {name: spawn_node(write_config(out / "config" / f"{name}.yaml", cfg), out / "logs" / f"{name}.log")
@@ -189,6 +242,23 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
         with rec.lock:
             rec.frames = rec.frames[-2:] + [msg]
 
+    def on_truth(key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, ObjectPoses, key)
+        except WireError:
+            return
+        poses = msg.poses.numpy()
+        if poses.shape != (len(msg.names), 4, 4):
+            return
+        robot = key.rsplit("/", 2)[-2]
+        with rec.lock:
+            rec.truth.setdefault(robot, []).append({n: [float(v) for v in poses[i, :3, 3]]
+                                                    for i, n in enumerate(msg.names)})
+
+    def truth_count(robot: str) -> int:
+        with rec.lock:
+            return len(rec.truth.get(robot, []))
+
     def on_progress(m: AbstractProgressMsg) -> None:
         with rec.lock:
             rec.progress.append({"t": round(time.time() - rec.t0, 3), "robot": m.robot, "kind": m.kind,
@@ -198,7 +268,8 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
 
     subs = [tool.subscribe(ks.fused("*", "events"), on_contact),
             tool.subscribe(ks.output("tombatossals", "*", "objects", "objects"), on_objects),
-            tool.subscribe(ks.output("tombatossals", "*", "agent", "depth"), on_depth)]
+            tool.subscribe(ks.output("tombatossals", "*", "agent", "depth"), on_depth),
+            tool.subscribe(ks.evaluation("*", "object_poses"), on_truth)]
     tasks: list[dict] = []
     code = 1
     try:
@@ -217,10 +288,11 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
         if not up:
             console.print("[red]not every robot came up; see the logs in[/] " + str(out / "logs"))
             return 1
-        for name in ATDS[:1] if quick else ATDS:
+        for name in ATDS:
             text = (EXAMPLES / name).read_text()
             console.rule(f"{name} --on all")
             t_dispatch = round(time.time() - rec.t0, 3)
+            seen = {r: truth_count(r) for r in ROBOTS}
             follow: TaskFollow = dispatch(tool, ks, text, name, target="all", on_progress=on_progress)
             if follow.reply is None or not follow.reply.ok:
                 console.print(f"[red]not dispatched:[/] {follow.reply.error if follow.reply else ''}")
@@ -230,15 +302,33 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
             from rich.live import Live
 
             with Live(progress_table(follow), console=console, refresh_per_second=4) as live:
-                deadline = time.monotonic() + (90 if quick else 120)
+                deadline = time.monotonic() + 150
                 while not follow.done.wait(0.25) and time.monotonic() < deadline:
                     live.update(progress_table(follow))
                 live.update(progress_table(follow))
+
+            def settled(follow: TaskFollow = follow, seen: dict[str, int] = seen) -> bool:
+                # a robot's last report may arrive after the broker's, and its world (published just
+                # before that report) after either
+                finals = {m.robot for m in follow.progress if m.final and m.robot != "broker"}
+                return finals >= set(follow.reply.robots) and all(truth_count(r) > seen[r] for r in finals)
+
+            wait_for(settled, timeout=5)
             close(follow)
             outcomes = {m.robot: m.outcome for m in follow.progress if m.final and m.robot != "broker"}
+            physical = {}
+            atd = parse_atd(text, name)
+            for r in sorted(outcomes):
+                with rec.lock:
+                    snaps = list(rec.truth.get(r, []))
+                before = snaps[seen[r] - 1] if seen[r] > 0 else (snaps[0] if snaps else {})
+                physical[r] = physical_checks(atd, PROFILES[r].task_frame, before, snaps[-1] if snaps else {})
+            ok = (follow.final is not None and sorted(follow.reply.robots) == sorted(ROBOTS)
+                  and all(outcomes.get(r) == "success" for r in ROBOTS)
+                  and all(c["ok"] for checks in physical.values() for c in checks))
             tasks.append({"atd": name, "t_dispatch": t_dispatch, "dispatched": True, "robots": follow.reply.robots,
-                          "outcomes": outcomes, "finished": follow.final is not None})
-        code = 0 if tasks and all(t.get("finished") for t in tasks) else 1
+                          "outcomes": outcomes, "finished": follow.final is not None, "physical": physical, "ok": ok})
+        code = 0 if len(tasks) == len(ATDS) and all(t.get("ok") for t in tasks) else 1
     finally:
         for s in subs:
             s.close()
@@ -247,7 +337,7 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
             stop_process(p)
     with rec.lock:
         _plots(out, rec, tasks)
-        summary = {"site": site, "duration_s": round(time.time() - rec.t0, 1), "nodes": sorted(nodes),
+        summary = {"site": site, "ok": code == 0, "duration_s": round(time.time() - rec.t0, 1), "nodes": sorted(nodes),
                    "tasks": tasks, "contact_events": len(rec.contacts),
                    "contacts_by_robot": {r: sum(c["robot"] == r for c in rec.contacts) for r in ROBOTS},
                    "vision_objects_seen": rec.objects[-10:], "camera_frames": len(rec.frames),
@@ -255,6 +345,14 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     console.rule("report")
     for t in tasks:
-        console.print(f"{t['atd']}: " + ", ".join(f"{r}: {o}" for r, o in sorted(t.get("outcomes", {}).items())))
+        colour = "green" if t.get("ok") else "red"
+        console.print(f"[{colour}]{t['atd']}[/]: "
+                      + ", ".join(f"{r}: {o}" for r, o in sorted(t.get("outcomes", {}).items())))
+        for r, checks in sorted(t.get("physical", {}).items()):
+            for c in checks:
+                console.print(f"  {r} {c['state']} ({c['object']}): {'ok' if c['ok'] else 'FAILED'}, {c['why']}")
+    if code:
+        console.print("[red]the demo failed:[/] not every task ended in success on every robot "
+                      "with the expected physical result")
     console.print(f"{len(rec.contacts)} contact events; report in {out} (summary.json, timeline.png, contacts.png)")
     return code

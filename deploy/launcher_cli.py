@@ -1,7 +1,8 @@
-"""``contactflow deploy up|status|stop|certs``: run a manifest's nodes under supervision.
+"""``contactflow deploy [up] MANIFEST --host NAME|--local``, ``status``, ``stop``, ``certs``.
 
-``contactflow deploy up MANIFEST --host NAME`` is the documented form of the issue's
-``contactflow deploy MANIFEST --host NAME``.
+``contactflow deploy MANIFEST --host NAME`` (the issue's form) and ``contactflow deploy up
+MANIFEST --host NAME`` are the same command: a first argument that names no subcommand is
+the manifest of ``up``.
 """
 
 from __future__ import annotations
@@ -16,14 +17,27 @@ import time
 from pathlib import Path
 from typing import Annotated
 
+import click
 import typer
 from rich.console import Console
 from rich.table import Table
+from typer.core import TyperGroup
 
 from contactflow.deploy.manifest import DEFAULT_MANIFEST, ConfigError, Manifest, load_manifest
 
-app = typer.Typer(help="Deploy a manifest: supervised node processes per host, status, stop, certificates.",
-                  no_args_is_help=True, pretty_exceptions_show_locals=False)
+
+class _UpByDefault(TyperGroup):
+    """A group whose first argument, when it names no subcommand, is the manifest of ``up``."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        if args and not args[0].startswith("-") and args[0] not in self.commands:
+            args = ["up", *args]
+        return super().parse_args(ctx, args)
+
+
+app = typer.Typer(help="Deploy a manifest: supervised node processes per host, status, stop, certificates. "
+                       "`contactflow deploy MANIFEST --host NAME` is short for `contactflow deploy up MANIFEST --host NAME`.",
+                  no_args_is_help=True, pretty_exceptions_show_locals=False, cls=_UpByDefault)
 console = Console()
 
 ManifestArg = Annotated[Path, typer.Argument(help="deployment manifest (YAML)")]
@@ -51,7 +65,10 @@ def up(manifest: ManifestArg, host: Annotated[str | None, typer.Option(help="sta
        run_dir: RunDir = None,
        detach: Annotated[bool, typer.Option(help="run the supervisor in the background and return")] = False,
        wait: Annotated[float, typer.Option(help="with --detach: seconds to wait for every node's liveliness")] = 30.0) -> None:
-    """Start a host's nodes (or all, --local) under supervision; Ctrl-C / SIGTERM stops them."""
+    """Start a host's nodes (or all, --local) under supervision; Ctrl-C / SIGTERM stops them.
+
+    `contactflow deploy MANIFEST --host NAME` (without `up`) does the same.
+    """
     from contactflow.deploy.launcher import LOCAL, render
     from contactflow.deploy.security import SecurityError
     from contactflow.deploy.supervisor import Supervisor, pid_alive, read_state

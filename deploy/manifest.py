@@ -105,8 +105,18 @@ class Security:
 
     @property
     def acl(self) -> bool:
-        """Access control needs every link's peer identified: mTLS certificates (both ways)."""
-        return self.transport == "mtls"
+        """Access control needs the peer of every link identified on both of its ends.
+
+        mTLS certificates identify both sides. With ``tls`` + ``usrpwd`` the side that accepted
+        a link knows the other's user name (password-checked) and the side that opened it knows
+        the listener's certificate common name; plain ``tcp`` leaves the opener blind.
+        """
+        return self.transport == "mtls" or (self.transport == "tls" and self.auth == "usrpwd")
+
+    @property
+    def rules(self) -> bool:
+        """The manifest names hosts with special rights (brokers, dispatch clients, observers)."""
+        return bool(self.broker or self.dispatch_clients or self.observers)
 
 
 @dataclass(frozen=True)
@@ -277,6 +287,11 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
                     raise doc.error(sp + (fld, i), f"host {hname!r} is not in hosts")
         sec = Security(_choice(doc, sp + ("transport",), TRANSPORTS, "tcp"), _choice(doc, sp + ("auth",), AUTHS, "none"),
                        certs_path.resolve(), lists["broker"], lists["dispatch_clients"], lists["observers"])
+        if sec.rules and not sec.acl:
+            fld = next(f for f in ("broker", "dispatch_clients", "observers") if lists[f])
+            raise doc.error(sp + (fld,), f"access rules need every link's peer identified on both ends, which transport "
+                            f"{sec.transport!r} with auth {sec.auth!r} cannot do: use transport mtls, or transport tls "
+                            f"with auth usrpwd (or drop broker, dispatch_clients and observers to run without access control)")
     return Manifest(site, hosts, robots, topo, sec, doc.file)
 
 

@@ -1,8 +1,14 @@
 """Zenoh JSON5 configurations from a manifest: lease, TLS / mTLS, usrpwd and access control.
 
-Access control (only with ``transport: mtls``, whose certificates identify the peer of every
-link in both directions; a usrpwd user name is only known to the side that accepted the
-link) denies by default and allows, per host (certificate common name = host name):
+Access control needs the peer of every link identified on both of its ends. ``transport:
+mtls``: certificates identify both sides (subject: certificate common name = host name).
+``transport: tls`` with ``auth: usrpwd``: the side that accepted a link knows the opener's
+user name (checked against the password file; subject: user name = host name) and the side
+that opened it knows the listener's certificate common name, so each host has two subjects.
+A usrpwd user without a certificate (a guest) is therefore known only where it connects, and
+gets no rule there. Plain ``tcp`` cannot identify the listener, so a manifest with access
+rules on it is refused at validation. The generated control denies by default and allows,
+per host:
 
 * members (every host that is not an observer): publish / subscribe / liveliness on the
   site's module, contact, clock and evaluation streams; control queries to every module of
@@ -100,6 +106,9 @@ class Grants:
 
 def access_control(m: Manifest) -> dict[str, Any]:
     """The ``access_control`` section shared by every node of the manifest."""
+    if not m.security.acl:
+        raise SecurityError(f"{m.file}: transport {m.security.transport!r} with auth {m.security.auth!r} "
+                            "cannot identify peers; access control needs mtls, or tls with usrpwd")
     ks = KeySpace(m.site)
     observers = set(m.security.observers)
     brokers = set(m.security.broker)
@@ -144,11 +153,15 @@ def access_control(m: Manifest) -> dict[str, Any]:
 
     rules: list[dict[str, Any]] = []
     policies = []
+    by_user = m.security.transport != "mtls"  # tls + usrpwd: the listener knows only the user name
     for h, g in grants.items():
         rs = g.rules(h)
         rules += rs
-        policies.append({"id": f"policy-{h}", "rules": [r["id"] for r in rs], "subjects": [f"host-{h}"]})
+        subjects = [f"host-{h}"] + ([f"user-{h}"] if by_user else [])
+        policies.append({"id": f"policy-{h}", "rules": [r["id"] for r in rs], "subjects": subjects})
     subjects = [{"id": f"host-{h}", "cert_common_names": [h]} for h in m.hosts]
+    if by_user:
+        subjects += [{"id": f"user-{h}", "usernames": [h]} for h in m.hosts]
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 

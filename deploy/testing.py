@@ -1,4 +1,4 @@
-"""Helpers for deployment tests and benchmarks: a probe client, a test beacon module, a lab deployment."""
+"""Helpers for deployment tests and benchmarks: a probe client, test source modules, a lab deployment."""
 
 from __future__ import annotations
 
@@ -12,16 +12,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from contactflow.deploy.launcher import default_run_dir
 from contactflow.deploy.manifest import Manifest, load_manifest
 from contactflow.deploy.netns import NetLab
 from contactflow.deploy.supervisor import read_state
-from contactflow.nodes.module import Layer, Module
+from contactflow.embodiments.messages import TactileArray, TaxelPoses
+from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Event, Status
+from contactflow.nodes.wire import NDArray
 
 BEACON = "contactflow.deploy.testing:Beacon"
+TAP_PAD = "contactflow.deploy.testing:TapPad"
 
 
 class Beacon(Module):
@@ -43,12 +47,67 @@ class Beacon(Module):
         return Status.RUNNING
 
 
+class TapPad(Module):
+    """Test sensor: one tactile pad, flat at a fixed world pose, pressed and released in turn.
+
+    It stands in for a hand's tactile driver and pose publisher so that the real tactile
+    generator and contact fusion downstream turn each press into ``contact_made`` and each
+    release into ``contact_broken`` (a steady stream of contact events for loss checks).
+    """
+
+    layer = Layer.SERVICE
+    outputs = (Port("tactile", TactileArray, "pressure image of the pad, N per taxel"),
+               Port("taxels", TaxelPoses, "world positions and normals of the pad's taxels"))
+
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 30.0  # Hz, readings per second
+        robot: str = "robot"  # robot the pad belongs to
+        hand: str = "hand"  # hand name of the readings
+        press_s: float = 0.2  # s, pressed time per cycle
+        release_s: float = 0.2  # s, released time per cycle
+        force: float = 2.0  # N per taxel while pressed
+        taxels: int = 3  # taxels per side of the square pad
+        pitch: float = 0.005  # m, taxel spacing
+        origin: tuple[float, ...] = (0.5, 0.0, 0.8)  # m, world position of the pad's first taxel
+
+    def start(self) -> None:
+        p = self.params
+        if p.press_s <= 0 or p.release_s <= 0 or p.taxels < 1:
+            raise ValueError(f"{self.name}: press_s, release_s and taxels must be positive")
+        grid = np.stack(np.meshgrid(np.arange(p.taxels), np.arange(p.taxels), indexing="ij"), axis=-1) * p.pitch
+        pos = np.zeros((1, p.taxels, p.taxels, 3))
+        pos[0, :, :, :2] = grid
+        pos += np.asarray(p.origin, dtype=float)
+        normals = np.zeros_like(pos)
+        normals[..., 2] = 1.0
+        self._poses = TaxelPoses(robot=p.robot, hand=p.hand, t=0.0, pads=["pad"], positions=NDArray.of(pos),
+                                 normals=NDArray.of(normals))
+        self._t0 = self.io.now
+
+    def step(self) -> Status:
+        p = self.params
+        pressed = (self.io.now - self._t0) % (p.press_s + p.release_s) < p.press_s
+        self.io.publish("taxels", self._poses)
+        pressure = np.full((1, p.taxels, p.taxels), p.force if pressed else 0.0)
+        self.io.publish("tactile", TactileArray(hand=p.hand, pads=["pad"], pressure=NDArray.of(pressure)))
+        return Status.RUNNING
+
+
+_PROBE_WITH = "import importlib, sys\nfor m in {mods!r}: importlib.import_module(m)\nfrom contactflow.deploy.probe import main\nsys.exit(main())"
+
+
 class ProbeClient:
-    """Drives one ``contactflow.deploy.probe`` process; every wait is bounded in time."""
+    """Drives one ``contactflow.deploy.probe`` process; every wait is bounded in time.
+
+    ``messages`` names modules of message types the probe must decode besides the runtime's
+    (a message type is known once its module is imported), e.g. ``contactflow.fusion.messages``.
+    """
 
     def __init__(self, prefix: list[str], connect: list[str], config: Path | None = None, name: str = "probe", stderr: Any = subprocess.DEVNULL,
-                 ready_timeout: float = 15.0) -> None:
-        argv = [sys.executable, "-m", "contactflow.deploy.probe", "--name", name]
+                 ready_timeout: float = 15.0, messages: tuple[str, ...] = ()) -> None:
+        main = ["-c", _PROBE_WITH.format(mods=tuple(messages))] if messages else ["-m", "contactflow.deploy.probe"]
+        argv = [sys.executable, *main, "--name", name]
         for e in connect:
             argv += ["--connect", e]
         if config is not None:
@@ -141,14 +200,14 @@ def lab_manifest(path: Path, lab: NetLab, hosts: dict[str, dict[str, Any]], **to
 
 
 class LabDeployment:
-    """``contactflow deploy up MANIFEST --host H`` started inside each host's namespace."""
+    """``contactflow deploy MANIFEST --host H`` started inside each host's namespace."""
 
     def __init__(self, lab: NetLab, manifest: Manifest, run_dir: Path) -> None:
         self.lab, self.m, self.run_dir = lab, manifest, run_dir
         self.supervisors: dict[str, subprocess.Popen] = {}
 
     def up(self, host: str) -> None:
-        argv = [sys.executable, "-m", "contactflow.deploy.cli", "deploy", "up", self.m.file, "--host", host,
+        argv = [sys.executable, "-m", "contactflow.deploy.cli", "deploy", self.m.file, "--host", host,
                 "--run-dir", str(self.run_dir)]
         log = open(self.run_dir / f"supervisor-{host}.log", "ab")  # noqa: SIM115 - handed to the child
         self.supervisors[host] = subprocess.Popen(self.lab.wrap(host, argv), stdout=log, stderr=subprocess.STDOUT)
@@ -180,4 +239,4 @@ class LabDeployment:
                 p.wait(3)
 
 
-__all__ = ["BEACON", "Beacon", "LabDeployment", "ProbeClient", "default_run_dir", "lab_manifest"]
+__all__ = ["BEACON", "TAP_PAD", "Beacon", "LabDeployment", "ProbeClient", "TapPad", "default_run_dir", "lab_manifest"]

@@ -57,11 +57,18 @@ class FaultMonitor:
             if long.any():
                 i = int(np.nonzero(long)[0][0])
                 return Fault("stuck_joint", f"joint {self.names[i]} does not follow (error {err[i]:.3f})")
-            for name, stamp in (sensor_stamps or {}).items():
-                if t - stamp > p.sensor_timeout:
-                    return Fault("sensor_loss", f"sensor {name} silent for {t - stamp:.2f} s")
+            silent = self.silent_streams(t, sensor_stamps or {})
+            if silent is not None:
+                return silent
         except (ValueError, FloatingPointError, IndexError) as exc:
             return Fault("nan", f"state check failed: {exc}")
+        return None
+
+    def silent_streams(self, t: float, stamps: dict[str, float]) -> Fault | None:
+        """A sensor whose latest sample is older than ``sensor_timeout`` has lost its stream."""
+        for name, stamp in stamps.items():
+            if t - stamp > self.params.sensor_timeout:
+                return Fault("sensor_loss", f"sensor {name} silent for {t - stamp:.2f} s")
         return None
 
     def reset(self) -> None:

@@ -65,11 +65,45 @@ class DepthImage(Message, tag="depth_image"):
 
 
 class PointCloud(Message, tag="point_cloud"):
-    """World-frame points (N, 3) float32."""
+    """World-frame points (N, 3) float32; ``origin`` is the sensor's viewpoint [x, y, z] (empty when unknown)."""
 
     max_bytes = 16 << 20
     points: NDArray
     frame: str = "world"
+    origin: list[float] = []
+    sensor: str = ""
+
+
+class RobotModel(Message, tag="robot_model"):
+    """The spherical robot model (App. B) posed from one joint state, world frame.
+
+    One bi-sphere per link (``c1``, ``r1``, ``c2``, ``r2``; a sphere has ``c1 == c2``) and the
+    world poses of named frames (sensor links) at the same joint state; ``t`` is the time of
+    that joint state.
+    """
+
+    max_bytes = 4 << 20
+    robot: str
+    t: float
+    links: list[str]
+    c1: NDArray  # (m, 3) float64, m
+    r1: NDArray  # (m,) float64, m
+    c2: NDArray  # (m, 3) float64, m
+    r2: NDArray  # (m,) float64, m
+    frames: list[str] = []
+    poses: NDArray | None = None  # (k, 4, 4) float64, world pose of each of ``frames``
+
+
+class TaxelPoses(Message, tag="taxel_poses"):
+    """World position and outward normal of every taxel of one hand, laid out like ``TactileArray.pressure``."""
+
+    max_bytes = 4 << 20
+    robot: str
+    hand: str
+    t: float  # s, time of the joint state the taxels were posed from
+    pads: list[str]
+    positions: NDArray  # (pads, rows, cols, 3) float64, m, world
+    normals: NDArray  # (pads, rows, cols, 3) float64, unit, world
 
 
 class ObjectPoses(Message, tag="object_poses"):

@@ -168,11 +168,17 @@ class ArmHandle(_Commanded):
         self._guard = ForceWatch(max_force)
         self._start("guarded")
 
-    def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal"):
-        """OMPL plan from the current commanded joints to a joint goal or a 4x4 pose of the controlled frame."""
+    def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
+             obstacles: tuple = (), cloud: np.ndarray | None = None):
+        """OMPL plan from the current commanded joints to a joint goal or a 4x4 pose of the controlled frame.
+
+        Collision-checked against the given ``obstacles`` (planning ``Obstacle`` records) and
+        point ``cloud`` (N, 3) plus the cell's fixtures (the table): what the caller sensed.
+        """
         from contactflow.embodiments.control.planning import plan_arm
 
-        return plan_arm(self.robot, self, goal, planner=planner, timeout=timeout, checker=checker)
+        return plan_arm(self.robot, self, goal, planner=planner, timeout=timeout, checker=checker,
+                        obstacles=obstacles, cloud=cloud)
 
     # -- control tick ----------------------------------------------------------------------
     def _tick(self, dt: float) -> None:
@@ -328,8 +334,6 @@ class SimRobot:
         self.failed = False
         self.failure = ""
         self.events: list[tuple[float, Event, str]] = []
-        self._sensor_stamps: dict[str, float] = {}
-        self._lost: set[str] = set()
         self._nan_injected = False
         self._every = max(1, int(round(1.0 / (self.params.control_rate * world.params.timestep))))
         world.add_hook(self._hook)
@@ -392,16 +396,26 @@ class SimRobot:
             sensor = self._tactile[hand]
         except KeyError:
             raise KeyError(f"robot {self.name}: no hand {hand!r}") from None
-        return sensor.read(self.world.contacts(), self.world.params.timestep)
+        return sensor.sample(self.time, self.world.contacts(), self.world.params.timestep)
 
     def finger_positions(self, hand: str) -> np.ndarray:
         return self.hand(hand).positions()
 
-    def camera(self, name: str = "kinect") -> DepthFrame:
+    def _camera(self, name: str) -> RaycastCamera:
         if name not in self._cameras:
             spec = self.spec.camera(name)
             self._cameras[name] = RaycastCamera(self.world, spec, self.art.links[spec.link])
-        return self._cameras[name].read(self.time)
+        return self._cameras[name]
+
+    def camera(self, name: str = "kinect") -> DepthFrame:
+        """The latest frame; a frame older than the sensor timeout means the stream is lost (hardware failure)."""
+        cam = self._camera(name)
+        frame = cam.read(self.time)
+        # the camera streams while someone reads it: its watchdog runs on each request
+        fault = self.monitor.silent_streams(self.time, {f"camera {name}": cam.stamp})
+        if fault is not None and not self.failed:
+            self._fail(fault)
+        return frame
 
     def ground_truth(self) -> GroundTruth:
         """Object poses and true contacts — evaluation only."""
@@ -474,10 +488,7 @@ class SimRobot:
         if self._nan_injected:
             q = q.copy()
             q[0] = np.nan
-        for name in list(self._ft_of_arm) + list(self._tactile):
-            if name not in self._lost:
-                self._sensor_stamps[name] = self.time
-        fault = self.monitor.check(self.time, q, qd, self.art.target, self._sensor_stamps)
+        fault = self.monitor.check(self.time, q, qd, self.art.target, self._poll_streams())
         if fault is not None:
             self._fail(fault)
             return
@@ -499,6 +510,22 @@ class SimRobot:
             idx = np.nonzero(mask)[0]
             self.art.set_targets(idx, mq[idx], mqd[idx])
 
+    def _poll_streams(self) -> dict[str, float]:
+        """Take the F/T and tactile streams' samples at the control rate; the stamps of their latest samples."""
+        stamps = {}
+        for arm, f in self._ft_of_arm.items():
+            if f.spec.estimated and not self._nan_injected:
+                self._sync_kin()
+            f.read(self.time)
+            stamps[f"F/T {arm}"] = f.stamp
+        contacts = None
+        for hand, tac in self._tactile.items():
+            if tac.pads:
+                contacts = self.world.contacts() if contacts is None else contacts
+                tac.sample(self.time, contacts, self.world.params.timestep)
+                stamps[f"tactile {hand}"] = tac.stamp
+        return stamps
+
     def _fail(self, fault: Fault) -> None:
         self.failed = True
         self.failure = f"{fault.kind}: {fault.detail}"
@@ -516,7 +543,8 @@ class SimRobot:
 
     def inject_fault(self, kind: str, joint: str | None = None, sensor: str | None = None) -> None:
         """Test hook: ``nan`` (encoders return NaN), ``explode`` (a joint is kicked to a huge speed),
-        ``stuck_joint`` (a joint is locked where it is), ``sensor_loss`` (a sensor stops sampling)."""
+        ``stuck_joint`` (a joint is locked where it is), ``sensor_loss`` (``sensor`` = an arm's F/T, a hand's
+        tactile arrays or a camera stops producing samples)."""
         if kind == "nan":
             self._nan_injected = True
         elif kind == "explode":
@@ -528,9 +556,17 @@ class SimRobot:
             q = float(self.art.qpos()[i])
             self.art.joints[i].set_limits([[q - 1e-4, q + 1e-4]])
         elif kind == "sensor_loss":
+            # the sensor itself stops producing samples; the stream watchdog has to notice
             name = sensor or next(iter(self._ft_of_arm), "")
-            if name not in self._ft_of_arm and name not in self._tactile:
-                raise ValueError(f"robot {self.name}: no sensor {name!r} (F/T by arm: {list(self._ft_of_arm)}, tactile: {list(self._tactile)})")
-            self._lost.add(name)
+            cameras = [c.name for c in self.spec.cameras]
+            if name in self._ft_of_arm:
+                self._ft_of_arm[name].lost = True
+            elif name in self._tactile and self._tactile[name].pads:
+                self._tactile[name].lost = True
+            elif name in cameras:
+                self._camera(name).lost = True
+            else:
+                raise ValueError(f"robot {self.name}: no sensor {name!r} (F/T by arm: {list(self._ft_of_arm)}, "
+                                 f"tactile by hand: {[h for h, t in self._tactile.items() if t.pads]}, cameras: {cameras})")
         else:
             raise ValueError(f"unknown fault kind {kind!r} (nan | explode | stuck_joint | sensor_loss)")

@@ -98,3 +98,18 @@ def interior_points(caps: np.ndarray, step: float, depth: float) -> np.ndarray:
         pts = grid_points(lo, hi, step)
         out.append(pts[capsule_distance(pts, cap[None]) < -depth])
     return np.unique(np.concatenate(out), axis=0) if out else np.zeros((0, 3))
+
+
+def capsule_surface(caps: np.ndarray, step: float, band: float | None = None) -> np.ndarray:
+    """Grid points (cell ``step``, one global grid) within ``band`` of the surface of the union of
+    bi-spheres (default half a cell diagonal), gridding each part's own bounding box."""
+    caps = check_capsules(caps)
+    band = step * np.sqrt(3) / 2 if band is None else band
+    out = []
+    for cap in caps:
+        r = max(cap[3], cap[7]) + band
+        lo = np.floor((np.minimum(cap[0:3], cap[4:7]) - r) / step) * step
+        hi = np.maximum(cap[0:3], cap[4:7]) + r
+        pts = grid_points(lo, hi, step)
+        out.append(pts[np.abs(capsule_distance(pts, caps)) <= band])
+    return np.unique(np.concatenate(out), axis=0) if out else np.zeros((0, 3))

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from contactflow.fusion.generators.force_torque import ForceTorqueParams, ft_hypotheses
+from contactflow.fusion.generators.force_torque import ForceTorqueParams, ft_hypotheses, hand_box
 from contactflow.fusion.geometry import distance_fn
 from contactflow.fusion.hypotheses import Hypotheses
 
@@ -27,19 +27,13 @@ def hand_capsules(robot, link_prefixes: Sequence[str]) -> np.ndarray:
 
 def taxel_readings(robot, hand: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(pressure (n,), world taxel positions (n,3), world normals (n,3)) of every pad of ``hand``."""
-    from contactflow.embodiments.sensors.tactile import _pad_axes, taxel_positions
+    from contactflow.embodiments.modules.model_publisher import pad_taxels
 
     pressures, positions, normals = [], [], []
     readings = robot.tactile(hand)
     for pad in robot.spec.hand(hand).pads:
         T = robot.frame_pose(pad.link)
-        local = taxel_positions(pad).reshape(-1, 3)
-        n, _, _ = _pad_axes(pad)
-        if pad.radius > 0:
-            c = np.asarray(pad.origin) - pad.radius * n
-            nl = (local - c) / np.linalg.norm(local - c, axis=1, keepdims=True)
-        else:
-            nl = np.tile(n, (local.shape[0], 1))
+        local, nl = (a.reshape(-1, 3) for a in pad_taxels(pad))
         positions.append(local @ T[:3, :3].T + T[:3, 3])
         normals.append(nl @ T[:3, :3].T)
         pressures.append(readings[pad.name].ravel())
@@ -53,9 +47,6 @@ def wrist_hypotheses(robot, arm: str, ft_link: str, caps: np.ndarray, now: float
     """F/T hypotheses (eq. 4.8-4.9) inside the hand's bounding box; also the raw wrench used."""
     T_s = robot.frame_pose(ft_link)
     f_s, tau_s = robot.ft(arm).in_sensor_frame()
-    local = np.concatenate([caps[:, 0:3], caps[:, 4:7]]) - T_s[:3, 3]
-    local = local @ T_s[:3, :3]
-    r = np.concatenate([caps[:, 3], caps[:, 7]])[:, None]
-    params = ForceTorqueParams(box_lo=tuple((local - r).min(axis=0)), box_hi=tuple((local + r).max(axis=0)),
-                               surface_band=band)
+    lo, hi = hand_box(caps, T_s)
+    params = ForceTorqueParams(box_lo=lo, box_hi=hi, surface_band=band)
     return ft_hypotheses(f_s, tau_s, T_s, distance_fn(caps), now, params), (f_s, tau_s, T_s, caps)

@@ -3,7 +3,10 @@
 Runs beside the simulated robot at a fixed rate (thesis: fusion cycles at ~6-30 Hz): each
 hand's pads and each arm's wrist sensor are sources of one integrator; condensation and the
 event tracker turn the fused cloud into ``contact_made``/``contact_broken`` events that the
-station publishes on ``contacts/fused/<robot>/events``.
+station publishes on ``contacts/fused/<robot>/events``. Every cycle each source's hypothesis
+cloud (empty when it feels nothing) also goes out on ``contacts/<robot>/<generator>``
+(generators ``tactile_<arm>``, ``force_torque_<arm>``), so ``contactflow echo`` and other
+robots' integrators see them; :func:`cloud_publisher` sends them over a transport.
 """
 
 from __future__ import annotations
@@ -16,8 +19,30 @@ import numpy as np
 from contactflow.fusion.condensation import CondensationParams, condense
 from contactflow.fusion.events import ContactEvent, ContactTracker, TrackerParams
 from contactflow.fusion.generators.tactile import tactile_hypotheses
+from contactflow.fusion.hypotheses import Hypotheses
 from contactflow.fusion.integrator import Integrator, IntegratorParams
+from contactflow.fusion.messages import HypothesisCloud
 from contactflow.fusion.sim_sources import hand_capsules, taxel_readings, wrist_hypotheses
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.transport import Transport
+from contactflow.nodes.wire import encode, stamp
+
+CloudSink = Callable[[str, HypothesisCloud], None]
+"""Receives (key expression, cloud) for every generator cloud of a cycle."""
+
+
+def cloud_publisher(transport: Transport, source: str) -> CloudSink:
+    """A :data:`CloudSink` publishing each cloud on its key, stamped with ``source`` and the cloud's time."""
+    pubs: dict[str, Callable[[bytes], None]] = {}
+    seqs: dict[str, int] = {}  # per key: each stream numbers its own messages, so gaps mean loss
+
+    def send(key: str, cloud: HypothesisCloud) -> None:
+        if key not in pubs:
+            pubs[key] = transport.publisher(key)
+        seqs[key] = seqs.get(key, 0) + 1
+        pubs[key](encode(stamp(cloud, f"{source}/{cloud.generator}", seqs[key], cloud.stamp)))
+
+    return send
 
 
 @dataclass(frozen=True)
@@ -45,6 +70,8 @@ class StationFusion:
     publish: Callable[[ContactEvent], None]
     params: StationParams = field(default_factory=StationParams)
     events: list[ContactEvent] = field(default_factory=list)
+    publish_cloud: CloudSink | None = None
+    keyspace: KeySpace = field(default_factory=KeySpace)
 
     def __post_init__(self) -> None:
         spec = self.robot.spec
@@ -72,16 +99,28 @@ class StationFusion:
         self._next = now + 1.0 / self.params.rate_hz
         for cue in self.cues:
             pressure, taxels, normals = taxel_readings(robot, cue.hand)
+            cloud = Hypotheses.empty(now)
             if pressure.size and float(pressure.max()) > 0:
                 cloud = tactile_hypotheses(pressure, taxels, now, normals)
-                self.integrator.offer(f"{cue.name}/tactile", cloud, now, self.name, cue.hand)
+                self._offer(f"tactile_{cue.name}", cloud, now, cue.hand)
+            self._send(f"tactile_{cue.name}", cloud, cue.hand)
             if cue.ft_link:
                 force = np.linalg.norm(robot.ft(cue.arm).in_sensor_frame()[0])
+                cloud = Hypotheses.empty(now)
                 if force >= cue.min_force:
                     caps = hand_capsules(robot, cue.links)
                     cloud, _ = wrist_hypotheses(robot, cue.arm, cue.ft_link, caps, now)
-                    self.integrator.offer(f"{cue.name}/ft", cloud, now, self.name, cue.hand)
+                    self._offer(f"force_torque_{cue.name}", cloud, now, cue.hand)
+                self._send(f"force_torque_{cue.name}", cloud, cue.hand)
         fused = self.integrator.integrate(now)
         for ev in self.tracker.update(condense(fused, self.condensation), now):
             self.events.append(ev)
             self.publish(ev)
+
+    def _offer(self, generator: str, cloud: Hypotheses, now: float, link: str) -> None:
+        self.integrator.offer(f"{self.name}/{generator}", cloud, now, self.name, link)
+
+    def _send(self, generator: str, cloud: Hypotheses, link: str) -> None:
+        if self.publish_cloud is not None:
+            self.publish_cloud(self.keyspace.hypotheses(self.name, generator),
+                               HypothesisCloud.of(cloud, self.name, generator, link))

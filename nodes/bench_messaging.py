@@ -22,6 +22,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.messages import Array
 from contactflow.nodes.procs import free_port
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
@@ -34,15 +35,20 @@ STACKS = ("raw", "contactflow")
 
 
 ROUNDS = 3  # each case runs this often, the stacks interleaved; the median is reported
+KS = KeySpace("bench")
 
 
 def _key(stack: str, size: str, phase: str, rnd: int = 0) -> str:
-    return f"bench/{stack}/{size}/{phase}/{rnd}"
+    return KS.bench(stack, size, phase, str(rnd))
 
 
 def subscriber(port: int) -> None:
-    """The receiving process: records arrivals per key, prints JSON stats on ``bench/done``."""
-    t = ZenohTransport(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",))).open()
+    """The receiving process: records arrivals per key, prints JSON stats on the done signal.
+
+    It connects to the publisher, which listens before starting it: a peer that connects
+    before the other side listens is only retried with a growing back-off (tens of seconds).
+    """
+    t = ZenohTransport(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",))).open()
     stats: dict[str, dict] = {}
     done = threading.Event()
     lock = threading.Lock()
@@ -67,10 +73,11 @@ def subscriber(port: int) -> None:
             return
         record(key, int(msg.hdr.t_wall * 1e9), now)
 
-    raw_sub = t.session.declare_subscriber("bench/raw/**", on_raw)
-    t.subscribe("bench/contactflow/**", on_ours)
-    t.subscribe("bench/done", lambda _k, _p: done.set())
-    t.token("bench/alive/sub")
+    raw_sub = t.session.declare_subscriber(KS.bench("raw"), on_raw)
+    # held until the end: a dropped liveliness token is withdrawn at once
+    handles = [t.subscribe(KS.bench("contactflow"), on_ours),
+               t.subscribe(KS.bench_signal("done"), lambda _k, _p: done.set()),
+               t.token(KS.bench_signal("ready"))]
     done.wait(600)
     out = {}
     for key, s in stats.items():
@@ -80,6 +87,8 @@ def subscriber(port: int) -> None:
                     "p50_us": float(np.percentile(lat, 50)), "p99_us": float(np.percentile(lat, 99))}
     print(json.dumps(out), flush=True)
     raw_sub.undeclare()
+    for h in handles:
+        h.close()
     t.close()
 
 
@@ -107,12 +116,14 @@ def _send(t: ZenohTransport, stack: str, size_name: str, phase: str, count: int,
 def run(out_dir: Path, quick: bool = False) -> dict:
     console = Console()
     port = free_port()
+    t = ZenohTransport(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",))).open()
     sub = subprocess.Popen([sys.executable, "-m", "contactflow.nodes.bench_messaging", "sub", str(port)],
                            stdout=subprocess.PIPE, text=True)
-    t = ZenohTransport(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",))).open()
     try:
         deadline = time.monotonic() + 30
-        while not t.alive("bench/alive/**") and time.monotonic() < deadline:
+        while not t.alive(KS.bench_signal("ready")):
+            if time.monotonic() > deadline or sub.poll() is not None:
+                raise RuntimeError(f"the benchmark's subscriber process did not come up (exit code {sub.poll()})")
             time.sleep(0.1)
         scale = 10 if quick else 1
         rounds = 1 if quick else ROUNDS
@@ -127,7 +138,7 @@ def run(out_dir: Path, quick: bool = False) -> dict:
                 _send(t, stack, size, "lat", n_lat, paced=True, rnd=rnd)
                 time.sleep(0.2)
                 progress.advance(task)
-        t.publisher("bench/done")(b"")
+        t.publisher(KS.bench_signal("done"))(b"")
         line, _ = sub.communicate(timeout=120)
     finally:
         t.close()

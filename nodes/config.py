@@ -10,12 +10,13 @@ Example::
     zenoh: {mode: peer, listen: [tcp/127.0.0.1:7501], connect: [], multicast_scouting: false}
     modules:
       - name: source
-        type: signal_source      # short name (see `contactflow new --list`) or pkg.mod:Class
+        type: signal_source      # short name, or pkg.mod:Class (also looked up next to this file)
         params: {rate_hz: 50, amplitude: 1.0}
       - name: filter
         type: lowpass
         inputs: {in: source.signal}        # [robot/]module.port, or a key expression cf/...
-        mix: {arm_left: 0.5}               # share a commanded resource with weight 0.5
+        mix: {arm_left: 0.5}               # share a commanded resource with weight 0.5; every
+                                           # module commanding arm_left must declare mixing
         autostart: true
 """
 
@@ -122,6 +123,20 @@ def parse_zenoh(doc: YamlDoc, path: tuple) -> ZenohSettings:
     )
 
 
+def mix_problem(cls: type[Module], resource: str) -> str:
+    """Why ``cls`` cannot mix ``resource`` by weight, or "" when it can."""
+    if resource not in cls.resources:
+        return f"{cls.__name__} commands no resource {resource!r} (resources: {list(cls.resources)})"
+    ports = [p for p in cls.outputs if p.resource == resource]
+    if not ports:
+        return (f"{cls.__name__} has no output port commanding {resource!r}, so there is no message "
+                f"to carry the mixing weight")
+    for p in ports:
+        if not p.mixable:
+            return f"{cls.__name__}.{p.name} sends {p.type.__name__}, which has no weight field to mix by"
+    return ""
+
+
 def _parse_module(doc: YamlDoc, path: tuple, robot_default: str) -> ModuleConfig:
     doc.mapping(path, _MODULE_KEYS)
     name = doc.get(path + ("name",), str)
@@ -132,8 +147,9 @@ def _parse_module(doc: YamlDoc, path: tuple, robot_default: str) -> ModuleConfig
             segment(value, what)
         except KeyExprError as exc:
             raise doc.error(path + (what,), str(exc)) from None
+    doc_file = Path(doc.file)
     try:
-        cls = resolve(type_name)
+        cls = resolve(type_name, doc_file.parent if doc_file.is_file() else None)
     except UnknownModuleType as exc:
         raise doc.error(path + ("type",), str(exc)) from None
     raw_params = doc.get(path + ("params",), dict, {})
@@ -165,6 +181,9 @@ def _parse_module(doc: YamlDoc, path: tuple, robot_default: str) -> ModuleConfig
         weight = doc.get(path + ("mix", res), float)
         if not 0.0 < weight <= 1.0:
             raise doc.error(path + ("mix", res), f"weight {weight} is not in (0, 1]")
+        problem = mix_problem(cls, res)
+        if problem:
+            raise doc.error(path + ("mix", res), problem)
         mix[res] = weight
     default_start = cls.autostart if cls.autostart is not None else cls.layer in (Layer.INTERFACE, Layer.SERVICE)
     autostart = doc.get(path + ("autostart",), bool, default_start)
@@ -200,4 +219,4 @@ def load_node_config(path: str | Path) -> NodeConfig:
     return parse_node_config(YamlDoc.load(path))
 
 
-__all__ = ["ConfigError", "ModuleConfig", "NodeConfig", "Source", "load_node_config", "parse_node_config"]
+__all__ = ["ConfigError", "ModuleConfig", "NodeConfig", "Source", "load_node_config", "mix_problem", "parse_node_config"]

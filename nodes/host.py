@@ -3,8 +3,8 @@
 One host runs inside each node process. It gives every module a :class:`HostedIO` (inputs
 decoded and validated, outputs stamped with provenance), steps running modules at their
 rate on the node's clock, publishes status, announces modules with liveliness tokens,
-arbitrates shared resources (thesis §6.6) and never lets a module's exception or a
-malformed message take the node down.
+arbitrates shared resources (thesis §6.6), counts sequence gaps per input and never lets a
+module's exception or a malformed message take the node down.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from contactflow.nodes.clock import SimClock, WallClock
-from contactflow.nodes.config import ModuleConfig, NodeConfig
-from contactflow.nodes.keys import KeySpace, ModuleAddr
+from contactflow.nodes.config import ModuleConfig, NodeConfig, mix_problem
+from contactflow.nodes.keys import KeyExprError, KeySpace, ModuleAddr
 from contactflow.nodes.messages import (
     Command,
     ControlReply,
@@ -31,10 +31,11 @@ from contactflow.nodes.module import LayerError, Module
 from contactflow.nodes.params import ParamError, params_dict
 from contactflow.nodes.status import STATUS_EVENT, Event, Status
 from contactflow.nodes.transport import Handle, Transport
-from contactflow.nodes.wire import Message, MsgId, WireError, decode, encode, stamp
+from contactflow.nodes.wire import Header, Message, MsgId, WireError, decode, encode, stamp
 
 STATUS_PERIOD = 1.0  # s between periodic status messages
 QUEUE_DEPTH = 256  # messages kept per input port between two steps
+MAX_SOURCES = 1024  # sources tracked per input port; bounds memory against hostile senders
 
 
 @dataclass
@@ -44,6 +45,34 @@ class Counters:
     published: int = 0
     steps: int = 0
     errors: int = 0
+    gaps: dict[str, int] = field(default_factory=dict)  # input port -> sequence numbers never received
+
+
+class SeqTracker:
+    """Follows the sequence number of every source on one input; a jump forward is a gap.
+
+    A number at or below 1 after a higher one is a restart of the source (a new process),
+    any other number not above the last is a duplicate; neither is loss. Seq 0 marks a
+    message nobody numbered (a hand-written client), which cannot reveal a gap.
+    """
+
+    def __init__(self, max_sources: int = MAX_SOURCES) -> None:
+        self.last: dict[str, int] = {}  # oldest-heard source first
+        self.max_sources = max_sources
+
+    def observe(self, hdr: Header) -> int:
+        """Record ``hdr``; the count of sequence numbers it shows were missed."""
+        if hdr.seq == 0:
+            return 0
+        prev = self.last.pop(hdr.source, None)
+        if prev is None:
+            if len(self.last) >= self.max_sources:
+                self.last.pop(next(iter(self.last)))  # forget the longest-silent source
+            self.last[hdr.source] = hdr.seq
+            return 0
+        restart = hdr.seq <= 1 < prev
+        self.last[hdr.source] = hdr.seq if hdr.seq > prev or restart else prev
+        return hdr.seq - prev - 1 if hdr.seq > prev else 0
 
 
 class HostedIO:
@@ -55,7 +84,9 @@ class HostedIO:
         self._lock = threading.Lock()
         self._latest: dict[str, Message] = {}
         self._queues: dict[str, deque[Message]] = {p.name: deque(maxlen=QUEUE_DEPTH) for p in hm.module.inputs}
+        self._trackers: dict[str, SeqTracker] = {p.name: SeqTracker() for p in hm.module.inputs}
         self._seqs: dict[str, int] = {}  # one counter per stream, so a gap on a stream means loss
+        hm.counters.gaps = {p.name: 0 for p in hm.module.inputs}
 
     @property
     def now(self) -> float:
@@ -74,10 +105,15 @@ class HostedIO:
     def node(self) -> str:
         return self._host.config.node
 
-    def deliver(self, port: str, msg: Message) -> None:
+    def deliver(self, port: str, msg: Message) -> int:
+        """Queue an input; returns how many sequence numbers of its source were missed before it."""
         with self._lock:
+            missed = self._trackers[port].observe(msg.hdr)
+            if missed:
+                self._hm.counters.gaps[port] += missed
             self._latest[port] = msg
             self._queues[port].append(msg)
+        return missed
 
     def latest(self, port: str) -> Message | None:
         with self._lock:
@@ -92,7 +128,7 @@ class HostedIO:
             q.clear()
             return out
 
-    def _next_seq(self, stream: str) -> int:
+    def next_seq(self, stream: str) -> int:
         n = self._seqs.get(stream, 0) + 1
         self._seqs[stream] = n
         return n
@@ -104,13 +140,16 @@ class HostedIO:
         if inputs is None:
             with self._lock:
                 inputs = [m.hdr.id for m in self._latest.values()]
-        stamp(msg, f"{self._hm.addr}/{port}", self._next_seq(port), self.now, inputs)
+        weight = self._hm.weights.get(port)
+        if weight is not None:  # the configuration mixes the resource this port commands
+            msg.weight = weight
+        stamp(msg, f"{self._hm.addr}/{port}", self.next_seq(port), self.now, inputs)
         pub(encode(msg))
         self._hm.counters.published += 1
 
     def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
         msg = EventMsg(event=event, module=str(self._hm.addr), detail=detail, values=values or {})
-        stamp(msg, str(self._hm.addr), self._next_seq("/evt"), self.now)
+        stamp(msg, str(self._hm.addr), self.next_seq("/evt"), self.now)
         self._hm.event_pub(encode(msg))
 
     def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:
@@ -133,6 +172,8 @@ class HostedModule:
     status_pub: Any = None
     handles: list[Handle] = field(default_factory=list)
     claims: list[Handle] = field(default_factory=list)
+    claimed: dict[str, str] = field(default_factory=dict)  # resource -> claim mode (excl | mix)
+    weights: dict[str, float] = field(default_factory=dict)  # output port -> mixing weight
     counters: Counters = field(default_factory=Counters)
     next_due: float = 0.0
     last_status: float = -1e9
@@ -157,6 +198,7 @@ class ModuleHost:
         self.log = logging.getLogger(f"contactflow.node.{config.node}")
         self.modules: dict[tuple[str, str], HostedModule] = {}
         self._lock = threading.RLock()
+        self._claim_lock = threading.RLock()  # claims of this node are checked, taken and released one at a time
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._node_token: Handle | None = None
@@ -165,7 +207,12 @@ class ModuleHost:
     def add(self, cfg: ModuleConfig, module: Module | None = None) -> HostedModule:
         module = module if module is not None else cfg.cls(cfg.name, cfg.params)
         addr = ModuleAddr(cfg.robot, self.config.node, cfg.name)
-        hm = HostedModule(cfg=cfg, module=module, addr=addr)
+        for res in cfg.mix:
+            problem = mix_problem(type(module), res)
+            if problem:
+                raise LayerError(f"{addr}: mix: {res}: {problem}")
+        hm = HostedModule(cfg=cfg, module=module, addr=addr,
+                          weights={p.name: cfg.mix[p.resource] for p in module.outputs if p.resource in cfg.mix})
         hm.io = HostedIO(self, hm)
         t = self.transport
         out_keys = module.default_output_keys(self.ks, addr.robot, addr.module, module.params)
@@ -203,7 +250,12 @@ class ModuleHost:
                 if hm.counters.rejected <= 10 or hm.counters.rejected % 1000 == 0:
                     self.log.warning("rejected input #%d of %s: %s", hm.counters.rejected, hm.addr, exc)
                 return
-            hm.io.deliver(port, msg)
+            missed = hm.io.deliver(port, msg)
+            if missed:
+                total = hm.counters.gaps[port]
+                if total - missed < 10 or total // 1000 != (total - missed) // 1000:
+                    self.log.warning("%s.%s: %d message(s) of %s missed before seq %d (%d missed on this input)",
+                                     hm.addr, port, missed, msg.hdr.source, msg.hdr.seq, total)
         return on_sample
 
     def _control_callback(self, hm: HostedModule):
@@ -258,24 +310,70 @@ class ModuleHost:
         return ControlReply(ok=True, state=m.state, params=params_dict(m.params))
 
     def _claim(self, hm: HostedModule) -> str:
-        """Claim the module's resources; a refusal message when another module holds one."""
-        if hm.claims:
+        """Claim the module's resources; a refusal message when another module holds one.
+
+        Claims of this node are taken under one lock, so two local modules never both pass
+        the check. Across nodes a claim is announced first and checked after: two nodes
+        claiming at the same moment see each other and both refuse, neither commands twice.
+        """
+        if hm.claims or not hm.module.resources:
             return ""
-        for res in hm.module.resources:
-            holders = [k for k in self.transport.alive(self.ks.claim(hm.addr.robot, res), timeout=0.5)
-                       if not k.endswith(f"/{hm.addr.node}/{hm.addr.module}")]
-            if holders and res not in hm.cfg.mix:
-                holder = "/".join(holders[0].split("/")[-2:])
-                return (f"resource {res!r} of robot {hm.addr.robot!r} is already commanded by {holder}; "
-                        f"stop it first or declare weighted mixing (mix: {{{res}: <weight>}}) in the configuration")
-        for res in hm.module.resources:
-            hm.claims.append(self.transport.token(self.ks.claim(hm.addr.robot, res, hm.addr.node, hm.addr.module)))
+        a = hm.addr
+        with self._claim_lock:
+            for res in hm.module.resources:
+                refusal = self._conflict(hm, res, self._local_holders(hm, res))
+                if refusal:
+                    return refusal
+            for res in hm.module.resources:
+                mode = "mix" if res in hm.cfg.mix else "excl"
+                hm.claims.append(self.transport.token(self.ks.claim(a.robot, res, a.node, a.module, mode)))
+                hm.claimed[res] = mode
+            for res in hm.module.resources:
+                refusal = self._conflict(hm, res, self._remote_holders(hm, res))
+                if refusal:
+                    self._release(hm)
+                    return refusal
         return ""
 
+    def _local_holders(self, hm: HostedModule, res: str) -> list[tuple[str, str, str]]:
+        with self._lock:
+            others = [o for o in self.modules.values() if o is not hm and o.addr.robot == hm.addr.robot]
+        with self._claim_lock:
+            return [(o.addr.node, o.addr.module, o.claimed[res]) for o in others if res in o.claimed]
+
+    def _remote_holders(self, hm: HostedModule, res: str) -> list[tuple[str, str, str]]:
+        holders = []
+        for key in self.transport.alive(self.ks.claim(hm.addr.robot, res), timeout=0.5):
+            try:
+                node, module, mode = self.ks.parse_claim(key)
+            except KeyExprError:
+                self.log.warning("%s: ignoring malformed claim token %s", hm.addr, key)
+                continue
+            if (node, module) != (hm.addr.node, hm.addr.module):
+                holders.append((node, module, mode))
+        return holders
+
+    @staticmethod
+    def _conflict(hm: HostedModule, res: str, holders: list[tuple[str, str, str]]) -> str:
+        """The refusal when ``hm`` may not command ``res`` next to ``holders``; "" when it may."""
+        if not holders:
+            return ""
+        exclusive = [h for h in holders if h[2] != "mix"]
+        if res in hm.cfg.mix and not exclusive:
+            return ""
+        node, module, _ = (exclusive or holders)[0]
+        why = (f"{node}/{module} does not declare weighted mixing of it" if res in hm.cfg.mix
+               else f"{hm.addr.module} does not declare weighted mixing of it")
+        return (f"resource {res!r} of robot {hm.addr.robot!r} is already commanded by {node}/{module} "
+                f"and {why}; stop {node}/{module} first, or declare weighted mixing "
+                f"(mix: {{{res}: <weight>}}) for every module commanding it in the configuration")
+
     def _release(self, hm: HostedModule) -> None:
-        for c in hm.claims:
-            c.close()
-        hm.claims.clear()
+        with self._claim_lock:
+            for c in hm.claims:
+                c.close()
+            hm.claims.clear()
+            hm.claimed.clear()
 
     def send_control(self, target: str, cmd: Command, params: dict[str, ParamValue], issuer: str = "",
                      default_robot: str = "site", timeout: float = 3.0) -> ControlReply:
@@ -299,8 +397,9 @@ class ModuleHost:
     def _publish_status(self, hm: HostedModule) -> None:
         m = hm.module
         msg = StatusMsg(module=str(hm.addr), layer=str(m.layer), state=m.state, rate_hz=m.params.rate_hz,
-                        steps=hm.counters.steps, rejected=hm.counters.rejected, detail=hm.detail)
-        stamp(msg, str(hm.addr), hm.counters.steps, self.clock.now())
+                        steps=hm.counters.steps, rejected=hm.counters.rejected, detail=hm.detail,
+                        gaps=dict(hm.counters.gaps))
+        stamp(msg, f"{hm.addr}/status", hm.io.next_seq("/status"), self.clock.now())
         hm.status_pub(encode(msg))
         hm.last_status = self.clock.now()
 

@@ -16,7 +16,10 @@ Layout (``docs/protocol.md`` documents it with examples)::
     cf/<site>/alive/node/<host>/<node>                     liveliness: node process
     cf/<site>/alive/m/<robot>/<node>/<module>              liveliness: module
     cf/<site>/alive/robot/<robot>                          liveliness: robot advertising
-    cf/<site>/alive/claim/<robot>/<resource>/<node>/<module>  liveliness: resource claim
+    cf/<site>/alive/claim/<robot>/<resource>/<node>/<module>/<mode>
+                                                           liveliness: resource claim, mode excl | mix
+    cf/<site>/bench/<stack>/<size>/<phase>/<round>         messaging benchmark streams
+    cf/<site>/bench/ctl/<signal>                           messaging benchmark signals (ready, done)
 
 ``<robot>`` is ``site`` for modules that belong to no robot (the broker, a shared
 integrator). Subscribers address a module without knowing its node through ``*``.
@@ -33,6 +36,9 @@ SITE_ROBOT = "site"
 RESERVED = frozenset({"fused", "*", "**"})
 _SEGMENT = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 ANY = "*"
+CLAIM_MODES = ("excl", "mix")
+"""A claim is exclusive, or shared by modules that all declare weighted mixing (thesis §6.3.1)."""
+BENCH_SIGNALS = ("ready", "done")
 
 
 class KeyExprError(ValueError):
@@ -146,11 +152,35 @@ class KeySpace:
     def alive_robot(self, robot: str = ANY) -> str:
         return f"{self.prefix}/alive/robot/{segment(robot, 'robot')}"
 
-    def claim(self, robot: str, resource: str, node: str = ANY, module: str = ANY) -> str:
+    def claim(self, robot: str, resource: str, node: str = ANY, module: str = ANY, mode: str = ANY) -> str:
+        if mode != ANY and mode not in CLAIM_MODES:
+            raise KeyExprError(f"mode={mode!r}: claims are {' or '.join(CLAIM_MODES)}")
         return (
             f"{self.prefix}/alive/claim/{segment(robot, 'robot')}/"
-            f"{segment(resource, 'resource')}/{segment(node, 'node')}/{segment(module, 'module')}"
+            f"{segment(resource, 'resource')}/{segment(node, 'node')}/{segment(module, 'module')}/{mode}"
         )
+
+    @staticmethod
+    def parse_claim(key: str) -> tuple[str, str, str]:
+        """``(node, module, mode)`` of a claim token's key."""
+        parts = str(key).split("/")
+        if len(parts) != 9 or parts[2:4] != ["alive", "claim"] or parts[8] not in CLAIM_MODES:
+            raise KeyExprError(f"key {key!r} is not a resource claim")
+        return parts[6], parts[7], parts[8]
+
+    # -- benchmarks --------------------------------------------------------------------
+    def bench(self, stack: str = ANY, size: str = ANY, phase: str = ANY, rnd: str = ANY) -> str:
+        """A messaging benchmark stream (``rnd`` is the round, as text)."""
+        return (
+            f"{self.prefix}/bench/{segment(stack, 'stack')}/{segment(size, 'size')}/"
+            f"{segment(phase, 'phase')}/{segment(rnd, 'round')}"
+        )
+
+    def bench_signal(self, signal: str) -> str:
+        """A messaging benchmark control signal: ``ready`` (liveliness) or ``done`` (put)."""
+        if signal not in BENCH_SIGNALS:
+            raise KeyExprError(f"signal={signal!r}: benchmark signals are {', '.join(BENCH_SIGNALS)}")
+        return f"{self.prefix}/bench/ctl/{signal}"
 
     def everything(self) -> str:
         return f"{self.prefix}/**"

@@ -29,6 +29,7 @@ class StatusMsg(Message, tag="status"):
     steps: int = 0
     rejected: int = 0  # inputs dropped by validation
     detail: str = ""
+    gaps: dict[str, int] = {}  # input port -> sequence numbers its sources skipped (lost messages)
 
 
 class Command(StrEnum):

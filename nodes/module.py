@@ -38,6 +38,15 @@ class Port:
     name: str
     type: type[Message]
     doc: str = ""
+    resource: str = ""
+    """The shared resource an output commands (one of the module's ``resources``); a
+    configuration that mixes it (``mix: {resource: weight}``) has the host write the weight
+    into every message on this port, so the message type needs a float ``weight`` field."""
+
+    @property
+    def mixable(self) -> bool:
+        """The message type carries a ``weight`` the host can set for weighted mixing."""
+        return "weight" in getattr(self.type, "__struct_fields__", ())
 
 
 class LayerError(TypeError):
@@ -106,6 +115,10 @@ class Module:
             raise LayerError(f"{cls.__name__}: a {cls.layer} module generates at least one output")
         if not hasattr(cls.Params, "rate_hz"):
             raise LayerError(f"{cls.__name__}.Params needs a rate_hz field")
+        for p in cls.outputs:
+            if p.resource and p.resource not in cls.resources:
+                raise LayerError(f"{cls.__name__}: output {p.name!r} commands resource {p.resource!r}, "
+                                 f"which is not in resources {cls.resources}")
 
     # -- lifecycle hooks (override) ------------------------------------------------------
     def setup(self, io: ModuleIO) -> None:

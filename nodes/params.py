@@ -40,9 +40,14 @@ def _coerce(name: str, hint: Any, value: Any) -> Any:
         return value
     if origin is tuple:
         if isinstance(value, str):
-            value = [v for v in value.replace("[", "").replace("]", "").split(",") if v.strip()]
+            value = [v.strip() for v in value.replace("[", "").replace("]", "").split(",") if v.strip()]
         if not isinstance(value, list | tuple):
             raise ParamError(f"{name}: expected a list, got {value!r}")
+        args = [a for a in typing.get_args(hint) if a is not Ellipsis]
+        if args and all(a is str for a in args):
+            if not all(isinstance(v, str) for v in value):
+                raise ParamError(f"{name}: expected a list of strings, got {value!r}")
+            return tuple(value)
         try:
             return tuple(float(v) for v in value)
         except (TypeError, ValueError):

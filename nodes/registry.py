@@ -2,12 +2,16 @@
 
 Each area lists its modules in ``contactflow.<area>.catalog`` as ``CATALOG = {name:
 "module.path:Class"}``; a configuration names a module type by that short name or by a full
-``"package.module:Class"`` path.
+``"package.module:Class"`` path. A path that is not importable from the installed packages is
+looked up next to the configuration file (``contactflow new`` writes the module there).
 """
 
 from __future__ import annotations
 
 import importlib
+import sys
+import threading
+from pathlib import Path
 
 from contactflow.nodes.module import Module
 
@@ -35,17 +39,46 @@ def catalog() -> dict[str, str]:
     return out
 
 
-def resolve(type_name: str) -> type[Module]:
-    """The Module class for a short name or ``package.module:Class`` path."""
+_PATH_LOCK = threading.Lock()
+
+
+def _import(mod_name: str, search: Path | None):
+    """Import ``mod_name``; when no installed package has it, import it from ``search``."""
+    try:
+        return importlib.import_module(mod_name)
+    except ModuleNotFoundError as exc:
+        top = mod_name.partition(".")[0]
+        if search is None or exc.name not in (top, mod_name) or not search.is_dir():
+            raise
+    folder = str(search.resolve())
+    with _PATH_LOCK:  # the folder is on the path only while this import (and its own imports) run
+        added = folder not in sys.path
+        if added:
+            sys.path.insert(0, folder)
+        try:
+            importlib.invalidate_caches()
+            return importlib.import_module(mod_name)
+        finally:
+            if added:
+                sys.path.remove(folder)
+
+
+def resolve(type_name: str, search: Path | None = None) -> type[Module]:
+    """The Module class for a short name or ``package.module:Class`` path.
+
+    ``search`` is the folder of the configuration naming the type: a ``module:Class`` path
+    that no installed package provides is imported from there.
+    """
     path = type_name if ":" in type_name else catalog().get(type_name)
     if path is None:
         known = ", ".join(sorted(catalog()))
         raise UnknownModuleType(f"unknown module type {type_name!r} (known: {known})")
     mod_name, _, cls_name = path.partition(":")
     try:
-        cls = getattr(importlib.import_module(mod_name), cls_name)
+        cls = getattr(_import(mod_name, search), cls_name)
     except (ImportError, AttributeError) as exc:
-        raise UnknownModuleType(f"module type {type_name!r}: cannot import {path}: {exc}") from None
+        where = f" (also looked in {search})" if search is not None and ":" in type_name else ""
+        raise UnknownModuleType(f"module type {type_name!r}: cannot import {path}{where}: {exc}") from None
     if not (isinstance(cls, type) and issubclass(cls, Module)):
         raise UnknownModuleType(f"module type {type_name!r}: {path} is not a Module")
     return cls

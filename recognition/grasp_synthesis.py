@@ -24,6 +24,9 @@ from contactflow.recognition.pipeline import DistanceFn, Plane
 IkFn = Callable[[np.ndarray], object | None]
 """Inverse kinematics: a 4x4 hand pose → a joint solution, or None when unreachable."""
 
+PoseFn = Callable[["ApproachVector"], np.ndarray]
+"""The 4x4 hand pose a robot would command for an approach vector."""
+
 
 @dataclass(frozen=True, eq=False)
 class ApproachVector:
@@ -137,9 +140,21 @@ def register_model(model_points: np.ndarray, cloud: np.ndarray, init: np.ndarray
     return np.asarray(reg.transformation), float(reg.fitness), float(reg.inlier_rmse)
 
 
-def reachability_filter(avs: Sequence[ApproachVector], ik: IkFn, standoff: float = 0.0) -> list[ApproachVector]:
-    """Keep the approach vectors whose hand pose has an IK solution."""
-    return [a for a in avs if ik(a.pose(standoff)) is not None]
+def reachability_filter(avs: Sequence[ApproachVector], ik: IkFn, standoff: float = 0.0,
+                        pose: PoseFn | None = None, first: bool = False) -> list[ApproachVector]:
+    """Keep the approach vectors whose hand pose has an IK solution.
+
+    ``pose`` maps an approach vector to the hand pose actually commanded (default: its
+    :meth:`ApproachVector.pose`); with ``first`` only the first reachable one is kept,
+    which spares the IK of the rest when the list is already ranked.
+    """
+    out = []
+    for a in avs:
+        if ik(pose(a) if pose is not None else a.pose(standoff)) is not None:
+            out.append(a)
+            if first:
+                break
+    return out
 
 
 def collision_filter(avs: Sequence[ApproachVector], obstacles: np.ndarray | None = None, plane: Plane | None = None,
@@ -179,3 +194,37 @@ def distance_filter(avs: Sequence[ApproachVector], origin: np.ndarray, max_dista
     """Keep approach vectors starting within ``max_distance`` of a frame's origin."""
     o = np.asarray(origin, float)
     return [a for a in avs if float(np.linalg.norm(a.position - o)) <= max_distance]
+
+
+@dataclass(frozen=True)
+class GraspFilters:
+    """Settings of the AV filter services of §6.3.5 (a zero ``direction`` disables the orientation filter)."""
+
+    standoff: float = 0.05  # m, approach starts this far outside the box
+    hand_radius: float = 0.04  # m, hand approximated by spheres along the approach
+    hand_length: float = 0.15  # m
+    direction: tuple[float, ...] = (0.0, 0.0, 0.0)  # preferred approach direction (zero: any)
+    max_angle_deg: float = 45.0  # deg around ``direction``
+    origin: tuple[float, ...] = (0.0, 0.0, 0.0)  # m, frame of the distance filter
+    max_distance: float = 10.0  # m
+
+
+def synthesize_grasps(points: np.ndarray, box: Box | None, filters: GraspFilters,
+                      obstacles: np.ndarray | None = None, plane: Plane | None = None,
+                      robot: DistanceFn | None = None, ik: IkFn | None = None,
+                      pose: PoseFn | None = None, first_reachable: bool = False) -> list[ApproachVector]:
+    """PCA approach vectors of one segmented object through every filter, best score first.
+
+    The cheap geometric filters run first; the IK of the reachability filter (when ``ik``
+    is given) only sees the survivors, in rank order.
+    """
+    f = filters
+    avs = pca_approach_vectors(points, box, f.standoff)
+    avs = collision_filter(avs, obstacles, plane, robot, hand_radius=f.hand_radius, hand_length=f.hand_length)
+    if np.linalg.norm(f.direction) > 0:
+        avs = orientation_filter(avs, np.asarray(f.direction, float), f.max_angle_deg)
+    avs = distance_filter(avs, np.asarray(f.origin, float), f.max_distance)
+    avs = sorted(avs, key=lambda a: -a.score)
+    if ik is not None:
+        avs = reachability_filter(avs, ik, pose=pose, first=first_reachable)
+    return avs

@@ -1,10 +1,12 @@
 """Joint-space planning with OMPL (KPIECE1 as in the thesis, RRTConnect), collision-checked robot vs. scene.
 
 Two checkers: ``CoalChecker`` (pinocchio geometry model of the URDF collision meshes
-against the scene primitives, via coal) and ``SphericalChecker`` (the App. B spherical
-model against points sampled on the obstacle surfaces). Self-collision is not checked
-(the simulated robots run with self-collision off). Nothing here imports SAPIEN: the
-scene comes in as :class:`Obstacle` records.
+against the scene primitives and an octree of a sensed point cloud, via coal) and
+``SphericalChecker`` (the App. B spherical model against points sampled on the obstacle
+surfaces and the sensed cloud). Self-collision is not checked (the simulated robots run
+with self-collision off). Nothing here imports SAPIEN, and the planner never sees the
+simulated objects' true poses: the scene is what the caller sensed or was told
+(:class:`Obstacle` records, a point cloud) plus the cell's known fixtures (the table).
 """
 
 from __future__ import annotations
@@ -77,7 +79,8 @@ def _coal_shape(o: Obstacle, padding: float):
 class CoalChecker:
     """Robot collision meshes vs. obstacles with pinocchio/coal."""
 
-    def __init__(self, kin: Kinematics, urdf: str, obstacles: list[Obstacle], padding: float = 0.005) -> None:
+    def __init__(self, kin: Kinematics, urdf: str, obstacles: list[Obstacle], padding: float = 0.005,
+                 cloud: np.ndarray | None = None, resolution: float = 0.02) -> None:
         self.kin = kin
         self.model = kin.model
         self.geom = pin.buildGeomFromUrdf(self.model, str(urdf), pin.GeometryType.COLLISION)
@@ -88,6 +91,12 @@ class CoalChecker:
             M = base_inv @ np.asarray(o.pose)
             go = pin.GeometryObject(f"obstacle/{o.name}", 0, 0, pin.SE3(M[:3, :3], M[:3, 3]), _coal_shape(o, padding))
             obs_ids.append(self.geom.addGeometryObject(go))
+        cloud = _cloud(cloud, "CoalChecker cloud")
+        if len(cloud):
+            # a sensed cloud becomes an occupancy octree (cells of ``resolution`` m around each point)
+            local = cloud @ base_inv[:3, :3].T + base_inv[:3, 3]
+            tree = coal.makeOctree(np.ascontiguousarray(local), float(resolution))
+            obs_ids.append(self.geom.addGeometryObject(pin.GeometryObject("obstacle/cloud", 0, 0, pin.SE3.Identity(), tree)))
         for g in robot_geoms:
             for o in obs_ids:
                 self.geom.addCollisionPair(pin.CollisionPair(g, o))
@@ -100,6 +109,17 @@ class CoalChecker:
         if not self.geom.collisionPairs:
             return True
         return not pin.computeCollisions(self.model, self.data, self.geom, self.gdata, q, True)
+
+
+def _cloud(cloud: np.ndarray | None, where: str) -> np.ndarray:
+    if cloud is None:
+        return np.zeros((0, 3))
+    c = np.asarray(cloud, dtype=np.float64)
+    if c.ndim != 2 or c.shape[1] != 3:
+        raise ValueError(f"{where}: expected an (N, 3) point cloud, got shape {c.shape}")
+    if not np.all(np.isfinite(c)):
+        raise ValueError(f"{where}: the point cloud has non-finite values")
+    return c
 
 
 def sample_surface(o: Obstacle, spacing: float = 0.01) -> np.ndarray:
@@ -138,11 +158,13 @@ def sample_surface(o: Obstacle, spacing: float = 0.01) -> np.ndarray:
 class SphericalChecker:
     """The spherical model (App. B) vs. points sampled on the obstacles (KD-tree pre-selection per s-tope)."""
 
-    def __init__(self, kin: Kinematics, model, obstacles: list[Obstacle], margin: float = 0.005, spacing: float = 0.015) -> None:
+    def __init__(self, kin: Kinematics, model, obstacles: list[Obstacle], margin: float = 0.005, spacing: float = 0.015,
+                 cloud: np.ndarray | None = None) -> None:
         from scipy.spatial import cKDTree
 
         self.kin, self.model, self.margin = kin, model, margin
-        self.points = np.vstack([sample_surface(o, spacing) for o in obstacles]) if obstacles else np.zeros((0, 3))
+        self.points = np.vstack([np.zeros((0, 3)), _cloud(cloud, "SphericalChecker cloud")]
+                                + [sample_surface(o, spacing) for o in obstacles])
         self.tree = cKDTree(self.points) if len(self.points) else None
         self._reach = np.linalg.norm(model._c2 - model._c1, axis=1) / 2 + np.maximum(model.r1, model.r2) + margin
         self.checks = 0
@@ -282,32 +304,74 @@ def solve_ik(kin: Kinematics, joints: tuple[str, ...], frame: str, target: np.nd
     return None
 
 
-def obstacles_from_world(world, ignore: tuple[str, ...] = ()) -> list[Obstacle]:
-    """Obstacles for every shape of every object of a world (anything with ``objects`` of ObjectSpec)."""
-    out = []
-    for name, obj in world.objects.items():
-        if name in ignore:
-            continue
-        T = obj.pose()
-        for k, s in enumerate(obj.spec.shapes):
-            from contactflow.embodiments.transforms import xyz_rpy_to_matrix
+FIXTURE_CATEGORIES = ("table",)
+"""Object categories that are part of the cell's known layout (declared, not sensed)."""
 
+
+def fixtures_from_world(world) -> list[Obstacle]:
+    """The cell's fixtures (floor, table) at their declared pose: known layout, not a simulation readout."""
+    from contactflow.embodiments.transforms import xyz_rpy_to_matrix
+
+    floor = np.eye(4)
+    floor[2, 3] = world.params.floor_z - 0.05
+    out = [Obstacle("floor", "box", (10.0, 10.0, 0.1), floor)]
+    for name, obj in world.objects.items():
+        spec = obj.spec
+        if spec.category not in FIXTURE_CATEGORIES or not spec.static:
+            continue
+        T = xyz_rpy_to_matrix(spec.xyz, spec.rpy)
+        for k, s in enumerate(spec.shapes):
             out.append(Obstacle(f"{name}/{k}", s.kind, tuple(s.size), T @ xyz_rpy_to_matrix(s.xyz, s.rpy)))
     return out
 
 
+def inside_obstacles(points: np.ndarray, obstacles: list[Obstacle], margin: float) -> np.ndarray:
+    """Mask of the points within ``margin`` of a box obstacle (other kinds: of its bounding box)."""
+    inside = np.zeros(len(points), bool)
+    for o in obstacles:
+        if o.kind == "box":
+            half = np.asarray(o.size) / 2
+        elif o.kind == "sphere":
+            half = np.full(3, o.size[0])
+        else:
+            half = np.array([o.size[0], o.size[0], o.size[1] / 2 + (o.size[0] if o.kind == "capsule" else 0.0)])
+        T = np.asarray(o.pose)
+        local = (points - T[:3, 3]) @ T[:3, :3]
+        inside |= np.all(np.abs(local) <= half + margin, axis=1)
+    return inside
+
+
+def sensed_cloud(robot, camera: str = "kinect", self_margin: float = 0.03, fixture_margin: float = 0.015,
+                 voxel: float = 0.01) -> np.ndarray:
+    """Obstacle points seen by ``camera``: the robot removed by its spherical model (App. B), fixtures removed, voxelised."""
+    pts = np.asarray(robot.camera(camera).points, dtype=np.float64)
+    if len(pts):
+        pts = pts[robot.spherical.distance(pts) > self_margin]
+    if len(pts):
+        pts = pts[~inside_obstacles(pts, fixtures_from_world(robot.world), fixture_margin)]
+    if len(pts) and voxel > 0:
+        _, first = np.unique(np.floor(pts / voxel).astype(np.int64), axis=0, return_index=True)
+        pts = pts[np.sort(first)]
+    return pts
+
+
 def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
-             ignore: tuple[str, ...] = (), seed: int | None = None) -> Plan | None:
-    """Plan ``arm`` of a SimRobot from its commanded joints to a joint goal or a 4x4 pose."""
+             obstacles: tuple[Obstacle, ...] | list[Obstacle] = (), cloud: np.ndarray | None = None,
+             fixtures: bool = True, seed: int | None = None) -> Plan | None:
+    """Plan ``arm`` of a SimRobot from its commanded joints to a joint goal or a 4x4 pose.
+
+    Collisions are checked against ``obstacles`` and the point ``cloud`` the caller sensed or
+    was given, plus the cell's fixtures when ``fixtures``; never against the simulated objects.
+    """
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
     q_full = robot._kin_q_cmd()
-    obstacles = obstacles_from_world(robot.world, ignore)
+    scene = list(obstacles) + (fixtures_from_world(robot.world) if fixtures else [])
     if checker == "coal":
-        check = CoalChecker(kin, str(robot.spec.urdf()), obstacles)
+        check = CoalChecker(kin, str(robot.spec.urdf()), scene, cloud=cloud)
     elif checker == "spherical":
         from contactflow.embodiments.spherical import SphericalModel
 
-        check = SphericalChecker(kin, SphericalModel.from_urdf(kin, str(robot.spec.urdf())), obstacles)
+        check = SphericalChecker(kin, SphericalModel.from_urdf(kin, str(robot.spec.urdf())), scene, cloud=cloud)
     else:
         raise ValueError(f"checker {checker!r} is not coal|spherical")
     ap = ArmPlanner(kin, arm.joints, check.valid, q_full)

@@ -17,7 +17,7 @@ class CameraPublisher(Module):
     """Publishes depth and the world-frame point cloud of ``params.camera``, decimated by ``params.stride``."""
 
     layer = Layer.INTERFACE
-    outputs = (Port("depth", DepthImage, "depth image"), Port("cloud", PointCloud, "world point cloud"))
+    outputs = (Port("depth", DepthImage, "depth image"), Port("cloud", PointCloud, "world point cloud, origin at the camera"))
 
     @dataclass(frozen=True)
     class Params:
@@ -34,5 +34,6 @@ class CameraPublisher(Module):
         self.io.publish("depth", DepthImage(camera=self.params.camera, depth=NDArray.of(f.depth),
                                             K=[float(x) for x in f.K.ravel()], T_world_cam=[float(x) for x in f.T_world_cam.ravel()]))
         pts = np.ascontiguousarray(f.points[:: max(1, self.params.stride)], dtype=np.float32)
-        self.io.publish("cloud", PointCloud(points=NDArray.of(pts)))
+        self.io.publish("cloud", PointCloud(points=NDArray.of(pts), origin=[float(x) for x in f.T_world_cam[:3, 3]],
+                                            sensor=self.params.camera))
         return Status.RUNNING

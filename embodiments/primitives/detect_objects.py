@@ -1,4 +1,4 @@
-"""Detect objects (§6.3.3, §3.4.1): segment the camera point cloud in a region into object clusters and give an approach vector."""
+"""Detect objects (§6.3.3, §3.4.1): segment the camera point cloud in a region into object clusters and give a filtered approach vector (§6.3.5)."""
 
 from __future__ import annotations
 
@@ -10,34 +10,57 @@ from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
 from contactflow.embodiments.primitives.profiles import hand_pose_for
 from contactflow.nodes.status import Event
 
+VERTICAL_TOL_DEG = 1.0
+"""deg: an approach this close to straight down is the top grasp (hand z exactly down)."""
 
-def segment_objects(points: np.ndarray, region: np.ndarray, support_z: float | None = None,
-                    min_height: float = 0.01, eps: float = 0.015, min_size: int = 30) -> list[np.ndarray]:
-    """Object clusters (largest first) of a world-frame cloud inside ``region`` [xmin, ymin, zmin, xmax, ymax, zmax].
 
-    The support is the RANSAC plane of the region (or ``support_z`` when given, e.g. a known
-    box bottom); points ``min_height`` above it are clustered with DBSCAN.
+def segment_scene(points: np.ndarray, region: np.ndarray, support_z: float | None = None,
+                  min_height: float = 0.01, eps: float = 0.015, min_size: int = 30):
+    """(support plane, object clusters largest first) of a world-frame cloud inside ``region``.
+
+    The support is the RANSAC plane of the region (or the horizontal plane at ``support_z``
+    when given, e.g. a known box bottom); points ``min_height`` above it are clustered with
+    DBSCAN, each cluster with an upright box standing on the support.
     """
-    from contactflow.recognition.pipeline import detect_plane, extract_clusters
+    from contactflow.recognition.pipeline import Plane, detect_plane, extract_clusters
 
     lo, hi = region[:3], region[3:]
     pts = points[np.all((points >= lo) & (points <= hi), axis=1)]
     if len(pts) < min_size:
-        return []
+        return None, []
     if support_z is None:
         plane, inliers = detect_plane(pts, distance=0.005, min_inliers=min_size)
         if plane is None:
-            return []
+            return None, []
         above = pts[(plane.height(pts) > min_height) & ~inliers]
     else:
+        origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, support_z])
+        plane = Plane(np.array([0.0, 0.0, 1.0]), -float(support_z), origin, np.eye(3), 0)
         above = pts[pts[:, 2] > support_z + min_height]
-    return [c.points for c in extract_clusters(above, eps=eps, min_size=min_size)]
+    return plane, extract_clusters(above, eps=eps, min_size=min_size, plane=plane)
+
+
+def segment_objects(points: np.ndarray, region: np.ndarray, support_z: float | None = None,
+                    min_height: float = 0.01, eps: float = 0.015, min_size: int = 30) -> list[np.ndarray]:
+    """Object clusters (largest first) of a world-frame cloud inside ``region`` [xmin, ymin, zmin, xmax, ymax, zmax]."""
+    return [c.points for c in segment_scene(points, region, support_z, min_height, eps, min_size)[1]]
 
 
 class DetectObjects(Primitive):
-    """Perceptual primitive: OBJECT_DETECTED with the chosen object's centroid, top and top-grasp approach pose.
+    """Perceptual primitive: OBJECT_DETECTED with the chosen object's centroid, top and approach pose.
 
-    With no object in the region it ends with OBJECT_NOT_FOUND (the "no objects left" edge).
+    The approach comes from grasp synthesis (§6.3.5) on the object's segmented cloud: PCA
+    approach vectors where its box axes meet the box, ``standoff`` outside, kept when the
+    hand is clear of the support and the other objects, within ``max_angle_deg`` of
+    ``direction`` (default straight down, the top grasp), within ``max_distance`` of the arm
+    base and, with ``reachable``, when the arm's IK (pinocchio) reaches the hand pose; the
+    best ranked one wins. Without ``arm`` the nearest arm base counts and any arm of the
+    robot may reach it. The hand's
+    x axis follows ``yaw`` (about world z) as far as the approach allows (within
+    ``VERTICAL_TOL_DEG`` of straight down it is the top grasp of that yaw), and the hand's
+    grasp centre (per embodiment) is put on the approach start. If the selected object has
+    no approach passing the filters the next one is tried; none ends with FAILURE. With
+    no object in the region it ends with OBJECT_NOT_FOUND (the "no objects left" edge).
     """
 
     requires = Capability(camera=True)
@@ -49,9 +72,15 @@ class DetectObjects(Primitive):
         region: tuple[float, ...] = (0.3, -0.6, 0.74, 1.0, 0.6, 1.2)  # m, world box [xmin, ymin, zmin, xmax, ymax, zmax]
         support_z: float = -1.0  # m, known support height (< 0: fit the table plane)
         select: str = "largest"  # largest | leftmost | nearest | random
-        standoff: float = 0.05  # m, approach pose this far above the object top
+        standoff: float = 0.05  # m, approach starts this far outside the object's box
         grasp_depth: float = 0.06  # m, grasp frame below the object top (clipped to half the height)
         yaw: float = 1.5707963267948966  # rad, hand yaw of the top grasp
+        direction: tuple[float, ...] = (0.0, 0.0, -1.0)  # preferred approach direction, world (zeros: any)
+        max_angle_deg: float = 30.0  # deg, orientation filter around ``direction``
+        max_distance: float = 1.0  # m, distance filter: approach start from the arm base
+        reachable: bool = True  # reachability filter by the arm's IK
+        hand_radius: float = 0.04  # m, collision filter: hand spheres along the approach
+        hand_length: float = 0.15  # m
         camera: str = "kinect"
         min_size: int = 30  # points per object
         seed: int = 0  # for select=random
@@ -59,14 +88,67 @@ class DetectObjects(Primitive):
         self_margin: float = 0.02  # m, points this close to the robot model are removed
 
     def begin(self) -> None:
-        if self.params.select not in ("largest", "leftmost", "nearest", "random"):
-            raise ValueError(f"{self.name}: params.select must be largest|leftmost|nearest|random, got {self.params.select!r}")
-        region = np.asarray(self.params.region, dtype=np.float64)
+        p = self.params
+        if p.select not in ("largest", "leftmost", "nearest", "random"):
+            raise ValueError(f"{self.name}: params.select must be largest|leftmost|nearest|random, got {p.select!r}")
+        region = np.asarray(p.region, dtype=np.float64)
         if region.shape != (6,) or np.any(region[:3] >= region[3:]):
-            raise ValueError(f"{self.name}: params.region must be [xmin, ymin, zmin, xmax, ymax, zmax], got {self.params.region}")
+            raise ValueError(f"{self.name}: params.region must be [xmin, ymin, zmin, xmax, ymax, zmax], got {p.region}")
+        if len(p.direction) != 3 or not np.all(np.isfinite(p.direction)):
+            raise ValueError(f"{self.name}: params.direction must be 3 finite numbers, got {p.direction}")
         self.region = region
 
+    def _order(self, clusters: list) -> list:
+        p = self.params
+        if p.select == "leftmost":
+            return sorted(clusters, key=lambda c: -c.centroid[1])
+        if p.select == "nearest":
+            return sorted(clusters, key=lambda c: float(np.linalg.norm(c.centroid[:2])))
+        if p.select == "random":
+            k = int(np.random.default_rng(p.seed + int(self.r.time * 1000)).integers(len(clusters)))
+            return [clusters[k]] + clusters[:k] + clusters[k + 1:]
+        return clusters
+
+    def hand_pose(self, av) -> np.ndarray:
+        """Controlled-frame pose putting the hand's grasp centre on the approach start, z along the approach."""
+        from contactflow.recognition.geometry import orthonormal_frame
+
+        d = np.asarray(av.direction, float)
+        if d[2] <= -np.cos(np.radians(VERTICAL_TOL_DEG)):
+            # a fitted support normal's noise is no reason to tilt the hand off the top grasp
+            return hand_pose_for(self.r.spec.name, top_grasp_pose(av.position, self.params.yaw))
+        T = np.eye(4)
+        T[:3, :3] = orthonormal_frame(d, np.array([np.cos(self.params.yaw), np.sin(self.params.yaw), 0.0]))
+        T[:3, 3] = av.position
+        return hand_pose_for(self.r.spec.name, T)
+
+    def _reach(self):
+        """IK of the arm (any arm without ``params.arm``), seeded at the robot's joints; None: no filter."""
+        from contactflow.recognition.reachability import ArmReach
+
+        if not self.params.reachable:
+            return None
+        kin = getattr(self.r, "kin", None)
+        arms = [self.params.arm] if self.params.arm else list(self.r.arms)
+        solvers = []
+        for arm in arms:
+            reach = ArmReach(self.r.spec.name, arm, None if kin is None else kin.base, where=f"{self.name}: arm {arm!r}")
+            if kin is not None:
+                reach.set_seed(kin.q)
+            solvers.append(reach)
+
+        def ik(T: np.ndarray):
+            for s in solvers:
+                q = s(T)
+                if q is not None:
+                    return q
+            return None
+
+        return ik
+
     def update(self) -> None:
+        from contactflow.recognition.grasp_synthesis import GraspFilters, synthesize_grasps
+
         p = self.params
         if self.elapsed < p.settle:
             return
@@ -78,27 +160,38 @@ class DetectObjects(Primitive):
         model = getattr(self.r, "spherical", None)
         if model is not None and len(pts):
             pts = pts[model.distance(pts) > p.self_margin]  # the robot's own arms are not objects
-        clusters = segment_objects(pts, self.region, support, min_size=p.min_size)
+        plane, clusters = segment_scene(pts, self.region, support, min_size=p.min_size)
         if not clusters:
             self.fail("no object in the region", event=Event.OBJECT_NOT_FOUND, count=0)
             return
-        if p.select == "leftmost":
-            pick = max(clusters, key=lambda c: c[:, 1].mean())
-        elif p.select == "nearest":
-            pick = min(clusters, key=lambda c: np.linalg.norm(c.mean(axis=0)[:2]))
-        elif p.select == "random":
-            pick = clusters[int(np.random.default_rng(p.seed + int(self.r.time * 1000)).integers(len(clusters)))]
-        else:
-            pick = clusters[0]
-        c = pick.mean(axis=0)
-        top = float(pick[:, 2].max())
-        bottom = float(pick[:, 2].min())
-        size = pick.max(axis=0) - pick.min(axis=0)
+        arms = [p.arm] if p.arm else list(self.r.arms)
+        bases = np.array([self.r.frame_pose(self.r.spec.arm(a).base_link)[:3, 3] for a in arms])
+        ik = self._reach()
+        for pick in self._order(clusters):
+            base = bases[int(np.argmin(np.linalg.norm(bases - pick.centroid, axis=1)))]  # the nearest arm's
+            filters = GraspFilters(p.standoff, p.hand_radius, p.hand_length, tuple(p.direction), p.max_angle_deg,
+                                   tuple(base), p.max_distance)
+            others = [c.points for c in clusters if c is not pick]
+            avs = synthesize_grasps(pick.points, pick.box, filters, np.vstack(others) if others else None, plane,
+                                    ik=ik, pose=self.hand_pose, first_reachable=True)
+            if avs:
+                self._detected(pick, avs[0], len(clusters))
+                return
+        self.fail(f"no approach vector of the {len(clusters)} objects passes the filters", count=len(clusters))
+
+    def _detected(self, pick, av, count: int) -> None:
+        p = self.params
+        pts = pick.points
+        c = pick.centroid
+        top, bottom = float(pts[:, 2].max()), float(pts[:, 2].min())
+        size = pts.max(axis=0) - pts.min(axis=0)
         grasp_z = top - min(p.grasp_depth, max(0.5 * (top - bottom), 0.01))
-        # the approach puts the hand's grasp centre (per embodiment) over the object centroid
-        approach = hand_pose_for(self.r.spec.name, top_grasp_pose((c[0], c[1], top + p.standoff), p.yaw))
-        vals = dict(count=len(clusters), cx=float(c[0]), cy=float(c[1]), cz=float(c[2]), top=top,
+        approach = self.hand_pose(av)
+        d = av.direction
+        dims = np.sort(pick.box.extent)[::-1]
+        vals = dict(count=count, cx=float(c[0]), cy=float(c[1]), cz=float(c[2]), top=top,
                     size_x=float(size[0]), size_y=float(size[1]), size_z=float(top - bottom),
-                    grasp_z=float(grasp_z), **pose6(approach))
-        self.emit_once(Event.OBJECT_DETECTED, f"{len(clusters)} objects", vals)
+                    grasp_z=float(grasp_z), dx=float(d[0]), dy=float(d[1]), dz=float(d[2]),
+                    d1=float(dims[0]), d2=float(dims[1]), d3=float(dims[2]), **pose6(approach))
+        self.emit_once(Event.OBJECT_DETECTED, f"{count} objects", vals)
         self.succeed(**vals)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
-from contactflow.embodiments.primitives.motion import pose_error, target_pose
+from contactflow.embodiments.primitives.motion import planning_cloud, pose_error, target_pose
 from contactflow.nodes.status import Event, Status
 
 
@@ -24,6 +24,8 @@ class MoveTo(Primitive):
         planning: bool = True  # use the OMPL planner (False: straight Cartesian line)
         planner: str = "KPIECE1"  # OMPL planner (thesis §3.3.2)
         planning_timeout: float = 2.0  # s
+        obstacles: tuple[float, ...] = ()  # obstacle point cloud the planner avoids, flat [x, y, z, ...] (world)
+        sense_obstacles: bool = False  # also plan against the camera cloud (robot removed by the spherical model)
         speed: float = 0.1  # m/s Cartesian (rad/s joint speed when planned: 5x this)
         abort_force: float = 15.0  # N, unexpected contact
         tolerance: float = 0.01  # m, final position error accepted
@@ -42,7 +44,8 @@ class MoveTo(Primitive):
             self.r.tare_ft(self.arm_name)
         self.planned = False
         if p.planning:
-            plan = self.arm.plan(self.goal, planner=p.planner, timeout=p.planning_timeout)
+            cloud = planning_cloud(self, p.obstacles, "obstacles", p.sense_obstacles)
+            plan = self.arm.plan(self.goal, planner=p.planner, timeout=p.planning_timeout, cloud=cloud)
             if plan is not None:
                 self.arm.execute(plan, abort_force=p.abort_force, speed=5 * p.speed)
                 self.planned = True

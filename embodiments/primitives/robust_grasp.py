@@ -72,7 +72,7 @@ class RobustGrasp(Primitive):
         alignment: bool = True  # enable the alignment phase (eq. 3.1)
         alignment_axes: str = "x"  # "x": eq. 3.1 (torque about hand y moves along x); "xy": also torque about x moves along y
         sliding: bool = True  # enable the sliding correction (eq. 3.2)
-        finger_lost: bool = False  # finger-lost correction (off by default: on the simulated allegro the regrasp lost more grasps than it saved)
+        finger_lost: bool = True  # finger-lost correction: part of the primitive in the thesis (Fig. 3.2); needs a multi-finger hand
 
     def begin(self) -> None:
         p = self.params
@@ -89,6 +89,7 @@ class RobustGrasp(Primitive):
         self.regrasps = 0
         self.aligns = 0
         self.slides = 0
+        self.slides_back = 0
         self.lateral = 0.0
         self._ramp: ClosingRamp | None = None
         self._contact_seen = False
@@ -182,6 +183,7 @@ class RobustGrasp(Primitive):
                 vz = sliding_velocity(fz, p.force_threshold, p.correction_velocity)
                 if vz != 0.0:
                     self.slides += 1
+                    self.slides_back += int(vz < 0.0)
                 if self.blocked():
                     vz = 0.0
                     self.relax()
@@ -208,7 +210,7 @@ class RobustGrasp(Primitive):
             pads = self.pads_in_contact()
             need = min(p.min_contacts, len(self.groups))
             held = len(pads) >= need or blocked_fingers(self.hand.positions(), self.closed, self.groups) >= need
-            vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides,
+            vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides, slides_back=self.slides_back,
                         regrasps=self.regrasps, lateral=self.lateral)
             if held:
                 self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)

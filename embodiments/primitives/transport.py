@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive, matrix6, pose6
-from contactflow.embodiments.primitives.motion import pose_error, target_pose
+from contactflow.embodiments.primitives.motion import planning_cloud, pose_error, target_pose
 from contactflow.embodiments.transforms import rotvec_error
 from contactflow.nodes.status import Event, Status
 
@@ -67,7 +67,8 @@ class Transport(Primitive):
         force_threshold: float = 15.0  # N, unexpected contact (eq. 3.3)
         acceleration_limits: tuple[float, ...] = (0.0,) * 6  # m/s^2, rad/s^2 (all 0: unconstrained)
         velocity_limits: tuple[float, ...] = (0.0,) * 6  # m/s, rad/s (all 0: unconstrained; a 0 among others locks that axis)
-        obstacles: tuple[float, ...] = ()  # obstacle point cloud, flat [x, y, z, ...] (world)
+        obstacles: tuple[float, ...] = ()  # obstacle point cloud, flat [x, y, z, ...] (world): force field and planner
+        sense_obstacles: bool = False  # also plan against the camera cloud (robot removed by the spherical model)
         waypoints: tuple[float, ...] = ()  # flat list of [x, y, z, roll, pitch, yaw] poses to pass through
         planning_distance_limit: float = 0.03  # m, farther targets are reached with the OMPL planner
         gain: float = 1.0  # 1/s, n of eq. 3.3 before limiting
@@ -94,10 +95,7 @@ class Transport(Primitive):
             raise ValueError(f"{self.name}.params.waypoints: expected a multiple of 6 values, got {w.size}")
         self.goals = [matrix6(tuple(w[i:i + 6]), f"{self.name}.params.waypoints[{i // 6}]")
                       for i in range(0, w.size, 6)] + [goal]
-        obs = np.asarray(p.obstacles, dtype=np.float64)
-        if obs.size % 3:
-            raise ValueError(f"{self.name}.params.obstacles: expected a multiple of 3 values, got {obs.size}")
-        self.obstacles = obs.reshape(-1, 3)
+        self.obstacles = planning_cloud(self, p.obstacles, "obstacles", False)
         self.vlim = np.asarray(p.velocity_limits, dtype=np.float64)
         self.alim = np.asarray(p.acceleration_limits, dtype=np.float64)
         if self.vlim.shape != (6,) or self.alim.shape != (6,):
@@ -122,7 +120,9 @@ class Transport(Primitive):
 
     def _plan(self, goal: np.ndarray) -> None:
         self.halt()
-        plan = self.arm.plan(goal, timeout=self.params.planning_timeout)
+        # the planner sees only what this primitive was given or senses, plus the cell's fixtures
+        cloud = planning_cloud(self, self.params.obstacles, "obstacles", self.params.sense_obstacles)
+        plan = self.arm.plan(goal, timeout=self.params.planning_timeout, cloud=cloud)
         if plan is None:
             self.mode = "error"
             return

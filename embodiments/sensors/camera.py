@@ -159,8 +159,21 @@ class RaycastCamera:
         self._last = frame
         return frame
 
+    @property
+    def stamp(self) -> float:
+        """Time of the latest frame (-inf before the first): what a stream watchdog checks."""
+        return self._last.t if self._last is not None else -np.inf
+
+    def empty_frame(self) -> DepthFrame:
+        """A frame with no returns, stamped -inf (what a camera that never delivered gives)."""
+        s = self.spec
+        return DepthFrame(-np.inf, np.zeros((s.height, s.width), np.float32), np.zeros((0, 3)), np.zeros((0, 2), np.int32),
+                          self.K, self.pose(), np.full((s.height, s.width), -1, np.int32), ())
+
     def read(self, t: float) -> DepthFrame:
-        """Frame valid at ``t``: re-captured at most at ``rate_hz``."""
+        """Frame valid at ``t``: re-captured at most at ``rate_hz``; a lost stream repeats its last frame."""
+        if self.lost:
+            return self._last if self._last is not None else self.empty_frame()
         if self._last is not None and t - self._last.t < 1.0 / self.spec.rate_hz - 1e-9:
             return self._last
         return self.capture(t)

@@ -69,13 +69,25 @@ class WristFT:
     def _pose(self) -> np.ndarray:
         return pose_to_matrix(self.link.get_entity_pose())
 
+    @property
+    def stamp(self) -> float:
+        """Time of the latest sample (-inf before the first): what a stream watchdog checks."""
+        return self._last.t if self._last is not None else -np.inf
+
     def tare(self) -> None:
-        """Zero the sensor at the current (noise-free) reading."""
+        """Zero the sensor at the current (noise-free) reading; a silent sensor cannot be tared."""
+        if self.lost:
+            return
         self.tare_value = self._raw()
         self._last = None
 
     def read(self, t: float) -> WrenchReading:
-        """The sample valid at time ``t`` (a new one every 1/rate_hz)."""
+        """The sample valid at time ``t`` (a new one every 1/rate_hz); a lost stream repeats its last sample."""
+        if self.lost:
+            if self._last is None:
+                zero = np.zeros(3)
+                return WrenchReading(-np.inf, zero, zero, self.spec.link, np.eye(3), self.spec.estimated)
+            return self._last
         if self._last is not None and (t - self._last.t) < 1.0 / self.spec.rate_hz - 1e-9:
             return self._last
         w = self._raw() - self.tare_value

@@ -112,6 +112,22 @@ class TactileSensor:
         self._link_of = {p.name: art.links[p.link] for p in self.pads}
         self._bodies = {id(art.links[p.link]) for p in self.pads}
         self.lost = False
+        self._last: tuple[float, dict[str, np.ndarray]] | None = None
+
+    @property
+    def stamp(self) -> float:
+        """Time of the latest sample (-inf before the first): what a stream watchdog checks."""
+        return self._last[0] if self._last is not None else -np.inf
+
+    def sample(self, t: float, contacts: list, dt: float) -> dict[str, np.ndarray]:
+        """The arrays at time ``t`` (one sample per time stamp); a lost stream repeats its last sample."""
+        if self.lost:
+            if self._last is None:
+                return {p.name: np.zeros((p.rows, p.cols)) for p in self.pads}
+            return {k: v.copy() for k, v in self._last[1].items()}
+        if self._last is None or self._last[0] != t:
+            self._last = (t, self.read(contacts, dt))
+        return {k: v.copy() for k, v in self._last[1].items()}
 
     def read(self, contacts: list, dt: float) -> dict[str, np.ndarray]:
         groups: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}

@@ -6,6 +6,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from contactflow.embodiments.messages import RobotModel
+from contactflow.fusion.geometry import check_capsules
 from contactflow.fusion.hypotheses import Hypotheses
 from contactflow.fusion.messages import HypothesisCloud
 from contactflow.nodes.keys import KeySpace
@@ -51,3 +53,41 @@ def array_of(msg: Message | None, port: str, cols: int | tuple[int, ...], module
     if not np.isfinite(a).all():
         raise ValueError(f"{module}: input {port!r} contains NaN or inf")
     return a
+
+
+def capsules_of(msg: Message | None, port: str, module: str, prefixes: tuple[str, ...] = ()) -> np.ndarray | None:
+    """The (m, 8) bi-spheres ``[c1, r1, c2, r2]`` of a ``RobotModel`` input, or None.
+
+    With ``prefixes`` only the links whose names start with one of them are kept (e.g. a hand).
+    """
+    if msg is None:
+        return None
+    if not isinstance(msg, RobotModel):
+        raise TypeError(f"{module}: input {port!r} carries {type(msg).__name__}, expected RobotModel")
+    where = f"{module}: input {port!r} ({msg.robot})"
+    c1, c2 = msg.c1.numpy().reshape(-1, 3), msg.c2.numpy().reshape(-1, 3)
+    r1, r2 = msg.r1.numpy().ravel(), msg.r2.numpy().ravel()
+    m = len(msg.links)
+    if not (c1.shape[0] == c2.shape[0] == r1.shape[0] == r2.shape[0] == m):
+        raise ValueError(f"{where}: {m} links but c1 {c1.shape}, r1 {r1.shape}, c2 {c2.shape}, r2 {r2.shape}")
+    caps = np.concatenate([c1, r1[:, None], c2, r2[:, None]], axis=1).astype(np.float64)
+    if prefixes:
+        keep = np.array([any(link.startswith(p) for p in prefixes) for link in msg.links], dtype=bool)
+        if not keep.any():
+            raise ValueError(f"{where}: no link starts with {list(prefixes)} (links: {msg.links})")
+        caps = caps[keep]
+    return check_capsules(caps, where)
+
+
+def frame_of(msg: RobotModel, frame: str, module: str) -> np.ndarray:
+    """World pose (4, 4) of ``frame`` carried by a ``RobotModel`` input."""
+    if frame not in msg.frames or msg.poses is None:
+        raise ValueError(f"{module}: input 'robot_model' ({msg.robot}) has no pose of frame {frame!r} "
+                         f"(frames: {msg.frames})")
+    poses = msg.poses.numpy().reshape(-1, 4, 4)
+    if poses.shape[0] != len(msg.frames):
+        raise ValueError(f"{module}: input 'robot_model' has {poses.shape[0]} poses for {len(msg.frames)} frames")
+    T = poses[msg.frames.index(frame)].astype(np.float64)
+    if not np.isfinite(T).all():
+        raise ValueError(f"{module}: input 'robot_model' pose of {frame!r} is not finite")
+    return T

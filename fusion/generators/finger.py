@@ -4,7 +4,8 @@ On compliant hands a contact bends a finger that is not being driven. The encode
 each finger are compared with a reference taken while the hand was still; a finger whose
 joints moved more than ``joint_threshold`` gets hypotheses over its whole surface, each with
 likelihood 1/n. While the hand is driven the generator is disabled, and it takes a new
-reference once the hand stops.
+reference once the hand stops. The shell reads the encoders from the robot's joint state and
+samples each finger's surface from the bi-spheres of its links in the posed robot model.
 """
 
 from __future__ import annotations
@@ -14,9 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.embodiments.messages import JointState, RobotModel
+from contactflow.fusion.generators.base import GeneratorModule, capsules_of
+from contactflow.fusion.geometry import capsule_surface
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType, voxelize
-from contactflow.nodes.messages import Array, Vector
+from contactflow.nodes.messages import Vector
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 
@@ -31,6 +34,8 @@ class FingerParams:
     joint_threshold: float = 0.03  # rad, involuntary joint deflection that means contact
     finger_of_joint: tuple[float, ...] = ()  # finger index of each encoder joint (-1: none); () = one finger per joint
     voxel_size: float = VOXEL_SIZE  # m
+    joints: tuple[str, ...] = ()  # encoder joints of the hand in the joint state; () = every joint
+    finger_links: tuple[str, ...] = ()  # link name prefix of each finger (index = finger)
 
 
 def fingers_of(finger_of_joint: Sequence[float], n_joints: int) -> list[list[int]]:
@@ -87,8 +92,8 @@ class FingerPoseHypothesesGenerator(GeneratorModule):
 
     Params = FingerParams
     inputs = (
-        Port("fingers", Vector, "hand encoder values"),
-        Port("finger_surfaces", Array, "(k, 4) [x, y, z, finger index] surface samples, world"),
+        Port("joint_state", JointState, "joint state of the robot, holding the hand encoders"),
+        Port("robot_model", RobotModel, "posed bi-spheres; each finger's surface from its links"),
         Port("actuated", Vector, "[1] while the hand is driven, [0] otherwise"),
     )
 
@@ -99,19 +104,38 @@ class FingerPoseHypothesesGenerator(GeneratorModule):
     def reset(self) -> None:
         self.core = None
 
+    def encoders(self, msg: JointState) -> np.ndarray:
+        q = msg.position.numpy().astype(np.float64).ravel()
+        if q.shape[0] != len(msg.names):
+            raise ValueError(f"{self.name}: input 'joint_state' has {q.shape[0]} positions for {len(msg.names)} names")
+        if not self.params.joints:
+            return q
+        missing = [j for j in self.params.joints if j not in msg.names]
+        if missing:
+            raise ValueError(f"{self.name}: input 'joint_state' lacks joints {missing} (params.joints)")
+        return q[[msg.names.index(j) for j in self.params.joints]]
+
+    def surface(self, model: RobotModel, finger: int) -> np.ndarray:
+        links = self.params.finger_links
+        if finger >= len(links):
+            raise ValueError(f"{self.name}: finger {finger} has no entry in params.finger_links {list(links)}")
+        caps = capsules_of(model, "robot_model", self.name, (links[finger],))
+        assert caps is not None
+        return capsule_surface(caps, self.params.voxel_size)
+
     def step(self) -> Status:
         assert self.io is not None
-        frames = self.io.take("fingers")
-        surf = array_of(self.io.latest("finger_surfaces"), "finger_surfaces", 4, self.name)
-        if not frames or surf is None:
+        frames = self.io.take("joint_state")
+        model = self.io.latest("robot_model")
+        if not frames or model is None:
             return Status.RUNNING
         act = self.io.latest("actuated")
         actuated = bool(act is not None and act.values and act.values[0] > 0.5)  # type: ignore[attr-defined]
         msg = frames[-1]
-        q = np.asarray(msg.values, dtype=float)  # type: ignore[attr-defined]
+        assert isinstance(msg, JointState) and isinstance(model, RobotModel)
+        q = self.encoders(msg)
         if self.core is None:
             self.core = FingerPoseGenerator(fingers_of(self.params.finger_of_joint, q.size), self.params)
-        owner = surf[:, 3].round().astype(int)
-        h = self.core.update(q, lambda i: surf[owner == i, :3], self.stamp_of(msg), actuated)
+        h = self.core.update(q, lambda i: self.surface(model, i), self.stamp_of(msg), actuated)
         self.publish_cloud(h)
         return Status.RUNNING

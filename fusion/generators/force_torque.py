@@ -7,18 +7,23 @@ other coordinates are solved from two of the equations, giving up to three (idea
 lines. Points away from the robot surface are dropped (App. B distance), and so, optionally,
 are points where the force would pull the surface outwards. The n voxels left each get
 likelihood 1/n (eq. 4.1), or optionally a share weighted by the distance law of eq. 4.5. Force and torque are in the sensor frame, torque about its origin.
+
+The shell reads the interface layer's ``Wrench`` (world axes, at the origin of
+``sensor_frame``) and the posed ``RobotModel``, which carries that frame's pose; with
+``links`` set, the hand's bounding box and surface come from those links' bi-spheres.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.embodiments.messages import RobotModel, Wrench
+from contactflow.fusion.generators.base import GeneratorModule, capsules_of, frame_of
 from contactflow.fusion.geometry import DistanceFn, distance_fn, gradient
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType, voxelize
-from contactflow.nodes.messages import Array, Vector
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 
@@ -38,6 +43,9 @@ class ForceTorqueParams:
     # surface (likelihood 0.5 at this distance), normalised to 1; 0: uniform 1/n (thesis)
     step: float = 0.0025  # m, sampling step of d_a (half a voxel)
     voxel_size: float = VOXEL_SIZE  # m
+    links: tuple[str, ...] = ()  # name prefixes of the hand links behind the sensor: the box and the
+    # surface come from their bi-spheres; empty: box_lo/box_hi and the whole robot model
+    link: str = ""  # link (hand) named in the published clouds
 
 
 def wrench_lines(force: np.ndarray, torque: np.ndarray, lo: np.ndarray, hi: np.ndarray, step: float,
@@ -97,28 +105,43 @@ def ft_hypotheses(force: np.ndarray, torque: np.ndarray, T_world_sensor: np.ndar
     return Hypotheses(h.location, h.likelihood / h.likelihood.sum(), h.kind, h.force, h.direction, stamp)
 
 
+def hand_box(caps: np.ndarray, T_world_sensor: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Bounding box (lo, hi) in the sensor frame of the bi-spheres ``caps`` (k, 8), world frame."""
+    T = np.asarray(T_world_sensor, dtype=float)
+    local = (np.concatenate([caps[:, 0:3], caps[:, 4:7]]) - T[:3, 3]) @ T[:3, :3]
+    r = np.concatenate([caps[:, 3], caps[:, 7]])[:, None]
+    return tuple((local - r).min(axis=0).tolist()), tuple((local + r).max(axis=0).tolist())
+
+
 class ForceTorqueGenerator(GeneratorModule):
     """Wrist wrench to contact hypotheses along its line of action (eq. 4.8-4.9)."""
 
     Params = ForceTorqueParams
     inputs = (
-        Port("wrench", Vector, "[fx, fy, fz, tx, ty, tz], N and N·m, sensor frame, torque about its origin"),
-        Port("sensor_pose", Array, "(4, 4) world pose of the sensor frame"),
-        Port("robot_model", Array, "(m, 8) posed bi-spheres [c1, r1, c2, r2], world"),
+        Port("wrench", Wrench, "wrist wrench, world axes, torque about the origin of its sensor_frame"),
+        Port("robot_model", RobotModel, "posed bi-spheres and the sensor frame's pose, world"),
     )
 
     def step(self) -> Status:
         assert self.io is not None
-        pose = self.io.latest("sensor_pose")
-        model = array_of(self.io.latest("robot_model"), "robot_model", 8, self.name)
+        model = self.io.latest("robot_model")
         wrenches = self.io.take("wrench")
-        if pose is None or model is None or not wrenches:
+        if model is None or not wrenches:
             return Status.RUNNING
-        T = pose.array.numpy().astype(float)  # type: ignore[attr-defined]
         msg = wrenches[-1]
-        w = np.asarray(msg.values, dtype=float)  # type: ignore[attr-defined]
-        if w.shape != (6,):
-            raise ValueError(f"{self.name}: input 'wrench' has {w.size} values, expected 6")
-        h = ft_hypotheses(w[:3], w[3:], T, distance_fn(model), self.stamp_of(msg), self.params)
-        self.publish_cloud(h)
+        assert isinstance(msg, Wrench) and isinstance(model, RobotModel)
+        f_w, tau_w = np.asarray(msg.force, dtype=float), np.asarray(msg.torque, dtype=float)
+        if f_w.shape != (3,) or tau_w.shape != (3,) or not (np.isfinite(f_w).all() and np.isfinite(tau_w).all()):
+            raise ValueError(f"{self.name}: input 'wrench' ({msg.arm}) needs 3 finite force and 3 torque values, "
+                             f"got {f_w.size} and {tau_w.size}")
+        T = frame_of(model, msg.sensor_frame, self.name)
+        caps = capsules_of(model, "robot_model", self.name, self.params.links)
+        assert caps is not None
+        params = self.params
+        if params.links:
+            lo, hi = hand_box(caps, T)
+            params = dataclasses.replace(params, box_lo=lo, box_hi=hi)
+        R = T[:3, :3]
+        h = ft_hypotheses(R.T @ f_w, R.T @ tau_w, T, distance_fn(caps), self.stamp_of(msg), params)
+        self.publish_cloud(h, link=self.params.link)
         return Status.RUNNING

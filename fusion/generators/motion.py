@@ -12,9 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.embodiments.messages import RobotModel
+from contactflow.fusion.generators.base import GeneratorModule, capsules_of
+from contactflow.fusion.geometry import capsule_surface
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType, voxelize
-from contactflow.nodes.messages import Array
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 
@@ -28,6 +29,7 @@ class MotionParams:
     robot: str = "robot"
     weight: float = 0.3  # likelihood of every support hypothesis (thesis §4.5.1)
     voxel_size: float = VOXEL_SIZE  # m
+    links: tuple[str, ...] = ()  # name prefixes of the links whose next surface gets support; () = all
 
 
 def predict(q: np.ndarray, q_prev: np.ndarray) -> np.ndarray:
@@ -60,15 +62,14 @@ class MotionSupportGenerator:
 class MotionSupportHypothesesGenerator(GeneratorModule):
     """Support hypotheses where the robot will be next (eq. 4.12-4.13).
 
-    The robot model lives in the embodiment, which publishes surface samples attached to the
-    links; the shell applies eq. 4.12-4.13 to each sample (exact for translations, first order
-    for rotations). The core :class:`MotionSupportGenerator` extrapolates the joints instead.
+    The shell reads the posed spherical model the embodiment publishes from each joint state
+    and applies eq. 4.12-4.13 to the bi-sphere centres, which are attached to the links (exact
+    for translations, first order for rotations); the support goes on the surface of the
+    extrapolated model. The core :class:`MotionSupportGenerator` extrapolates the joints instead.
     """
 
     Params = MotionParams
-    inputs = (
-        Port("surface", Array, "(k, 3) robot surface samples at the current configuration, world"),
-    )
+    inputs = (Port("robot_model", RobotModel, "posed bi-spheres of the robot, world"),)
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
@@ -79,19 +80,23 @@ class MotionSupportHypothesesGenerator(GeneratorModule):
 
     def step(self) -> Status:
         assert self.io is not None
-        frames = self.io.take("surface")
+        frames = self.io.take("robot_model")
         if not frames:
             return Status.RUNNING
         msg = frames[-1]
-        pts = array_of(msg, "surface", 3, self.name)
-        assert pts is not None
-        prev, self._prev = self._prev, pts
-        if prev is None or prev.shape != pts.shape:
+        caps = capsules_of(msg, "robot_model", self.name, self.params.links)
+        assert caps is not None
+        prev, self._prev = self._prev, caps
+        if prev is None or prev.shape != caps.shape:
             return Status.RUNNING
-        # Samples are attached to the links, so the same extrapolation applies per sample.
-        nxt = predict(pts, prev)
-        h = Hypotheses.make(nxt, self.params.weight, HypothesisType.SUPPORT, stamp=self.stamp_of(msg),
-                            where=self.name)
+        nxt = caps.copy()
+        nxt[:, 0:3] = predict(caps[:, 0:3], prev[:, 0:3])
+        nxt[:, 4:7] = predict(caps[:, 4:7], prev[:, 4:7])
+        pts = capsule_surface(nxt, self.params.voxel_size)
+        stamp = self.stamp_of(msg)
+        if pts.shape[0] == 0:
+            self.publish_cloud(Hypotheses.empty(stamp))
+            return Status.RUNNING
+        h = Hypotheses.make(pts, self.params.weight, HypothesisType.SUPPORT, stamp=stamp, where=self.name)
         self.publish_cloud(voxelize(h, self.params.voxel_size, reduce="max"))
         return Status.RUNNING
-

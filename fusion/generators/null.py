@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.embodiments.messages import RobotModel
+from contactflow.fusion.generators.base import GeneratorModule, capsules_of
 from contactflow.fusion.geometry import grid_points, interior_points
 from contactflow.fusion.hypotheses import (
     VOXEL_SIZE,
@@ -22,7 +23,6 @@ from contactflow.fusion.hypotheses import (
     voxel_centers,
     voxel_keys,
 )
-from contactflow.nodes.messages import Array
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 
@@ -72,7 +72,7 @@ class NullHypothesesGenerator(GeneratorModule):
     """Swept robot volume to null hypotheses."""
 
     Params = NullParams
-    inputs = (Port("robot_model", Array, "(m, 8) posed bi-spheres [c1, r1, c2, r2], world"),)
+    inputs = (Port("robot_model", RobotModel, "posed bi-spheres of the robot, world"),)
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
@@ -87,7 +87,7 @@ class NullHypothesesGenerator(GeneratorModule):
         if not frames:
             return Status.RUNNING
         msg = frames[-1]
-        caps = array_of(msg, "robot_model", 8, self.name)
+        caps = capsules_of(msg, "robot_model", self.name)
         assert caps is not None
         inside = interior_points(caps, self.params.voxel_size, self.params.margin)
         self.publish_cloud(self.core.update(inside, self.stamp_of(msg)))

@@ -21,10 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.embodiments.messages import PointCloud, RobotModel
+from contactflow.fusion.generators.base import GeneratorModule, capsules_of
 from contactflow.fusion.geometry import DistanceFn, distance_fn
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType
-from contactflow.nodes.messages import Array, Vector
+from contactflow.nodes.messages import Vector
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 
@@ -233,9 +234,8 @@ class RangeHypothesesGenerator(GeneratorModule):
 
     Params = RangeParams
     inputs = (
-        Port("points", Array, "(n, 3) depth points, world frame"),
-        Port("camera", Vector, "camera position [x, y, z], world"),
-        Port("robot_model", Array, "(m, 8) posed bi-spheres of the observed robot, world"),
+        Port("points", PointCloud, "depth points, world frame, with the camera position as origin"),
+        Port("robot_model", RobotModel, "posed bi-spheres of the observed robot, world"),
         Port("roi", Vector, "[xlo, ylo, zlo, xhi, yhi, zhi] box around the object, world (optional)"),
     )
 
@@ -248,10 +248,9 @@ class RangeHypothesesGenerator(GeneratorModule):
 
     def step(self) -> Status:
         assert self.io is not None
-        model = array_of(self.io.latest("robot_model"), "robot_model", 8, self.name)
+        model = capsules_of(self.io.latest("robot_model"), "robot_model", self.name)
         frames = self.io.take("points")
-        cam = self.io.latest("camera")
-        if model is None or not frames or cam is None:
+        if model is None or not frames:
             return Status.RUNNING
         roi = self.io.latest("roi")
         lo = hi = None
@@ -262,9 +261,17 @@ class RangeHypothesesGenerator(GeneratorModule):
             lo, hi = box[:3], box[3:]
         dist = distance_fn(model)
         msg = frames[-1]
-        pts = array_of(msg, "points", 3, self.name)
-        assert pts is not None
+        assert isinstance(msg, PointCloud)
+        if msg.frame != "world":
+            raise ValueError(f"{self.name}: input 'points' is in frame {msg.frame!r}, expected 'world'")
+        camera = np.asarray(msg.origin, dtype=float)
+        if camera.shape != (3,) or not np.isfinite(camera).all():
+            raise ValueError(f"{self.name}: input 'points' ({msg.sensor}) has origin {msg.origin}, "
+                             "expected the camera position [x, y, z]")
+        pts = msg.points.numpy().astype(np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
+            raise ValueError(f"{self.name}: input 'points' has shape {pts.shape} or non-finite values, "
+                             "expected finite (n, 3)")
         obj = segment_object(pts, dist, self.params, lo, hi)
-        camera = np.asarray(cam.values, dtype=float)  # type: ignore[attr-defined]
         self.publish_cloud(self.core.observe(obj, dist, self.stamp_of(msg), camera))
         return Status.RUNNING

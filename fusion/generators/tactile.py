@@ -2,7 +2,9 @@
 
 Every taxel whose pressure exceeds the noise floor gives a regular hypothesis at its world
 position with likelihood p(c|x, z) = z_x / max(z). The force is the taxel pressure times its
-area and, when taxel normals are known, pushes into the pad (direction = -normal).
+area and, when taxel normals are known, pushes into the pad (direction = -normal). The shell
+reads the hand's ``TactileArray`` and places its taxels with the ``TaxelPoses`` the robot
+model publisher computes from the joint state.
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.embodiments.messages import TactileArray, TaxelPoses
+from contactflow.fusion.generators.base import GeneratorModule
 from contactflow.fusion.hypotheses import (
     VOXEL_SIZE,
     Hypotheses,
@@ -19,7 +22,6 @@ from contactflow.fusion.hypotheses import (
     normalise,
     voxelize,
 )
-from contactflow.nodes.messages import Array
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 
@@ -53,17 +55,50 @@ def tactile_hypotheses(pressure: np.ndarray, taxels: np.ndarray, stamp: float,
     return voxelize(h, p.voxel_size, reduce="max")
 
 
+def placed_pressures(tactile: TactileArray, taxels: TaxelPoses, module: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pressure (n,), world positions (n, 3), world normals (n, 3)) of one hand's reading."""
+    where = f"{module}: hand {tactile.hand!r}"
+    if tactile.pads != taxels.pads:
+        raise ValueError(f"{where}: tactile pads {tactile.pads} differ from taxel pose pads {taxels.pads}")
+    p = tactile.pressure.numpy().astype(np.float64)
+    pos = taxels.positions.numpy().astype(np.float64)
+    nrm = taxels.normals.numpy().astype(np.float64)
+    if pos.shape != (*p.shape, 3) or nrm.shape != pos.shape:
+        raise ValueError(f"{where}: pressure {p.shape}, taxel positions {pos.shape} and normals {nrm.shape} "
+                         "do not match (expected (pads, rows, cols) and (pads, rows, cols, 3))")
+    if not (np.isfinite(p).all() and np.isfinite(pos).all() and np.isfinite(nrm).all()):
+        raise ValueError(f"{where}: pressures or taxel poses contain NaN or inf")
+    return p.ravel(), pos.reshape(-1, 3), nrm.reshape(-1, 3)
+
+
 class TactileGenerator(GeneratorModule):
-    """Tactile arrays to contact hypotheses (eq. 4.6)."""
+    """Tactile arrays to contact hypotheses (eq. 4.6), one cloud per hand reading (link = the hand)."""
 
     Params = TactileParams
-    inputs = (Port("taxels", Array, "(n, 4) [x, y, z, pressure] or (n, 7) with the taxel normal, world"),)
+    inputs = (
+        Port("tactile", TactileArray, "pressure images of one hand's pads, N per taxel"),
+        Port("taxels", TaxelPoses, "world taxel positions and normals of the hand, posed from the joint state"),
+    )
+
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        self.reset()
+
+    def reset(self) -> None:
+        self.taxels: dict[str, TaxelPoses] = {}
 
     def step(self) -> Status:
         assert self.io is not None
-        for msg in self.io.take("taxels"):
-            a = array_of(msg, "taxels", (4, 7), self.name)
-            assert a is not None
-            normals = a[:, 4:7] if a.shape[1] == 7 else None
-            self.publish_cloud(tactile_hypotheses(a[:, 3], a[:, :3], self.stamp_of(msg), normals, self.params))
+        for poses in self.io.take("taxels"):
+            self.taxels[poses.hand] = poses  # type: ignore[attr-defined]
+        newest: dict[str, TactileArray] = {}
+        for msg in self.io.take("tactile"):
+            newest[msg.hand] = msg  # type: ignore[attr-defined]
+        for hand, msg in newest.items():
+            poses = self.taxels.get(hand)
+            if poses is None:
+                continue  # the hand's taxels are not placed yet (no joint state seen)
+            pressure, positions, normals = placed_pressures(msg, poses, self.name)
+            self.publish_cloud(tactile_hypotheses(pressure, positions, self.stamp_of(msg), normals, self.params),
+                               link=hand)
         return Status.RUNNING

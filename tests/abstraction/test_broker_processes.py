@@ -1,4 +1,8 @@
-"""Broker, robot agents and a client in separate node processes: dispatch and failover on kill."""
+"""Broker, robot agents and a client in separate node processes: dispatch and failover on kill.
+
+The agents run the real simulation executor (each station simulates its world); the robot the
+broker picks first is paced at real time so that it is still mid-task when its process is killed.
+"""
 
 import subprocess
 import sys
@@ -6,7 +10,10 @@ from pathlib import Path
 
 import pytest
 
+from contactflow.abstraction.agent import dry_run
 from contactflow.abstraction.client import close, dispatch
+from contactflow.abstraction.dispatch import choose
+from contactflow.abstraction.profiles import PROFILES
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
@@ -14,6 +21,11 @@ from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 EXAMPLES = Path(__file__).resolve().parents[2] / "abstraction" / "examples"
 SITE = "brokerproc"
 KS = KeySpace(SITE)
+ROBOTS = ("tombatossals", "melfa")
+PUSH = (EXAMPLES / "push_away.xml").read_text()
+# the broker's own choice for `any`, from the robots' (pure) dry runs
+PACED = 3.0  # the first robot's pace (x real time): slow enough to be killed mid-task, the push takes ~12 s simulated
+FIRST = choose("any", [dry_run(PROFILES[r], PUSH, "push_away.xml")[0] for r in ROBOTS])[0]
 
 
 def node_config(name, port, hub, modules):
@@ -23,9 +35,9 @@ def node_config(name, port, hub, modules):
     return {"site": SITE, "node": name, "zenoh": zen, "modules": modules}
 
 
-def agent(robot, duration):
+def agent(robot, realtime):
     return {"name": f"{robot}_agent", "type": "robot_agent", "robot": robot,
-            "params": {"robot": robot, "executor": "scripted", "primitive_duration": duration, "realtime": 1.0}}
+            "params": {"robot": robot, "executor": "sim", "realtime": realtime, "camera_hz": 0.0}}
 
 
 @pytest.fixture
@@ -33,8 +45,8 @@ def site(tmp_path):
     hub = free_port()
     procs = {"broker": spawn_node(write_config(tmp_path / "broker.yaml", node_config(
         "broker_node", hub, None, [{"name": "broker", "type": "broker"}])), tmp_path / "broker.log")}
-    for robot in ("tombatossals", "melfa"):
-        cfg = node_config(f"{robot}_control", free_port(), hub, [agent(robot, 0.6)])
+    for robot in ROBOTS:
+        cfg = node_config(f"{robot}_control", free_port(), hub, [agent(robot, PACED if robot == FIRST else 0.0)])
         procs[robot] = spawn_node(write_config(tmp_path / f"{robot}.yaml", cfg), tmp_path / f"{robot}.log")
     tool = ZenohTransport(ZenohSettings(connect=(f"tcp/127.0.0.1:{hub}",))).open()
     try:
@@ -59,10 +71,12 @@ def test_robots_cli_lists_capabilities(site):
 
 def test_task_completes_on_another_robot_when_the_running_node_is_killed(site):
     procs, tool, _ = site
-    follow = dispatch(tool, KS, (EXAMPLES / "push_away.xml").read_text(), "push_away.xml", target="any")
+    follow = dispatch(tool, KS, PUSH, "push_away.xml", target="any")
     assert follow.reply.ok, follow.reply.error
     first = follow.reply.robots[0]
-    assert wait_for(lambda: any(m.kind == "edge" and m.robot == first for m in follow.progress), timeout=15)
+    assert first == FIRST
+    assert wait_for(lambda: any(m.kind == "edge" and m.robot == first for m in follow.progress), timeout=30)
+    assert not any(m.final and m.robot == first for m in follow.progress)  # still mid-task
     procs[first].kill()
     assert follow.done.wait(60), [(m.robot, m.kind, m.state, m.detail) for m in follow.progress]
     assert follow.outcome == "success"
@@ -74,7 +88,9 @@ def test_task_completes_on_another_robot_when_the_running_node_is_killed(site):
 
     assert wait_for(lambda: bool(finals()), timeout=5)
     close(follow)
-    assert finals()[-1] != first
+    assert finals() == [other for other in ROBOTS if other != first]
+    states = [m.state for m in follow.progress if m.kind == "entered" and m.robot != first and m.robot != "broker"]
+    assert states == ["approach", "push_object", "retreat", "pushed"]
 
 
 def test_cli_run_refuses_an_invalid_atd_without_dispatching(site, tmp_path):

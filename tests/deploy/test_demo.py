@@ -1,20 +1,48 @@
-"""`contactflow demo` (quick): five node processes, ATD 1 dispatched to all three robots, a report."""
+"""`contactflow demo` (quick): five node processes, both §7.3 ATDs on all three robots, checked on ground truth."""
 
 import json
 
+from contactflow.abstraction.atd import load_atd
+from contactflow.abstraction.frames import WORKCELL
 from contactflow.deploy import demo
 
+ROBOTS = ["baxter", "melfa", "tombatossals"]
 
-def test_quick_demo_dispatches_to_every_robot_and_writes_the_report(tmp_path):
+
+def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tmp_path):
     code = demo.run(tmp_path, quick=True)
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert code == 0, summary["tasks"]
+    assert code == 0 and summary["ok"], summary["tasks"]
     assert len(summary["nodes"]) == 5
-    (task,) = summary["tasks"]
-    assert task["atd"] == "push_away.xml" and task["dispatched"] and task["finished"]
-    assert sorted(task["robots"]) == ["baxter", "melfa", "tombatossals"]
-    assert sorted(task["outcomes"]) == ["baxter", "melfa", "tombatossals"]
+    assert [t["atd"] for t in summary["tasks"]] == ["push_away.xml", "pick_place_behind.xml"]
+    for task in summary["tasks"]:
+        assert task["dispatched"] and task["finished"] and task["ok"], task
+        assert sorted(task["robots"]) == ROBOTS
+        assert task["outcomes"] == {r: "success" for r in ROBOTS}
+        assert sorted(task["physical"]) == ROBOTS
+        for robot, checks in task["physical"].items():
+            assert len(checks) == 1 and checks[0]["ok"], (robot, checks)
+    push, place = ([c for checks in t["physical"].values() for c in checks] for t in summary["tasks"])
+    assert all(c["object"] == "obstacle_box" and c["distance_after"] < c["distance_before"] - 0.02 for c in push)
+    assert all(c["object"] == "target" and c["distance_after"] <= demo.PLACE_TOLERANCE for c in place)
     entered = {(p["robot"], p["state"]) for p in summary["progress"] if p["kind"] == "entered"}
-    assert {r for r, s in entered if s == "approach"} == {"baxter", "melfa", "tombatossals"}
+    assert {r for r, s in entered if s == "let_go"} == set(ROBOTS)
     for name in ("timeline.png", "contacts.png"):
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_physical_checks_fail_when_the_objects_did_not_go_where_the_atd_says():
+    push = load_atd(demo.EXAMPLES / "push_away.xml")
+    start = {"obstacle_box": [0.50, 0.0, 0.78]}
+    (stayed,) = demo.physical_checks(push, WORKCELL, start, start)
+    assert not stayed["ok"] and stayed["goal"] == [0.5, -0.15, 0.78]
+    (pushed,) = demo.physical_checks(push, WORKCELL, start, {"obstacle_box": [0.5, -0.12, 0.78]})
+    assert pushed["ok"] and pushed["distance_after"] == 0.03
+    place = load_atd(demo.EXAMPLES / "pick_place_behind.xml")
+    before = {"target": [0.62, 0.0, 0.81]}
+    (near,) = demo.physical_checks(place, WORKCELL, before, {"target": [0.56, 0.16, 0.81]})
+    assert near["ok"]
+    (fallen,) = demo.physical_checks(place, WORKCELL, before, {"target": [0.56, 0.16, 0.775]})
+    assert not fallen["ok"]
+    (missing,) = demo.physical_checks(place, WORKCELL, before, {})
+    assert not missing["ok"] and "no ground truth" in missing["why"]

@@ -6,10 +6,12 @@ import time
 import yaml
 from typer.testing import CliRunner
 
+from contactflow.deploy.health import open_observer
 from contactflow.deploy.launcher import Launch
 from contactflow.deploy.launcher_cli import app
-from contactflow.deploy.manifest import NodeSpec
+from contactflow.deploy.manifest import DEFAULT_MANIFEST, NodeSpec, load_manifest
 from contactflow.deploy.supervisor import Supervisor, pid_alive, read_state
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import free_port
 
 
@@ -26,7 +28,8 @@ def test_up_local_with_a_router_then_status_and_stop_from_another_shell(tmp_path
         }}))
     run = tmp_path / "run"
     cli = CliRunner()
-    res = cli.invoke(app, ["up", str(manifest), "--local", "--run-dir", str(run), "--detach", "--wait", "40"])
+    # the form, without `up`; `again` below uses the explicit one
+    res = cli.invoke(app, [str(manifest), "--local", "--run-dir", str(run), "--detach", "--wait", "40"])
     try:
         assert res.exit_code == 0, res.output
         assert "3/3 nodes alive" in res.output, res.output
@@ -45,6 +48,33 @@ def test_up_local_with_a_router_then_status_and_stop_from_another_shell(tmp_path
     assert not any(pid_alive(n.pid) for n in st.nodes.values())
     res = cli.invoke(app, ["status", str(manifest), "--run-dir", str(run), "--timeout", "0.3"])
     assert res.exit_code == 1 and "0/3 nodes alive" in res.output
+
+
+def test_the_default_manifest_comes_up_locally_with_its_robots_and_broker(tmp_path):
+    port = free_port()
+    while port > 65000:
+        port = free_port()
+    manifest = tmp_path / "default.yaml"
+    manifest.write_text(DEFAULT_MANIFEST.read_text().replace("port: 7450", f"port: {port}"))
+    m = load_manifest(manifest)
+    run = tmp_path / "run"
+    cli = CliRunner()
+    try:
+        res = cli.invoke(app, [str(manifest), "--local", "--run-dir", str(run), "--detach", "--wait", "60"])
+        assert res.exit_code == 0 and "5/5 nodes alive" in res.output, res.output
+        ks = KeySpace(m.site)
+        obs = open_observer(m, local=True)
+        try:
+            robots = {k.rsplit("/", 1)[-1] for k in obs.alive(ks.alive_robot(), timeout=1.0)}
+            modules = {k.rsplit("/", 1)[-1] for k in obs.alive(ks.alive_module(), timeout=1.0)}
+        finally:
+            obs.close()
+        assert robots == {"tombatossals", "melfa", "baxter"}, robots
+        assert {"broker", "agent", "cloud", "plane", "roi", "objects", "shape"} <= modules, modules
+        logs = "".join(f.read_text() for f in (run / "local" / "logs").glob("*.log"))
+        assert "Traceback" not in logs, logs[-3000:]
+    finally:
+        cli.invoke(app, ["stop", str(manifest), "--run-dir", str(run)])
 
 
 def test_a_crashing_node_is_restarted_with_growing_back_off(tmp_path):

@@ -15,6 +15,7 @@ from contactflow.deploy.seqcheck import SequenceMonitor
 from contactflow.deploy.supervisor import backoff_delay
 from contactflow.nodes.config import load_node_config
 from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.registry import resolve
 from contactflow.nodes.yamldoc import YamlDoc
 
 BASE = """\
@@ -52,6 +53,18 @@ def test_default_manifest_is_the_thesis_layout_plus_one_station_per_robot():
     assert tomb.sensors["stereo_left"] == "vision2d" and tomb.sensors["ft_right"] == "control"
     assert m.robots["melfa"].control == "melfa_station" and m.robots["baxter"].control == "baxter_station"
     assert all(n.modules for n in m.nodes())
+
+
+def test_default_manifest_runs_the_real_modules_of_the_areas():
+    m = load_manifest(DEFAULT_MANIFEST)
+    classes = {(n.host, mod["name"]): resolve(mod["type"]) for n in m.nodes() for mod in n.modules}
+    assert not [k for k, c in classes.items() if c.__module__.startswith("contactflow.nodes.builtin")], classes
+    assert classes[("control", "broker")].__module__ == "contactflow.abstraction.broker_module"
+    agents = {n.host: mod["params"]["robot"] for n in m.nodes() for mod in n.modules if mod["type"] == "robot_agent"}
+    assert agents == {r.control: r.name for r in m.robots.values()}
+    assert {c.__module__.rsplit(".", 1)[-1] for (h, _), c in classes.items() if h == "vision3d"} == {
+        "cloud_builder", "plane_detector", "roi_filter", "cluster_extractor"}
+    assert classes[("vision2d", "shape")].__module__.endswith("classify_shape")
 
 
 def test_render_local_writes_loadable_node_configs_with_a_loopback_mesh(tmp_path):
@@ -95,6 +108,8 @@ def test_routers_topology_adds_router_nodes_and_clients(tmp_path):
     (("site: t\n", "site: t\nsecurity: {transport: ssl}\n"), "m.yaml:2: security.transport", "not one of"),
     (("address: 10.1.0.2", "address: 10.1.0.1"), "m.yaml:12: hosts.b.address", "already host"),
     (("      nb:", "      na:"), "m.yaml:14: hosts.b.nodes.na", "already defined"),
+    (("site: t\n", "site: t\nsecurity: {transport: tcp, auth: usrpwd, broker: [a]}\n"), "m.yaml:2: security.broker", "identified"),
+    (("site: t\n", "site: t\nsecurity:\n  transport: tls\n  observers: [b]\n"), "m.yaml:4: security.observers", "tls with auth usrpwd"),
 ])
 def test_bad_manifests_name_file_line_and_field(edit, where, words):
     with pytest.raises(ConfigError) as err:
@@ -132,6 +147,18 @@ def test_access_control_rules_follow_the_manifest(tmp_path):
     assert ks.control("r", "*", "s") in call("a") and ks.control("r", "*", "s") not in call("b")
     assert ks.control("r", "*", "f") in call("a") | call("b") and ks.dispatch() in call("b")
     assert not any("*" in k.split("/")[-1] and k.endswith("**") for r in acl["rules"] for k in r["key_exprs"])
+
+
+def test_tls_with_passwords_identifies_listeners_by_certificate_and_openers_by_user(tmp_path):
+    m = parse(BASE.replace("site: t\n", f"site: t\nsecurity: {{transport: tls, auth: usrpwd, certs: {tmp_path}, broker: [b]}}\n"))
+    acl = access_control(m)
+    assert {s["id"]: s.get("cert_common_names") or s.get("usernames") for s in acl["subjects"]} == {
+        "host-a": ["a"], "host-b": ["b"], "user-a": ["a"], "user-b": ["b"]}
+    assert {p["id"]: p["subjects"] for p in acl["policies"]} == {"policy-a": ["host-a", "user-a"], "policy-b": ["host-b", "user-b"]}
+    plain = parse(BASE.replace("site: t\n", "site: t\nsecurity: {transport: tls, auth: usrpwd}\n"))
+    assert plain.security.acl and not parse(BASE).security.acl
+    with pytest.raises(SecurityError, match="cannot identify peers"):
+        access_control(parse(BASE))
 
 
 def test_zenoh_config_needs_certificates_then_zenoh_accepts_it(tmp_path):

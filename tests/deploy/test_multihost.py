@@ -8,7 +8,7 @@ import pytest
 
 from contactflow.deploy.launcher import tool_endpoints
 from contactflow.deploy.seqcheck import SequenceMonitor
-from contactflow.deploy.testing import BEACON, LabDeployment, ProbeClient, lab_manifest
+from contactflow.deploy.testing import BEACON, TAP_PAD, LabDeployment, ProbeClient, lab_manifest
 from contactflow.nodes.keys import KeySpace
 
 SITE = "nslab"
@@ -16,7 +16,14 @@ KS = KeySpace(SITE)
 HOSTS = {
     "h1": {"roles": ["sensing"], "nodes": {"n1": {"robot": "r1", "sensors": ["ft"], "modules": [
         {"name": "src", "type": "signal_source", "params": {"rate_hz": 50, "amplitude": 1.0, "frequency": 1.0}},
-        {"name": "beacon", "type": BEACON, "params": {"rate_hz": 50}, "autostart": True}]}}},
+        {"name": "beacon", "type": BEACON, "params": {"rate_hz": 50}, "autostart": True},
+        # a pad pressed and released every 0.4 s, fused by the real tactile generator and contact
+        # fusion: a contact_made / contact_broken stream (~5 events/s) on the fused events key
+        {"name": "pad", "type": TAP_PAD, "params": {"robot": "r1", "press_s": 0.2, "release_s": 0.2}},
+        {"name": "tactile", "type": "tactile_hypotheses", "inputs": {"tactile": "pad.tactile", "taxels": "pad.taxels"},
+         "params": {"robot": "r1"}},
+        {"name": "fusion", "type": "contact_fusion",
+         "params": {"robot": "r1", "sources": "r1/*", "rate_hz": 50, "timeout": 0.1, "hold": 0.05}}]}}},
     "h2": {"roles": ["processing"], "nodes": {"n2": {"robot": "r1", "modules": [
         {"name": "gain", "type": "scale", "inputs": {"in": "src.signal"}, "params": {"rate_hz": 100, "gain": 2.0}}]}}},
     "h3": {"roles": ["control"], "nodes": {"n3": {"robot": "r1", "modules": [
@@ -40,7 +47,7 @@ def deployment(tmp_path_factory, lab_factory):
         for h in ("h1", "h2", "h3"):
             dep.up(h)
         eps = tool_endpoints(m, local=False)
-        obs = ProbeClient(lab.wrap("obs", []), eps, name="obs")
+        obs = ProbeClient(lab.wrap("obs", []), eps, name="obs", messages=("contactflow.fusion.messages",), ready_timeout=40)
         probes.append(obs)
         alive = obs.send("alive", key=KS.alive_node())
         wanted = {"h1/n1", "h2/n2", "h3/n3"}
@@ -88,9 +95,11 @@ def test_data_events_and_control_flow_between_hosts(deployment):
 def test_link_cut_is_seen_within_2s_and_heal_resumes_traffic_without_silent_loss(deployment):
     lab, m, dep, obs, alive, peer = deployment
     beacon = obs.send("sub", key=KS.events("r1", "*", "beacon"))
+    contacts = obs.send("sub", key=KS.fused("r1", "events"))
     palive = peer.send("alive", key=KS.alive_node())
     pdata = peer.send("sub", key=KS.output("r1", "*", "src", "signal"))
     assert obs.wait(lambda e: e.get("id") == beacon and e["ev"] == "sample", 10)
+    assert obs.wait(lambda e: e.get("id") == contacts and e["ev"] == "sample", 10), "no contact events from h1\n" + dep.logs()
     assert peer.wait(lambda e: e.get("id") == pdata and e["ev"] == "sample", 10)
     i_obs, i_peer = len(obs.events(alive, "alive")), len(peer.events(palive, "alive"))
 
@@ -102,25 +111,34 @@ def test_link_cut_is_seen_within_2s_and_heal_resumes_traffic_without_silent_loss
     assert gone_obs["t"] - t_cut < 2.0 and gone_peer["t"] - t_cut < 2.0, (gone_obs["t"] - t_cut, gone_peer["t"] - t_cut)
     assert not [e for e in _ups(obs, alive, "h1/n1", i_obs) if not e["up"] and e["key"].endswith(("h2/n2", "h3/n3"))]
     time.sleep(1.0)
-    n_beacon, n_data = obs.count(beacon), peer.count(pdata)
+    n_beacon, n_data, n_contacts = obs.count(beacon), peer.count(pdata), obs.count(contacts)
 
     lab.heal("h1")
     back = obs.wait(lambda e: e.get("id") == alive and e["ev"] == "alive" and e["up"] and e["key"].endswith("h1/n1") and e["t"] > t_cut, 20)
     assert back is not None, "h1 was not rediscovered after healing\n" + dep.logs()
     assert peer.wait(lambda e: e.get("id") == palive and e["ev"] == "alive" and e["up"] and e["key"].endswith("h1/n1") and e["t"] > t_cut, 10)
     end = time.monotonic() + 10
-    while time.monotonic() < end and (obs.count(beacon) < n_beacon + 20 or peer.count(pdata) < n_data + 20):
+    while time.monotonic() < end and (obs.count(beacon) < n_beacon + 20 or peer.count(pdata) < n_data + 20
+                                      or obs.count(contacts) < n_contacts + 4):
         time.sleep(0.1)
     assert obs.count(beacon) >= n_beacon + 20 and peer.count(pdata) >= n_data + 20, "traffic did not resume"
+    assert obs.count(contacts) >= n_contacts + 4, "contact events did not resume"
 
-    mon = SequenceMonitor()
-    for e in obs.events(beacon):
-        mon.observe(e["source"], e["seq"])
-    (source,) = mon.sources
-    track = mon.sources[source]
-    assert mon.accounted(source), track
-    assert track.gaps, "the outage must show as a reported gap, not disappear"
-    assert sum(g.count for g in track.gaps) >= 25  # ~1 s at 50 Hz was published while cut
+    # the link is down for over 1 s: >= 50 beacon and ~5 contact events are published meanwhile
+    for cid, least in ((beacon, 25), (contacts, 3)):
+        mon = SequenceMonitor()
+        for e in obs.events(cid):
+            mon.observe(e["source"], e["seq"])
+        (source,) = mon.sources
+        track = mon.sources[source]
+        assert mon.accounted(source), track
+        assert track.gaps, f"{source}: the outage must show as a reported gap, not disappear"
+        assert sum(g.count for g in track.gaps) >= least, track.gaps
+    received = obs.events(contacts)
+    assert {e["type"] for e in received} == {"contact_event"}
+    for a, b in zip(received, received[1:], strict=False):  # made and broken alternate where nothing was lost
+        if b["seq"] == a["seq"] + 1:
+            assert {a["event"], b["event"]} == {"contact_made", "contact_broken"}, (a, b)
     assert i_peer <= len(peer.events(palive, "alive"))
 
 

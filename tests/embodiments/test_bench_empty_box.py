@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+import pytest
+
 from contactflow.embodiments import bench_empty_box
+from contactflow.embodiments.primitives.base import matrix6
+from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
+from contactflow.embodiments.sim_robot import SimRobot
+from contactflow.embodiments.world import World, WorldParams, box
+from contactflow.nodes.status import Event
 
 
 def test_bench_empty_box_quick(tmp_path) -> None:
@@ -23,3 +31,35 @@ def test_sweep_covers_the_box_bottom() -> None:
     xs = sorted({round(x, 3) for x, _ in xy})
     assert len(xs) == 4 and xs[-1] - xs[0] > 0.1
     assert all(abs(pts[i + 2] - 0.8) < 1e-9 for i in range(0, len(pts), 3))
+
+
+def test_vision_approach_is_a_filtered_grasp_synthesis_axis_of_the_box() -> None:
+    """detect_objects (the vision strategy's and the pick tasks' detector) approaches along a box axis."""
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(box("slab", (0.05, 0.03, 0.12), xyz=(0.55, -0.25, 0.81), rpy=(0.0, 0.0, 0.5), mass=0.1))
+    robot = SimRobot(world, bench_empty_box.ROBOT)
+    runner = LocalPrimitiveRunner(robot)
+    R = robot.ground_truth().object_poses["slab"][:3, :3]
+    top_z = robot.ground_truth().object_poses["slab"][2, 3] + 0.06
+
+    def detect(**params):
+        return outcome(run_primitive(runner, "detect_objects", {"arm": bench_empty_box.ARM, **params}, max_time=2.0))
+
+    def direction(ev):
+        return np.array([ev.values[k] for k in ("dx", "dy", "dz")])
+
+    top = detect()  # defaults: straight down within 30 deg, reachable by the arm
+    assert top.event is Event.SUCCESS
+    assert abs(direction(top) @ R[:, 2]) > 0.999  # along the box's vertical axis
+    hand = matrix6(tuple(top.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")
+    assert hand[:3, 2] @ direction(top) > np.cos(np.radians(1.0))  # the hand's approach axis follows it
+    assert hand[2, 3] == pytest.approx(top_z + 0.05, abs=0.01)  # standoff above the top
+    side = detect(direction=[0.0, 0.0, 0.0])  # any direction: the widest face wins, along the thin axis
+    assert side.event is Event.SUCCESS
+    assert abs(direction(side) @ R[:, 1]) > 0.99 and abs(direction(side)[2]) < 0.05
+    hand = matrix6(tuple(side.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "side approach")
+    assert hand[:3, 2] @ direction(side) > 0.9999
+    assert sorted((side.values["d1"], side.values["d2"], side.values["d3"])) == pytest.approx([0.03, 0.05, 0.12], abs=0.01)
+    up = detect(direction=[0.0, 0.0, 1.0])  # only from below the table: every approach filtered out
+    assert up.event is Event.FAILURE and up.values["count"] == 1

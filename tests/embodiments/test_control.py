@@ -13,22 +13,34 @@ from contactflow.nodes.status import Status
 @pytest.mark.parametrize("name", ["tombatossals", "melfa", "baxter"])
 def test_holds_home_and_tracks_a_cartesian_line(name):
     robot = make_robot(name, table=False)
-    for arm_name in robot.arms[:1]:
-        arm = robot.arm(arm_name)
-        p0 = arm.ee_pose()
-        robot.step(5.0)
-        assert np.linalg.norm(arm.ee_pose()[:3, 3] - p0[:3, 3]) < 1e-3
-        goal = p0.copy()
+    arms = [robot.arm(a) for a in robot.arms]
+    assert len(arms) == (1 if name == "melfa" else 2)
+    p0 = {arm.name: arm.ee_pose() for arm in arms}
+    heads = [c.link for c in robot.spec.cameras]
+    h0 = {link: robot.frame_pose(link) for link in heads}
+    robot.step(5.0)
+    for arm in arms:  # every arm holds its home pose
+        assert np.linalg.norm(arm.ee_pose()[:3, 3] - p0[arm.name][:3, 3]) < 1e-3, arm.name
+    for link in heads:  # and so does the head carrying the camera
+        assert np.linalg.norm(robot.frame_pose(link)[:3, 3] - h0[link][:3, 3]) < 1e-3, link
+        assert np.linalg.norm(robot.frame_pose(link)[:3, :3] - h0[link][:3, :3]) < 2e-3, link
+    for arm in arms:
+        start = arm.ee_pose()
+        goal = start.copy()
         goal[:3, 3] += np.array([0.0, -0.06, -0.08])  # 10 cm line
         arm.move_pose(goal, speed=0.1)
         trace = []
-        while not arm.done() and robot.time < 10.0:
+        t_end = robot.time + 5.0
+        while not arm.done() and robot.time < t_end:
             robot.step(0.01)
             trace.append(arm.ee_pose()[:3, 3])
-        assert arm.status == Status.SUCCESS
-        assert line_deviation(np.array(trace), p0[:3, 3], goal[:3, 3]) < 5e-3
-        assert np.linalg.norm(arm.ee_pose()[:3, 3] - goal[:3, 3]) < 5e-3
-        assert np.linalg.norm(arm.ee_pose()[:3, :3] - goal[:3, :3]) < 0.02
+        assert arm.status == Status.SUCCESS, arm.name
+        assert line_deviation(np.array(trace), start[:3, 3], goal[:3, 3]) < 5e-3, arm.name
+        assert np.linalg.norm(arm.ee_pose()[:3, 3] - goal[:3, 3]) < 5e-3, arm.name
+        assert np.linalg.norm(arm.ee_pose()[:3, :3] - goal[:3, :3]) < 0.02, arm.name
+        for other in arms:  # the arm that is not commanded keeps holding
+            if other is not arm and other.status == Status.IDLE:
+                assert np.linalg.norm(other.ee_pose()[:3, 3] - p0[other.name][:3, 3]) < 1e-3, other.name
 
 
 def test_twist_in_a_task_frame_and_joint_move(melfa):

@@ -52,3 +52,39 @@ def test_monitor_unit_rules():
     assert m.check(0.0, ok, ok, target) is None
     assert m.check(1.0, ok, ok, target).kind == "stuck_joint"
     assert m.check(2.0, ok, ok, ok, {"ft": 1.0}).kind == "sensor_loss"
+
+
+@pytest.mark.parametrize("sensor", ["arm", "gripper"])
+def test_a_silent_stream_is_noticed_by_the_watchdog(sensor):
+    robot, arm = _moving_melfa()
+    stream = robot._ft_of_arm[sensor] if sensor == "arm" else robot._tactile[sensor]
+    robot.step(0.05)
+    assert stream.stamp == pytest.approx(robot.time, abs=0.006)  # a live stream: fresh samples
+    robot.inject_fault("sensor_loss", sensor=sensor)
+    stamp = stream.stamp
+    robot.step(0.15)
+    assert not robot.failed  # a gap shorter than the watchdog timeout is tolerated
+    assert stream.stamp == stamp  # the sensor produces no new sample
+    if sensor == "arm":
+        assert robot.ft("arm").t == stamp  # readers get the last sample, not a fresh one
+    robot.step(0.2)
+    assert robot.failed and robot.failure.startswith("sensor_loss")
+    assert [e for _, e, _ in robot.events] == [Event.HARDWARE_FAILURE]
+
+
+def test_a_lost_camera_gives_hardware_failure_when_read():
+    robot = make_robot("tombatossals")
+    first = robot.camera()
+    assert len(first.points) > 1000 and not robot.failed
+    robot.inject_fault("sensor_loss", sensor="kinect")
+    robot.step(0.4)
+    frame = robot.camera()
+    assert frame.t == first.t  # no new frame came
+    assert robot.failed and "camera kinect" in robot.failure
+    assert [e for _, e, _ in robot.events] == [Event.HARDWARE_FAILURE]
+
+
+def test_sensor_loss_names_the_known_sensors():
+    robot = make_robot("melfa", table=False)
+    with pytest.raises(ValueError, match=r"no sensor 'nose' \(F/T by arm: \['arm'\], tactile by hand: \['gripper'\]"):
+        robot.inject_fault("sensor_loss", sensor="nose")

@@ -62,5 +62,7 @@ def test_wrapper_matches_raw_pinocchio(tmp_path):
     q = np.clip(np.random.default_rng(0).uniform(-1, 1, model.nq), model.lowerPositionLimit, model.upperPositionLimit)
     kin.update(q)
     pin.framesForwardKinematics(model, data, q)
-    fid = model.getFrameId("left_gripper")
-    assert np.allclose(kin.frame_pose("left_gripper"), data.oMf[fid].homogeneous)
+    for name in ("left_gripper", "right_gripper", "head"):  # both arms and the head
+        fid = model.getFrameId(name)
+        assert fid < model.nframes, name
+        assert np.allclose(kin.frame_pose(name), data.oMf[fid].homogeneous), name

@@ -80,7 +80,10 @@ def test_camera_and_ground_truth_publishers():
     io = FakeIO()
     run_module(CameraPublisher("cam", r), io, steps=1)
     assert io.published["depth"][-1].depth.numpy().shape == (480, 640)
-    assert io.published["cloud"][-1].points.numpy().shape[1] == 3
+    cloud = io.published["cloud"][-1]
+    assert cloud.points.numpy().shape[1] == 3
+    T_cam = np.array(io.published["depth"][-1].T_world_cam).reshape(4, 4)
+    assert cloud.sensor == "kinect" and np.allclose(cloud.origin, T_cam[:3, 3])
     io = FakeIO()
     run_module(GroundTruthPublisher("gt", r), io, steps=1)
     poses = io.published["object_poses"][-1]
@@ -101,3 +104,47 @@ def test_hardware_failure_is_published_as_an_event():
     pub.step()
     assert io.event_labels() == [Event.HARDWARE_FAILURE]
     assert "nan" in io.events[0].detail
+
+
+def test_robot_model_publisher_poses_the_spherical_model_sensor_frames_and_taxels(robot):
+    from contactflow.embodiments.messages import RobotModel, TaxelPoses
+    from contactflow.embodiments.modules.model_publisher import RobotModelPublisher
+    from contactflow.embodiments.sensors.tactile import taxel_positions
+    from contactflow.embodiments.transforms import pose_to_matrix
+
+    js = FakeIO()
+    run_module(JointStatePublisher("js", robot), js, steps=1)
+    pub = RobotModelPublisher("model", robot.spec, robot.art.base)
+    io = FakeIO()
+    run_module(pub, io, steps=1)
+    assert io.published["robot_model"] == []  # nothing before the first joint state
+    io.feed("joint_state", js.published["joint_state"][-1])
+    pub.step()
+    pub.step()  # the same joint state is not posed twice
+    (model,) = io.published["robot_model"]
+    assert isinstance(model, RobotModel) and model.robot == "melfa"
+    sph = robot.spherical
+    assert model.links == sph.links
+    assert np.allclose(model.c1.numpy(), sph.C1, atol=1e-6) and np.allclose(model.r2.numpy(), sph.r2)
+    ft_link = robot.spec.ft(robot.spec.arm("arm").ft).link
+    T_ft = model.poses.numpy()[model.frames.index(ft_link)]
+    assert np.allclose(T_ft, pose_to_matrix(robot.art.links[ft_link].get_entity_pose()), atol=1e-4)
+    (taxels,) = io.published["taxels"]
+    assert isinstance(taxels, TaxelPoses) and taxels.hand == "gripper"
+    pads = robot.spec.hand("gripper").pads
+    assert taxels.pads == [p.name for p in pads] and taxels.positions.numpy().shape == (2, 5, 8, 3)
+    for k, pad in enumerate(pads):
+        T = pose_to_matrix(robot.art.links[pad.link].get_entity_pose())  # the simulator's pose, not pinocchio's
+        expected = taxel_positions(pad) @ T[:3, :3].T + T[:3, 3]
+        assert np.allclose(taxels.positions.numpy()[k], expected, atol=1e-4)
+    moved = js.published["joint_state"][-1]
+    q = moved.position.numpy().copy()
+    q[0] += 0.5
+    io.feed("joint_state", JointState(robot="melfa", names=moved.names, position=NDArray.of(q),
+                                      velocity=moved.velocity, effort=moved.effort))
+    pub.step()
+    assert not np.allclose(io.published["robot_model"][-1].c1.numpy(), sph.C1, atol=1e-3)
+    io.feed("joint_state", JointState(robot="melfa", names=["nope"], position=NDArray.of(np.zeros(1)),
+                                      velocity=NDArray.of(np.zeros(1)), effort=NDArray.of(np.zeros(1))))
+    with pytest.raises(ValueError, match="input 'joint_state'.*nope"):
+        pub.step()

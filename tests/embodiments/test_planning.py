@@ -1,4 +1,4 @@
-"""OMPL planning around a box obstacle (both checkers), and execution that stops on an unexpected contact."""
+"""OMPL planning around a given or sensed obstacle (both checkers, never the simulator's poses), and execution that stops on an unexpected contact."""
 
 from __future__ import annotations
 
@@ -6,9 +6,16 @@ import numpy as np
 import pytest
 
 from contactflow.embodiments.control.kinematics import Kinematics
-from contactflow.embodiments.control.planning import CoalChecker, Obstacle, obstacles_from_world
+from contactflow.embodiments.control.planning import (
+    CoalChecker,
+    Obstacle,
+    fixtures_from_world,
+    sensed_cloud,
+)
+from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.testing import make_robot
-from contactflow.embodiments.world import box
+from contactflow.embodiments.transforms import xyz_rpy_to_matrix
+from contactflow.embodiments.world import World, box
 from contactflow.nodes.status import Event, Status
 
 
@@ -37,20 +44,12 @@ def _swept_clear(robot, plan, obstacles) -> bool:
     return True
 
 
-@pytest.mark.parametrize("checker", ["coal", "spherical"])
-@pytest.mark.parametrize("planner", ["KPIECE1", "RRTConnect"])
-def test_planner_finds_a_path_around_a_box(scene, planner, checker):
-    robot, a, b = scene
-    arm = robot.arm("arm")
-    if "wall" not in robot.world.objects:
-        robot.world.add_object(box("wall", (0.25, 0.03, 0.2), (0.45, 0.0, 0.85), static=True))
-    for _ in range(2):  # sampling planners are probabilistically complete: one retry is normal use
-        plan = arm.plan(b, planner=planner, checker=checker, timeout=10.0)
-        if plan is not None and plan.success:
-            break
-    assert plan is not None and plan.success, f"{planner}/{checker}: no plan"
-    obstacles = obstacles_from_world(robot.world)
-    assert _swept_clear(robot, plan, obstacles), f"{planner}/{checker}: path collides"
+WALL = Obstacle("wall", "box", (0.25, 0.03, 0.2), xyz_rpy_to_matrix((0.45, 0.0, 0.85)))
+
+
+def _check_detour(robot, arm, plan, b, obstacles, label):
+    assert plan is not None and plan.success, f"{label}: no plan"
+    assert _swept_clear(robot, plan, obstacles), f"{label}: path collides"
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
     q = robot._kin_q_cmd()
     q[kin.q_index(plan.joints)] = plan.waypoints[-1]
@@ -59,6 +58,61 @@ def test_planner_finds_a_path_around_a_box(scene, planner, checker):
     # the straight joint-space line would hit the wall
     straight = np.linspace(plan.waypoints[0], plan.waypoints[-1], 50)
     assert not _swept_clear(robot, type(plan)(plan.joints, straight, "line", 0.0, True), obstacles)
+
+
+@pytest.mark.parametrize("checker", ["coal", "spherical"])
+@pytest.mark.parametrize("planner", ["KPIECE1", "RRTConnect"])
+def test_planner_finds_a_path_around_a_given_box(scene, planner, checker):
+    robot, a, b = scene
+    arm = robot.arm("arm")
+    for _ in range(2):  # sampling planners are probabilistically complete: one retry is normal use
+        plan = arm.plan(b, planner=planner, checker=checker, timeout=10.0, obstacles=(WALL,))
+        if plan is not None and plan.success:
+            break
+    _check_detour(robot, arm, plan, b, [WALL, *fixtures_from_world(robot.world)], f"{planner}/{checker}")
+
+
+def test_planner_does_not_read_the_simulated_objects(scene):
+    robot, a, b = scene
+    arm = robot.arm("arm")
+    if "ghost" not in robot.world.objects:
+        # a wall that exists in the simulation but nobody sensed or declared: the planner must not know it
+        robot.world.add_object(box("ghost", (0.25, 0.03, 0.2), (0.45, 0.0, 0.85), static=True))
+    plan = arm.plan(b, planner="RRTConnect", timeout=5.0)
+    assert plan is not None and plan.success
+    assert not _swept_clear(robot, plan, [WALL]), "a plan that avoids an obstacle nobody gave it reads ground truth"
+    robot.world.remove_object("ghost")
+
+
+def test_planner_avoids_a_point_cloud_obstacle(scene):
+    robot, a, b = scene
+    arm = robot.arm("arm")
+    g = np.linspace(-0.5, 0.5, 13)
+    u, v, w = np.meshgrid(g * 0.25, g * 0.03, g * 0.2)
+    cloud = np.stack([u.ravel(), v.ravel(), w.ravel()], 1) + [0.45, 0.0, 0.85]
+    for _ in range(2):
+        plan = arm.plan(b, planner="RRTConnect", timeout=10.0, cloud=cloud)
+        if plan is not None and plan.success:
+            break
+    _check_detour(robot, arm, plan, b, [WALL, *fixtures_from_world(robot.world)], "cloud")
+
+
+def test_sensed_cloud_removes_the_robot_and_the_table():
+    world = World()
+    world.add_table()
+    world.add_object(box("b", (0.06, 0.06, 0.1), (0.55, -0.25, 0.8), static=True))
+    robot = SimRobot(world, "tombatossals")
+    robot.arm("right").move_joints(np.asarray(robot.arm("right").home) + [0.3, 0.3, 0, 0, 0, 0, 0], speed=2.0)
+    robot.step(0.5)
+    frame = robot.camera()
+    robot_ids = {i for i, n in enumerate(frame.label_names) if n not in ("b", "table", "ground", "")}
+    assert np.isin(frame.labels[frame.labels >= 0], list(robot_ids)).any()  # the camera sees the arm
+    pts = sensed_cloud(robot)
+    assert len(pts) > 50
+    T = np.eye(4)
+    T[:3, 3] = (0.55, -0.25, 0.8)
+    near_box = np.all(np.abs(pts - T[:3, 3]) <= [0.04, 0.04, 0.06], axis=1)
+    assert near_box.mean() > 0.9, "the sensed cloud should be the box alone"
 
 
 def test_unreachable_goal_returns_no_plan(scene):

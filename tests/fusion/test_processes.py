@@ -5,19 +5,19 @@ import threading
 import numpy as np
 
 from contactflow.fusion.messages import ContactEventMsg
+from contactflow.fusion.testing import one_pad_hand
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.messages import Array
 from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
 from contactflow.nodes.status import Event
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
-from contactflow.nodes.wire import NDArray, decode, encode
+from contactflow.nodes.wire import decode, encode
 
 SITE = "fusionproc"
 KS = KeySpace(SITE)
 
 
-def taxel_key(robot):
-    return f"{KS.prefix}/test/{robot}/taxels"
+def taxel_key(robot, stream="taxels"):
+    return f"{KS.prefix}/test/{robot}/{stream}"
 
 
 def configs(port_a, port_b):
@@ -28,7 +28,7 @@ def configs(port_a, port_b):
     def tactile(robot):
         return {"name": "tactile", "type": "tactile_hypotheses", "robot": robot,
                 "params": {"robot": robot, "rate_hz": 100},
-                "inputs": {"taxels": taxel_key(robot)},
+                "inputs": {"taxels": taxel_key(robot), "tactile": taxel_key(robot, "tactile")},
                 "outputs": {"hypotheses": KS.hypotheses(robot, "tactile")}}
 
     a = {"site": SITE, "node": "arm1", "host": "h1", "robot": "r1", "clock": "wall", "zenoh": zen_a,
@@ -60,13 +60,14 @@ def test_two_robots_fused_across_processes(tmp_path):
         up = wait_for(lambda: len(tool.alive(KS.alive_module(), timeout=0.3)) >= 3, timeout=40)
         logs = lambda: (tmp_path / "a.log").read_text()[-1500:] + (tmp_path / "b.log").read_text()[-1500:]  # noqa: E731
         assert up, logs()
-        pub = {r: tool.publisher(taxel_key(r)) for r in ("r1", "r2")}
+        pub = {r: (tool.publisher(taxel_key(r)), tool.publisher(taxel_key(r, "tactile"))) for r in ("r1", "r2")}
         where = {"r1": [0.5, 0.3, 0.8], "r2": [0.5, -0.3, 0.8]}
 
         def touch(robots):
             for r in ("r1", "r2"):
-                p = np.array([where[r] + [2.0 if r in robots else 0.0]])
-                pub[r](encode(Array(array=NDArray.of(p))))
+                tactile, poses = one_pad_hand([where[r]], [2.0 if r in robots else 0.0], robot=r)
+                pub[r][0](encode(poses))
+                pub[r][1](encode(tactile))
 
         def made():
             with lock:

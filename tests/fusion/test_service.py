@@ -6,11 +6,10 @@ from contactflow.fusion.generators.tactile import TactileGenerator, TactileParam
 from contactflow.fusion.hypotheses import Hypotheses
 from contactflow.fusion.messages import ContactEventMsg, ContactList, HypothesisCloud
 from contactflow.fusion.service import ContactFusion, FusionParams
+from contactflow.fusion.testing import one_pad_hand
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.messages import Array
 from contactflow.nodes.status import Event
 from contactflow.nodes.testing import FakeIO
-from contactflow.nodes.wire import NDArray
 
 A = np.array([[0.50, 0.30, 0.80]])
 B = np.array([[0.50, -0.30, 0.80]])
@@ -71,8 +70,9 @@ def test_tactile_shell_publishes_cloud():
     gen = TactileGenerator("tactile", TactileParams(robot="r1"))
     io = FakeIO()
     start(gen, io)
-    taxels = np.array([[0.5, 0, 0.8, 0.0], [0.52, 0, 0.8, 2.0]])
-    io.feed("taxels", Array(array=NDArray.of(taxels)))
+    tactile, poses = one_pad_hand([[0.5, 0, 0.8], [0.52, 0, 0.8]], [0.0, 2.0])
+    io.feed("taxels", poses)
+    io.feed("tactile", tactile)
     gen.step()
     (msg,) = io.published["hypotheses"]
     assert (msg.robot, msg.generator) == ("r1", "tactile")

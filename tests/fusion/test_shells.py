@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from contactflow.embodiments.messages import JointState, PointCloud, Wrench
 from contactflow.fusion.generators.finger import (
     FingerParams,
     FingerPoseHypothesesGenerator,
@@ -13,8 +14,10 @@ from contactflow.fusion.generators.motion import MotionSupportHypothesesGenerato
 from contactflow.fusion.generators.null import NullHypothesesGenerator
 from contactflow.fusion.generators.range import RangeHypothesesGenerator
 from contactflow.fusion.generators.simulator import SimulatorSupportGenerator
+from contactflow.fusion.generators.tactile import TactileGenerator, TactileParams
 from contactflow.fusion.hypotheses import HypothesisType
-from contactflow.nodes.messages import Array, Vector
+from contactflow.fusion.testing import one_pad_hand, point_cloud, robot_model
+from contactflow.nodes.messages import Array
 from contactflow.nodes.testing import FakeIO
 from contactflow.nodes.wire import NDArray
 
@@ -37,24 +40,77 @@ def clouds(io):
     return [m.hypotheses() for m in io.published["hypotheses"]]
 
 
-def test_force_torque_shell():
+def test_force_torque_shell_reads_a_world_wrench_and_the_sensor_pose_from_the_model():
     gen = ForceTorqueGenerator("ft", ForceTorqueParams(robot="r1", box_lo=(-0.05, -0.05, 0.0),
-                                                        box_hi=(0.05, 0.05, 0.2)))
+                                                        box_hi=(0.05, 0.05, 0.2), link="hand"))
+    io = started(gen)
+    T = np.eye(4)
+    T[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # sensor turned 90 deg about z
+    T[:3, 3] = [0.5, 0.2, 0.9]
+    p_local = np.array([0.0, -0.04, 0.1])
+    f_local = np.array([0.5, 3.0, 1.0])
+    R = T[:3, :3]
+    f_w, tau_w = R @ f_local, R @ np.cross(p_local, f_local)  # world axes, about the sensor origin
+    gen.step()
+    assert io.published["hypotheses"] == []  # waits for all inputs
+    io.feed("robot_model", robot_model(HAND, {"wrist": T}))
+    io.feed("wrench", Wrench(arm="arm", sensor_frame="wrist", force=f_w.tolist(), torque=tau_w.tolist()))
+    gen.step()
+    (msg,) = io.published["hypotheses"]
+    h = msg.hypotheses()
+    assert msg.link == "hand" and msg.robot == "r1"
+    true = R @ p_local + T[:3, 3]
+    assert np.linalg.norm(h.location - true, axis=1).min() < 0.006
+    assert np.allclose(h.direction[0], f_w / np.linalg.norm(f_w), atol=1e-5)
+    io.feed("wrench", Wrench(arm="arm", sensor_frame="elbow", force=f_w.tolist(), torque=tau_w.tolist()))
+    with pytest.raises(ValueError, match="no pose of frame 'elbow'"):
+        gen.step()
+    io.feed("wrench", Wrench(arm="arm", sensor_frame="wrist", force=[1.0, 2.0], torque=[0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="3 finite force"):
+        gen.step()
+
+
+def test_force_torque_shell_takes_the_box_from_the_hand_links():
+    gen = ForceTorqueGenerator("ft", ForceTorqueParams(robot="r1", links=("link0",)))
     io = started(gen)
     T = np.eye(4)
     T[:3, 3] = [0.5, 0.2, 0.9]
-    p_local = np.array([0.04, 0.0, 0.1])
-    f = np.array([-3.0, 0.5, 1.0])
+    far = [1.5, 0.2, 0.95, 0.04, 1.5, 0.2, 1.05, 0.04]  # another link, outside the hand box
+    io.feed("robot_model", robot_model(np.vstack([HAND, far]), {"wrist": T}))
+    p_local, f = np.array([0.04, 0.0, 0.1]), np.array([-3.0, 0.5, 1.0])
+    io.feed("wrench", Wrench(arm="arm", sensor_frame="wrist", force=f.tolist(), torque=np.cross(p_local, f).tolist()))
     gen.step()
-    assert io.published["hypotheses"] == []  # waits for all inputs
-    io.feed("sensor_pose", arr(T))
-    io.feed("robot_model", arr(HAND))
-    io.feed("wrench", Vector(values=[float(v) for v in (*f, *np.cross(p_local, f))]))
+    h = clouds(io)[-1]
+    assert len(h) and np.linalg.norm(h.location - (p_local + T[:3, 3]), axis=1).min() < 0.006
+    assert h.location[:, 0].max() < 0.6
+    bad = ForceTorqueGenerator("ft", ForceTorqueParams(links=("nothing",)))
+    io = started(bad)
+    io.feed("robot_model", robot_model(HAND, {"wrist": T}))
+    io.feed("wrench", Wrench(arm="arm", sensor_frame="wrist", force=f.tolist(), torque=[0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="no link starts with"):
+        bad.step()
+
+
+def test_tactile_shell_places_the_hand_reading_with_its_taxel_poses():
+    gen = TactileGenerator("tactile", TactileParams(robot="r1"))
+    io = started(gen)
+    tactile, poses = one_pad_hand([[0.5, 0, 0.8], [0.52, 0, 0.8], [0.54, 0, 0.8]], [0.0, 2.0, 1.0])
+    io.feed("tactile", tactile)
     gen.step()
-    (h,) = clouds(io)
-    assert np.linalg.norm(h.location - (p_local + T[:3, 3]), axis=1).min() < 0.006
-    io.feed("wrench", Vector(values=[1.0, 2.0]))
-    with pytest.raises(ValueError, match="expected 6"):
+    assert io.published["hypotheses"] == []  # taxels not placed yet
+    io.feed("taxels", poses)
+    io.feed("tactile", tactile)
+    gen.step()
+    (msg,) = io.published["hypotheses"]
+    h = msg.hypotheses()
+    assert msg.link == "hand"
+    best = h.location[np.argmax(h.likelihood)]
+    assert np.linalg.norm(best - [0.52, 0, 0.8]) < 0.005 and len(h) == 2
+    assert np.allclose(h.direction, [0, 0, -1])
+    _, other = one_pad_hand([[0.5, 0, 0.8]], [1.0])
+    io.feed("taxels", other)
+    io.feed("tactile", tactile)
+    with pytest.raises(ValueError, match="do not match"):
         gen.step()
 
 
@@ -64,41 +120,56 @@ def test_range_shell_initialises_then_stays_quiet_without_contact():
     g = np.arange(-0.03, 0.031, 0.005)
     top = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
     pts = np.column_stack([top[:, 0] + 0.55, top[:, 1], np.full(len(top), 0.87)])
-    io.feed("robot_model", arr(HAND))
-    io.feed("camera", Vector(values=[0.0, 0.0, 1.4]))
+    io.feed("robot_model", robot_model(HAND))
     for _ in range(2):
-        io.feed("points", arr(pts))
+        io.feed("points", point_cloud(pts))
         gen.step()
     assert [len(h) for h in clouds(io)] == [0, 0]
     assert gen.core.grid is not None
-    io.feed("points", arr(np.zeros((3, 2))))
-    with pytest.raises(ValueError, match="expected \\(n, 3\\)"):
+    io.feed("points", PointCloud(points=NDArray.of(pts.astype(np.float32))))
+    with pytest.raises(ValueError, match="expected the camera position"):
         gen.step()
 
 
-def test_finger_shell():
+def joint_state(names, q):
+    z = NDArray.of(np.zeros(len(q)))
+    return JointState(robot="r1", names=list(names), position=NDArray.of(np.asarray(q, dtype=float)), velocity=z,
+                      effort=z)
+
+
+def test_finger_shell_reads_the_joint_state_and_the_fingers_links():
     assert fingers_of((0, 0, 1, -1), 4) == [[0, 1], [2]]
-    gen = FingerPoseHypothesesGenerator("finger", FingerParams(finger_of_joint=(0, 0, 1, 1)))
+    gen = FingerPoseHypothesesGenerator("finger", FingerParams(
+        finger_of_joint=(0, 0, 1, 1), joints=("f0a", "f0b", "f1a", "f1b"), finger_links=("link0", "link1")))
     io = started(gen)
-    surf = np.array([[0.5, 0, 0.9, 0], [0.5, 0.05, 0.9, 1], [0.5, 0.06, 0.9, 1]])
-    io.feed("finger_surfaces", arr(surf))
-    io.feed("fingers", Vector(values=[0, 0, 0, 0]))
+    fingers = np.array([[0.5, 0.0, 0.9, 0.01, 0.5, 0.0, 0.95, 0.01],    # link0: finger 0
+                        [0.5, 0.05, 0.9, 0.01, 0.5, 0.05, 0.95, 0.01]])  # link1: finger 1
+    io.feed("robot_model", robot_model(fingers))
+    names = ["arm", "f0a", "f0b", "f1a", "f1b"]
+    io.feed("joint_state", joint_state(names, [0.3, 0, 0, 0, 0]))
     gen.step()
-    io.feed("fingers", Vector(values=[0, 0, 0, 0.3]))
+    io.feed("joint_state", joint_state(names, [0.9, 0, 0, 0, 0.3]))  # the arm moved, finger 1 bent
     gen.step()
     h = clouds(io)[-1]
-    assert len(h) == 2 and np.allclose(h.likelihood, 0.5)
+    assert len(h) > 10 and np.allclose(h.likelihood, 1.0 / len(h))
+    assert (np.abs(h.location[:, 1] - 0.05) < 0.02).all()  # on finger 1 only
+    io.feed("joint_state", joint_state(["arm"], [0.0]))
+    with pytest.raises(ValueError, match="lacks joints"):
+        gen.step()
 
 
-def test_motion_shell_extrapolates_surface():
+def test_motion_shell_extrapolates_the_model():
     gen = MotionSupportHypothesesGenerator("motion")
     io = started(gen)
-    io.feed("surface", arr([[0.50, 0, 0.9]]))
+    ball = np.array([0.50, 0, 0.9, 0.02, 0.50, 0, 0.9, 0.02])
+    io.feed("robot_model", robot_model(ball))
     gen.step()
-    io.feed("surface", arr([[0.51, 0, 0.9]]))
+    io.feed("robot_model", robot_model(ball + [0.01, 0, 0, 0, 0.01, 0, 0, 0]))
     gen.step()
     (h,) = clouds(io)
-    assert h.kind[0] == HypothesisType.SUPPORT and abs(h.location[0, 0] - 0.52) <= 0.0026
+    assert (h.kind == HypothesisType.SUPPORT).all() and np.allclose(h.likelihood, 0.3)
+    d = np.linalg.norm(h.location - [0.52, 0, 0.9], axis=1)
+    assert np.abs(d - 0.02).max() < 0.006  # on the sphere moved one more step
 
 
 def test_simulator_and_null_shells():
@@ -109,7 +180,7 @@ def test_simulator_and_null_shells():
     assert clouds(io)[0].likelihood.tolist() == [0.5]
     null = NullHypothesesGenerator("null")
     io = started(null)
-    io.feed("robot_model", arr(HAND))
+    io.feed("robot_model", robot_model(HAND))
     null.step()
     (h,) = clouds(io)
     assert len(h) > 10 and (h.kind == HypothesisType.NULL).all()

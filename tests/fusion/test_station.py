@@ -6,8 +6,16 @@ import pytest
 from contactflow.embodiments.scenes import SCENES
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import World, WorldParams
-from contactflow.fusion.station import StationFusion
+from contactflow.fusion.messages import HypothesisCloud
+from contactflow.fusion.service import ContactFusion, FusionParams
+from contactflow.fusion.station import StationFusion, cloud_publisher
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.status import Event
+from contactflow.nodes.testing import FakeIO, run_module
+from contactflow.nodes.transport import LocalTransport
+from contactflow.nodes.wire import decode
+
+KS = KeySpace("station")
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +35,10 @@ def run_until(robot, station, arm, limit):
 
 def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
     events = []
-    station = StationFusion(melfa, events.append)
+    bus = LocalTransport()
+    heard = []
+    bus.subscribe(KS.hypotheses("*", "*"), lambda key, data: heard.append((key, decode(data, HypothesisCloud, key))))
+    station = StationFusion(melfa, events.append, publish_cloud=cloud_publisher(bus, "melfa/station"), keyspace=KS)
     arm = melfa.arm("arm")
     melfa.tare_ft("arm")
     start = arm.ee_pose()[:3, 3].copy()
@@ -42,6 +53,7 @@ def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
     tip = arm.ee_pose()[:3, 3]
     assert np.linalg.norm(made[0].location[:2] - tip[:2]) < 0.12
     assert abs(made[0].location[2] - 0.75) < 0.08
+    touching = len(heard)
     up = arm.ee_pose().copy()
     up[2, 3] = start[2]
     arm.move_pose(up, speed=0.2)
@@ -50,3 +62,18 @@ def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
         melfa.step(0.005)
         station(melfa)
     assert events[-1].event == Event.CONTACT_BROKEN
+    # every cycle each generator's cloud went out on contacts/<robot>/<generator>; another
+    # integrator listening there finds the same contact
+    keys = {k for k, _ in heard}
+    assert keys == {KS.hypotheses("melfa", "tactile_arm"), KS.hypotheses("melfa", "force_torque_arm")}
+    assert all(m.robot == "melfa" and m.link == "gripper" and m.hdr.source.startswith("melfa/station/")
+               for _, m in heard)
+    fusion = ContactFusion("fusion", FusionParams(robot="site"))
+    io = FakeIO()
+    run_module(fusion, io, steps=0)
+    for _, msg in heard[:touching]:
+        io.t = msg.stamp
+        io.feed("hypotheses", msg)
+        fusion.step()
+    remote = [e for e in io.published["events"] if e.event == Event.CONTACT_MADE]
+    assert remote and np.linalg.norm(np.array(remote[0].location) - made[0].location) < 0.03

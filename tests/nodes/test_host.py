@@ -1,31 +1,43 @@
 """The module host on the in-process transport: scheduling, control, layers, resources, faults."""
 
+import threading
+import time
 from dataclasses import dataclass
 
 import msgpack
+import numpy as np
 import pytest
 
+from contactflow.embodiments.messages import JointCommand
 from contactflow.nodes.clock import SimClock
-from contactflow.nodes.config import parse_node_config
-from contactflow.nodes.host import ModuleHost
+from contactflow.nodes.config import ConfigError, parse_node_config
+from contactflow.nodes.host import ModuleHost, SeqTracker
 from contactflow.nodes.messages import Command, ControlReply, EventMsg, StatusMsg, Vector
 from contactflow.nodes.module import Layer, LayerError, Module, Port
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.transport import LocalTransport
-from contactflow.nodes.wire import decode, decode_any, encode
+from contactflow.nodes.wire import Header, NDArray, decode, decode_any, encode, stamp
 from contactflow.nodes.yamldoc import YamlDoc
 
 
 class ArmCommander(Module):
-    """Primitive that commands the shared resource ``arm``."""
+    """Primitive that sends joint commands to the shared resource ``arm``."""
 
     layer = Layer.PRIMITIVE
-    outputs = (Port("cmd", Vector),)
+    outputs = (Port("cmd", JointCommand, resource="arm"),)
     resources = ("arm",)
 
     def step(self) -> Status:
-        self.io.publish("cmd", Vector(values=[1.0]))
+        self.io.publish("cmd", JointCommand(names=["j1"], position=NDArray.of(np.array([0.3]))))
         return Status.RUNNING
+
+
+class VectorArm(Module):
+    """Commands ``arm`` with a message that has no weight to mix by."""
+
+    layer = Layer.PRIMITIVE
+    outputs = (Port("cmd", Vector, resource="arm"),)
+    resources = ("arm",)
 
 
 class Exploding(Module):
@@ -57,9 +69,18 @@ class RogueService(Module):
         return Status.RUNNING
 
 
-def make_host(text: str):
+class SlowAliveTransport(LocalTransport):
+    """A bus whose liveliness answers arrive a network round trip after they were true."""
+
+    def alive(self, keyexpr, timeout=1.0):
+        seen = super().alive(keyexpr, timeout)
+        time.sleep(0.05)
+        return seen
+
+
+def make_host(text: str, t=None):
     cfg = parse_node_config(YamlDoc.parse(text, "test.yaml"))
-    t = LocalTransport()
+    t = t if t is not None else LocalTransport()
     seen: list[tuple[str, object]] = []
     t.subscribe("cf/**", lambda k, p: seen.append((k, decode_any(p))))
     clock = SimClock(t, cfg.keyspace)
@@ -138,24 +159,138 @@ def test_stop_and_reset():
     assert host.send_control("src", Command.RUN, {}).state == Status.RUNNING
 
 
-def test_second_commander_of_a_resource_is_refused_unless_mixing_is_declared():
+ARMS = f"""
+site: t
+node: n
+clock: sim
+modules:
+  - {{name: a, type: "{__name__}:ArmCommander"}}
+  - {{name: b, type: "{__name__}:ArmCommander"}}
+  - {{name: m1, type: "{__name__}:ArmCommander", mix: {{arm: 0.5}}}}
+  - {{name: m2, type: "{__name__}:ArmCommander", mix: {{arm: 0.25}}}}
+"""
+
+
+def test_second_commander_of_a_resource_is_refused_unless_both_declare_mixing():
+    host, clock, _ = make_host(ARMS)
+    assert host.send_control("a", Command.RUN, {}).ok
+    refused = host.send_control("b", Command.RUN, {})
+    assert not refused.ok and refused.state == Status.IDLE
+    assert "already commanded by n/a" in refused.error and "mix: {arm: <weight>}" in refused.error
+    one_sided = host.send_control("m1", Command.RUN, {})
+    assert not one_sided.ok, "a mixing module joined a module that commands the arm alone"
+    assert "n/a does not declare weighted mixing" in one_sided.error
+    host.send_control("a", Command.STOP, {})
+    assert host.send_control("m1", Command.RUN, {}).ok
+    assert host.send_control("m2", Command.RUN, {}).ok
+    late = host.send_control("a", Command.RUN, {})
+    assert not late.ok and "a does not declare weighted mixing" in late.error
+    host.send_control("m1", Command.STOP, {})
+    host.send_control("m2", Command.STOP, {})
+    assert host.send_control("b", Command.RUN, {}).ok
+
+
+def test_mixing_weight_of_the_configuration_is_written_into_published_commands():
+    host, clock, seen = make_host(ARMS)
+    for name in ("m1", "m2"):
+        assert host.send_control(name, Command.RUN, {}).ok
+    run_for(host, clock, 0.5)
+    weights = {k.split("/")[-3]: m.weight for k, m in seen if isinstance(m, JointCommand)}
+    assert weights == {"m1": 0.5, "m2": 0.25}
+    for name in ("m1", "m2"):
+        host.send_control(name, Command.STOP, {})
+    assert host.send_control("a", Command.RUN, {}).ok
+    seen.clear()
+    run_for(host, clock, 0.5, t0=0.5)
+    assert {m.weight for _, m in seen if isinstance(m, JointCommand)} == {1.0}
+
+
+@pytest.mark.parametrize(("module", "mix", "problem"), [
+    ("ArmCommander", "{gripper: 0.5}", "commands no resource 'gripper'"),
+    ("VectorArm", "{arm: 0.5}", "Vector, which has no weight field"),
+    ("ArmCommander", "{arm: 1.5}", "not in (0, 1]"),
+])
+def test_mixing_a_resource_that_cannot_carry_a_weight_is_a_config_error(module, mix, problem):
     text = f"""
 site: t
 node: n
 modules:
-  - {{name: a, type: "{__name__}:ArmCommander"}}
-  - {{name: b, type: "{__name__}:ArmCommander"}}
-  - {{name: c, type: "{__name__}:ArmCommander", mix: {{arm: 0.5}}}}
+  - name: a
+    type: "{__name__}:{module}"
+    mix: {mix}
 """
-    host, clock, _ = make_host(text)
-    assert host.send_control("a", Command.RUN, {}).ok
-    refused = host.send_control("b", Command.RUN, {})
-    assert not refused.ok
-    assert "already commanded by n/a" in refused.error and "mix" in refused.error
-    assert host.send_control("c", Command.RUN, {}).ok
-    host.send_control("a", Command.STOP, {})
-    host.send_control("c", Command.STOP, {})
-    assert host.send_control("b", Command.RUN, {}).ok
+    with pytest.raises(ConfigError) as err:
+        parse_node_config(YamlDoc.parse(text, "arms.yaml"))
+    assert str(err.value).startswith("arms.yaml:7: modules[0].mix.") and problem in str(err.value)
+
+
+def _run_together(hosts_and_names):
+    """RUN several modules from parallel threads, as concurrent control queries do."""
+    barrier = threading.Barrier(len(hosts_and_names))
+    replies = {}
+
+    def go(host, name):
+        barrier.wait()
+        replies[name] = host.send_control(name, Command.RUN, {})
+
+    threads = [threading.Thread(target=go, args=hn) for hn in hosts_and_names]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join(10)
+    return replies
+
+
+def test_concurrent_claims_in_one_node_let_exactly_one_module_command():
+    text = "site: t\nnode: n\nmodules:\n" + "".join(
+        f"  - {{name: c{i}, type: \"{__name__}:ArmCommander\"}}\n" for i in range(4))
+    host, _, _ = make_host(text, SlowAliveTransport())
+    replies = _run_together([(host, f"c{i}") for i in range(4)])
+    assert sorted(r.ok for r in replies.values()) == [False, False, False, True]
+    holders = host.transport.alive(host.ks.claim("site", "arm"))
+    assert len(holders) == 1 and holders[0].endswith("/excl")
+
+
+def test_claims_of_two_nodes_on_one_network_never_both_succeed():
+    bus = SlowAliveTransport()
+    text = "site: t\nnode: {node}\nmodules:\n  - {{name: {name}, type: \"" + __name__ + ":ArmCommander\"}}\n"
+    h1, _, _ = make_host(text.format(node="n1", name="x"), bus)
+    h2, _, _ = make_host(text.format(node="n2", name="y"), bus)
+    for _ in range(5):
+        replies = _run_together([(h1, "x"), (h2, "y")])
+        assert not all(r.ok for r in replies.values()), "two nodes command the same arm"
+        for h, name in ((h1, "x"), (h2, "y")):
+            h.send_control(name, Command.STOP, {})
+    assert h1.send_control("x", Command.RUN, {}).ok
+    refused = h2.send_control("y", Command.RUN, {})
+    assert not refused.ok and "already commanded by n1/x" in refused.error
+    assert bus.alive(h1.ks.claim("site", "arm")) == [h1.ks.claim("site", "arm", "n1", "x", "excl")]
+
+
+def test_sequence_gaps_are_counted_per_input_and_reported_in_status():
+    host, clock, seen = make_host(PIPE)
+    put = host.transport.publisher("cf/t/m/site/n/src/out/signal")
+    host.send_control("src", Command.STOP, {})
+    for source, seq in (("fake/a", 1), ("fake/a", 2), ("fake/a", 5), ("fake/b", 7), ("fake/a", 6),
+                        ("fake/b", 8), ("fake/b", 8), ("fake/a", 9), ("fake/a", 1), ("fake/a", 2)):
+        put(encode(stamp(Vector(values=[0.0]), source, seq, 0.0)))
+    lp = host.modules[("site", "lp")]
+    assert lp.counters.gaps == {"in": 4}  # 3, 4 and 7, 8 of fake/a; the duplicate and the restart are no loss
+    assert host.modules[("site", "sc")].counters.gaps == {"in": 0}
+    run_for(host, clock, 1.1)
+    status = [m for _, m in seen if isinstance(m, StatusMsg) and m.module == "site/n/lp"][-1]
+    assert status.gaps == {"in": 4}
+    statuses = [m.hdr for _, m in seen if isinstance(m, StatusMsg) and m.module == "site/n/lp"]
+    assert [h.seq for h in statuses] == list(range(1, len(statuses) + 1))
+    assert {h.source for h in statuses} == {"site/n/lp/status"}
+
+
+def test_sequence_tracker_bounds_its_memory_and_ignores_unnumbered_messages():
+    tr = SeqTracker(max_sources=2)
+    assert tr.observe(Header(source="a", seq=0)) == 0 and tr.observe(Header(source="a", seq=0)) == 0
+    assert [tr.observe(Header(source=s, seq=q)) for s, q in (("a", 1), ("b", 1), ("c", 1), ("a", 5))] == [0, 0, 0, 0]
+    assert tr.observe(Header(source="c", seq=3)) == 1
+    assert len(tr.last) == 2
 
 
 def test_a_raising_module_is_stopped_and_reported_while_others_go_on():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from contactflow.recognition.grasp_synthesis import (
     ApproachVector,
@@ -161,3 +162,37 @@ def test_grasp_generator_service_filters_through_the_plane_and_orientation():
     assert len(top.directions.numpy()) == 1
     assert top.positions.numpy()[0, 2] > res.clusters[0].box.extent[2]
     assert len(run(GraspGenerator.Params(), ik=lambda T: None).directions.numpy()) == 0
+
+
+def test_grasp_generator_reachability_uses_the_configured_arm_ik():
+    from contactflow.nodes.testing import FakeIO, run_module
+    from contactflow.recognition.messages import PlaneMsg, SegmentedObjects
+    from contactflow.recognition.pipeline import SegmentationPipeline
+    from contactflow.recognition.services.grasp_generator import GraspGenerator
+    from contactflow.recognition.testing import three_objects
+
+    s = three_objects()
+    res = SegmentationPipeline().process_depth(s.render(), s.K, s.pose)
+    objs, plane = SegmentedObjects.of(res.clusters), PlaneMsg.of(res.plane)
+    target = int(np.argmin([c.centroid[1] for c in res.clusters]))  # the box on the right arm's side
+
+    def dirs(**kw):
+        io = FakeIO()
+        io.feed("objects", objs)
+        io.feed("plane", plane)
+        run_module(GraspGenerator("grasps", GraspGenerator.Params(index=target, **kw)), io, steps=1)
+        return io.published["approach_vectors"][-1].directions.numpy()
+
+    def has(d, v):
+        return bool(np.any(d @ np.asarray(v, float) > 0.99))
+
+    free = dirs()
+    # the scene's table top is z = 0, where tombatossals' torso base stands (as on its 0.75 m table)
+    right = dirs(robot="tombatossals", arm="right", base=(0.0,) * 6)
+    assert has(free, (-1, 0, 0)) and not has(right, (-1, 0, 0))  # from beyond the box: out of reach
+    assert has(right, (0, 0, -1)) and 1 <= len(right) < len(free)
+    assert len(dirs(robot="tombatossals", arm="right", base=(2.5, 0, 0, 0, 0, 0))) == 0  # robot 2.5 m away
+    with pytest.raises(ValueError, match="params.robot"):
+        dirs(robot="no_such_robot")
+    with pytest.raises(ValueError, match="params.base"):
+        dirs(robot="tombatossals", base=(0.0, 0.0))

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+from contactflow.embodiments.primitives.robust_grasp import RobustGrasp
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot
-from contactflow.embodiments.world import World, WorldParams, cylinder
+from contactflow.embodiments.world import World, WorldParams, box, cylinder
 from contactflow.nodes.status import Event
 
 ARM = "right"
@@ -59,6 +60,49 @@ def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
     ev = run_primitive(runner, "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "torque_threshold": 0.1})
     assert outcome(ev).values["alignments"] >= 1
     assert Event.CONTACT in labels(ev)
+    # the correction pays off: the grasp holds and the cylinder comes up with the hand
+    assert outcome(ev).event is Event.SUCCESS and Event.GRASP_STABLE in labels(ev)
+    assert outcome(run_primitive(runner, "lift", {"arm": ARM, "distance": 0.08, "watch_grasp": False})).event is Event.SUCCESS
+    assert robot.ground_truth().object_poses["cyl"][2, 3] > 0.87
+
+
+def _hand_efforts(robot: SimRobot) -> float:
+    names, _, _, efforts = robot.joint_state()
+    joints = set(robot.spec.hand("right_hand").joints)
+    return float(sum(abs(e) for n, e in zip(names, efforts, strict=True) if n in joints))
+
+
+def test_robust_grasp_sliding_backs_off_the_table_and_force_adaptation_tightens() -> None:
+    world = World(WorldParams())
+    world.add_table()
+    # a low box: the approach lands with the fingertips on the table (eq. 3.2, Fig. 3.5a)
+    world.add_object(box("low", (0.04, 0.04, 0.04), xyz=(0.565, -0.355, 0.77), mass=0.1, friction=0.8))
+    robot = SimRobot(world, "tombatossals")
+    runner = LocalPrimitiveRunner(robot)
+    run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.3, 0.88)))})
+    # eq. 3.2 and the force adaptation alone: the box ends up between the ring finger and the thumb,
+    # which the finger-lost correction (tested below) would turn into a regrasp
+    runner.start("g", "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "alignment": False, "finger_lost": False})
+    prim = runner.active["g"].prim
+    trace: list[tuple[str, float, float]] = []
+    events = []
+    while robot.time < 30.0 and not any(e.event in (Event.SUCCESS, Event.FAILURE, Event.ERROR) for e in events):
+        runner.advance()
+        robot.step(0.005)
+        events += runner.poll()
+        trace.append((str(prim.phase), robot.frame_pose("right_grasp")[2, 3], _hand_efforts(robot)))
+    end = outcome(events)
+    assert end.event is Event.SUCCESS, end.detail
+    slide = [(z, f) for ph, z, f in trace if ph == "slide"]
+    adapt = [(z, f) for ph, z, f in trace if ph == "adapt"]
+    assert slide and adapt
+    # F_z from the fingers pressing on the table drove the hand back (up) while they closed
+    assert end.values["slides_back"] >= 1
+    assert max(z for z, _ in slide) - slide[0][0] > 0.01
+    # force adaptation: the fingers squeeze harder than during the light sliding closure
+    assert adapt[-1][1] > 1.2 * slide[-1][1]
+    assert outcome(run_primitive(runner, "lift", {"arm": ARM, "distance": 0.08, "watch_grasp": False})).event is Event.SUCCESS
+    assert robot.ground_truth().object_poses["low"][2, 3] > 0.83
 
 
 def test_naive_grasp_lifts_a_cylinder_from_the_vision_approach() -> None:
@@ -97,3 +141,42 @@ def test_transport_waypoints_limits_and_force_field_avoidance() -> None:
     assert max(zs) > 0.99  # went through the waypoint
     assert max(ys) > -0.295  # pushed away from the obstacle points (they sit at y = -0.33)
     assert np.linalg.norm(robot.frame_pose("right_grasp")[:3, 3] - goal[:3, 3]) < 0.01
+
+
+def test_robust_grasp_finger_lost_correction_fires_and_shifts_toward_the_contacts() -> None:
+    assert RobustGrasp.Params().finger_lost  # part of the robust grasp in the thesis (Fig. 3.2)
+    world = World(WorldParams())
+    world.add_table()
+    # a slim cylinder under the index side: the index and thumb close on it, the middle and ring close on nothing
+    world.add_object(cylinder("slim", 0.02, 0.12, xyz=(0.59, -0.36, 0.81), mass=0.3, friction=0.8))
+    robot = SimRobot(world, "tombatossals")
+    runner = LocalPrimitiveRunner(robot)
+    run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.535, -0.27, 0.92)))})
+    # on explicitly: the tombatossals profile turns it off (see profiles.py)
+    runner.start("g", "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "alignment": False, "finger_lost": True})
+    prim = runner.active["g"].prim
+    events: list = []
+    at_reopen = None
+    shift = None
+    while robot.time < 30.0 and shift is None:
+        runner.advance()
+        robot.step(0.005)
+        events += runner.poll()
+        if prim.phase == "reopen" and at_reopen is None:
+            at_reopen = robot.frame_pose("right_grasp")[:3, 3].copy()
+            index_side = robot.frame_pose("right_link_3.0_tip")[:3, 3] - robot.frame_pose("right_link_11.0_tip")[:3, 3]
+        if prim.phase == "align" and at_reopen is not None:
+            shift = robot.frame_pose("right_grasp")[:3, 3] - at_reopen
+        if any(e.event in (Event.SUCCESS, Event.FAILURE, Event.ERROR) for e in events):
+            break
+    assert prim.regrasps == 1 and shift is not None, "the finger-lost correction did not fire"
+    along = float(shift @ index_side / np.linalg.norm(index_side))
+    assert 0.015 < along < 0.035  # toward the finger that kept the contact, by about finger_lost_shift
+    assert shift[2] > 0.01  # backed off before the new approach
+    runner.stop("g")
+
+
+def test_parallel_gripper_profile_has_no_finger_lost() -> None:
+    from contactflow.embodiments.primitives.profiles import profile
+
+    assert profile("melfa")["robust_grasp"]["finger_lost"] is False

@@ -1,0 +1,105 @@
+"""Robot model publisher: the spherical model (App. B), sensor frames and taxels posed from each joint state."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from contactflow.embodiments.control.kinematics import Kinematics, KinematicsError
+from contactflow.embodiments.messages import JointState, RobotModel, TaxelPoses
+from contactflow.embodiments.registry import PadSpec, RobotSpec
+from contactflow.embodiments.spherical import SphericalModel
+from contactflow.nodes.module import Layer, Module, Port
+from contactflow.nodes.status import Status
+from contactflow.nodes.wire import NDArray
+
+
+def pad_taxels(pad: PadSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Taxel centres and outward unit normals of ``pad`` in its link frame, each (rows, cols, 3)."""
+    from contactflow.embodiments.sensors.tactile import _pad_axes, taxel_positions
+
+    local = taxel_positions(pad)
+    n, _, _ = _pad_axes(pad)
+    if pad.radius > 0:
+        c = np.asarray(pad.origin, dtype=np.float64) - pad.radius * n
+        normals = (local - c) / np.linalg.norm(local - c, axis=-1, keepdims=True)
+    else:
+        normals = np.broadcast_to(n, local.shape).copy()
+    return local, normals
+
+
+def sensor_frames(spec: RobotSpec) -> tuple[str, ...]:
+    """Links carrying a sensor of ``spec``: every wrist F/T link and every tactile pad link."""
+    out = [f.link for f in spec.fts] + [p.link for h in spec.hands for p in h.pads]
+    return tuple(dict.fromkeys(out))
+
+
+class RobotModelPublisher(Module):
+    """Subscribes the joint state and publishes the posed spherical model with the sensor frames, and each hand's taxel poses."""
+
+    layer = Layer.INTERFACE
+    inputs = (Port("joint_state", JointState, "joint positions of the robot"),)
+    outputs = (
+        Port("robot_model", RobotModel, "posed bi-spheres and sensor frame poses, world"),
+        Port("taxels", TaxelPoses, "world taxel positions and normals, one message per hand"),
+    )
+
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 50.0  # Hz, at most once per new joint state
+        frames: tuple[str, ...] = ()  # extra frames to pose besides the sensor links
+
+    def __init__(self, name: str, spec: RobotSpec, base: np.ndarray, robot: str = "",
+                 params: Params | None = None) -> None:
+        super().__init__(name, params)
+        self.spec = spec
+        self.base = np.asarray(base, dtype=np.float64)
+        self.robot = robot or spec.name
+        self.kin: Kinematics | None = None
+        self.model: SphericalModel | None = None
+
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        self.kin = Kinematics(self.spec.urdf(), self.base)
+        self.model = SphericalModel.from_urdf(self.kin, str(self.spec.urdf()))
+        self.frames = tuple(dict.fromkeys((*sensor_frames(self.spec), *self.params.frames)))
+        for f in self.frames:
+            self.kin.frame_id(f)
+        self.hands = [(h.name, [p.name for p in h.pads], [p.link for p in h.pads],
+                       np.stack([pad_taxels(p)[0] for p in h.pads]), np.stack([pad_taxels(p)[1] for p in h.pads]))
+                      for h in self.spec.hands if h.pads]
+        self._last = None
+
+    def step(self) -> Status:
+        assert self.io is not None and self.kin is not None and self.model is not None
+        msg = self.io.latest("joint_state")
+        if msg is None or msg is self._last:
+            return Status.RUNNING
+        self._last = msg
+        q_in = msg.position.numpy().astype(np.float64).ravel()
+        if q_in.shape[0] != len(msg.names) or not np.isfinite(q_in).all():
+            raise ValueError(f"{self.name}: input 'joint_state' has {q_in.shape[0]} positions for "
+                             f"{len(msg.names)} names or non-finite values")
+        try:
+            idx = self.kin.q_index(msg.names)
+        except KinematicsError as exc:
+            raise ValueError(f"{self.name}: input 'joint_state': {exc}") from None
+        q = self.kin.q.copy()
+        q[idx] = q_in
+        self.kin.update(q)
+        self.model.update(self.kin)
+        t = msg.hdr.t_sim if msg.hdr.t_sim > 0 else self.io.now
+        poses = np.stack([self.kin.frame_pose(f) for f in self.frames]) if self.frames else np.zeros((0, 4, 4))
+        self.io.publish("robot_model", RobotModel(
+            robot=self.robot, t=t, links=list(self.model.links), c1=NDArray.of(self.model.C1),
+            r1=NDArray.of(self.model.r1), c2=NDArray.of(self.model.C2), r2=NDArray.of(self.model.r2),
+            frames=list(self.frames), poses=NDArray.of(poses) if self.frames else None))
+        for hand, pads, links, local, normals in self.hands:
+            T = np.stack([self.kin.frame_pose(link) for link in links])
+            pos = np.einsum("kij,kabj->kabi", T[:, :3, :3], local) + T[:, None, None, :3, 3]
+            nrm = np.einsum("kij,kabj->kabi", T[:, :3, :3], normals)
+            self.io.publish("taxels", TaxelPoses(robot=self.robot, hand=hand, t=t, pads=pads,
+                                                 positions=NDArray.of(np.ascontiguousarray(pos)),
+                                                 normals=NDArray.of(np.ascontiguousarray(nrm))))
+        return Status.RUNNING
