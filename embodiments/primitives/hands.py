@@ -63,8 +63,12 @@ class ClosingRamp:
         return self.stalled
 
 
-def blocked_fingers(q: np.ndarray, closed: np.ndarray, groups: dict[str, np.ndarray], margin: float = 0.15) -> int:
-    """Fingers held open by an object: some joint stays ``margin`` away from the closed preshape (joint-configuration check)."""
+def blocked_fingers(q: np.ndarray, target: np.ndarray, groups: dict[str, np.ndarray], margin: float = 0.15) -> int:
+    """Fingers held open by an object: some joint stays ``margin`` short of its commanded ``target`` (joint-configuration check).
+
+    ``target`` must be what the fingers are driven to (the closed preshape after a full close);
+    a finger whose own target holds it open is not blocked by anything.
+    """
     seen: set[tuple[int, ...]] = set()
     n = 0
     for idx in groups.values():
@@ -72,5 +76,5 @@ def blocked_fingers(q: np.ndarray, closed: np.ndarray, groups: dict[str, np.ndar
         if key in seen:
             continue
         seen.add(key)
-        n += int(np.abs(q[idx] - closed[idx]).max() > margin)
+        n += int(np.abs(q[idx] - target[idx]).max() > margin)
     return n

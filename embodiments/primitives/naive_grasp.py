@@ -94,13 +94,16 @@ class NaiveGrasp(Primitive):
                     target[distal] = min(target[distal] + p.distal_increment, self.closed[distal]) \
                         if self.closed[distal] >= target[distal] else target[distal] - p.distal_increment
                 self.hand.set_fingers(target, effort=p.effort)
+                self.tight = target
                 self._to(Phase.TIGHTEN)
             return
         if self.phase is Phase.TIGHTEN and (self.hand.done() or self.r.time - self._t_phase > 1.0):
             pads = self.pads_in_contact()
             need = min(p.min_contacts, len(self.groups))
             vals = dict(contacts=len(pads))
-            if len(pads) >= need or blocked_fingers(self.hand.positions(), self.closed, self.groups) >= need:
+            # held open against the command, not against the closed preshape: a finger frozen at a
+            # touch stays open by its own target even after the object rolled away
+            if len(pads) >= need or blocked_fingers(self.hand.positions(), self.tight, self.groups) >= need:
                 self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
                 self.succeed(f"grasped with {pads}", **vals)
             else:

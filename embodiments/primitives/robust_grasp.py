@@ -33,6 +33,12 @@ def alignment_velocity(torque_y: float, contact: bool, torque_threshold: float, 
     return np.zeros(3), True
 
 
+def contact_offset(force: np.ndarray, torque: np.ndarray, axis: np.ndarray) -> float:
+    """Distance of the contact from the sensor axis ``axis`` (unit), estimated from the wrench: |tau_perp| / |F|."""
+    tau = torque - (torque @ axis) * axis
+    return float(np.linalg.norm(tau) / max(float(np.linalg.norm(force)), 1e-9))
+
+
 def sliding_velocity(fz: float, force_threshold: float, vz: float) -> float:
     """Eq. 3.2: velocity along the hand z axis from the sensed z force (reaction on the hand)."""
     if fz <= -force_threshold:
@@ -63,6 +69,7 @@ class RobustGrasp(Primitive):
         correction_velocity: float = 0.005  # m/s, alignment and sliding corrections (Vx, Vz)
         approach_velocity: float = 0.04  # m/s, forward motion before the first contact (not given in the thesis)
         max_alignment: float = 0.04  # m, lateral travel of the alignment before giving up on it
+        alignment_probe: float = 0.01  # m, lateral travel after which the contact must have come closer to the hand axis (else it is the support: slide)
         closing_velocity: float = 0.8  # rad/s (m/s for a gripper), finger closing during the sliding grasp
         grasp_effort: float = 0.5  # 0..1 finger force limit while closing
         final_effort: float = 1.0  # 0..1 finger force limit after force adaptation
@@ -91,6 +98,8 @@ class RobustGrasp(Primitive):
         self.slides = 0
         self.slides_back = 0
         self.lateral = 0.0
+        self.support_contacts = 0
+        self._probe: tuple[float, float] | None = None
         self._ramp: ClosingRamp | None = None
         self._contact_seen = False
         self._t_phase = self.r.time
@@ -113,6 +122,7 @@ class RobustGrasp(Primitive):
         self.r.tare_ft(self.arm_name)
         self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
         self.x0 = self.p0.copy()
+        self._probe = None
         self._to(Phase.ALIGN)
 
     def _start_slide(self) -> None:
@@ -172,6 +182,10 @@ class RobustGrasp(Primitive):
                 return
             if v[0] != 0.0 or vy != 0.0:
                 self.aligns += 1
+                if self._support_contact(f, w[3:]):
+                    self.support_contacts += 1
+                    self._start_slide()
+                    return
             self._twist(v[0] * self.xdir + vy * ydir + v[2] * self.dir)
             return
         if self.phase is Phase.SLIDE:
@@ -211,12 +225,31 @@ class RobustGrasp(Primitive):
             need = min(p.min_contacts, len(self.groups))
             held = len(pads) >= need or blocked_fingers(self.hand.positions(), self.closed, self.groups) >= need
             vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides, slides_back=self.slides_back,
-                        regrasps=self.regrasps, lateral=self.lateral)
+                        regrasps=self.regrasps, lateral=self.lateral, support_contacts=self.support_contacts)
             if held:
                 self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
                 self.succeed(f"grasped with {pads}", **vals)
             else:
                 self.fail(f"hand closed without holding (pads in contact: {pads})", **vals)
+
+    def _support_contact(self, f: np.ndarray, tau: np.ndarray) -> bool:
+        """An object edge off the hand axis comes closer as the alignment moves toward it; a support touched
+        by a finger does not (it stays under the same finger): then eq. 3.1 cannot centre anything and the
+        sliding grasp (Fig. 3.5a, the hand touching the support) takes over."""
+        p = self.params
+        if np.linalg.norm(f) <= p.force_threshold:
+            return False
+        offset = contact_offset(f, tau, self.dir)
+        if self._probe is None:
+            self._probe = (self.lateral, offset)
+            return False
+        moved = self.lateral - self._probe[0]
+        if moved < p.alignment_probe:
+            return False
+        if self._probe[1] - offset < 0.5 * moved:
+            return True
+        self._probe = (self.lateral, offset)
+        return False
 
     def _finger_lost(self) -> bool:
         """Fig. 3.2 F1/F3: one external finger without contact → open, shift toward the contacts, retry."""

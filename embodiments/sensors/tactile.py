@@ -91,11 +91,13 @@ def patch_pressure(pad: PadSpec, p_local: np.ndarray, force: np.ndarray) -> np.n
     centred = pts - pts.mean(0)
     if np.linalg.svd(centred, compute_uv=False)[-1] < 1e-4:
         return None  # the points lie on a line: an edge contact, not a patch
-    from scipy.spatial import ConvexHull, Delaunay
+    from scipy.spatial import ConvexHull
 
-    hull = pts[ConvexHull(pts).vertices]
+    # the hull's facet half-planes: a taxel centre is covered when it is on the inner side of all
+    facets = ConvexHull(pts).equations
     gu, gv = taxel_grid(pad)
-    inside = Delaunay(hull).find_simplex(np.stack([gu.ravel(), gv.ravel()], 1), tol=1e-9) >= 0
+    grid = np.stack([gu.ravel(), gv.ravel()], 1)
+    inside = (grid @ facets[:, :2].T + facets[:, 2] <= 1e-9).all(axis=1)
     if not inside.any():
         return None
     out = np.zeros(gu.size)

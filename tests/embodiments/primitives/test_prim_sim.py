@@ -59,6 +59,7 @@ def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
     run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.535, -0.27, 0.92)))})
     ev = run_primitive(runner, "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "torque_threshold": 0.1})
     assert outcome(ev).values["alignments"] >= 1
+    assert outcome(ev).values["support_contacts"] == 0  # the object edge came closer: no support contact
     assert Event.CONTACT in labels(ev)
     # the correction pays off: the grasp holds and the cylinder comes up with the hand
     assert outcome(ev).event is Event.SUCCESS and Event.GRASP_STABLE in labels(ev)

@@ -1,0 +1,29 @@
+"""Pure checks of the grasp primitives: held-open fingers against their command, the contact offset of eq. 3.1."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from contactflow.embodiments.primitives.hands import blocked_fingers
+from contactflow.embodiments.primitives.robust_grasp import contact_offset
+
+GROUPS = {"a": np.array([0, 1]), "b": np.array([2, 3])}
+
+
+def test_a_finger_held_by_its_own_target_is_not_blocked() -> None:
+    q = np.array([0.2, 0.3, 0.2, 0.3])
+    closed = np.full(4, 1.3)
+    # against the closed preshape both fingers look held open ...
+    assert blocked_fingers(q, closed, GROUPS) == 2
+    # ... but a finger whose target is where it stands (frozen at a touch) holds nothing
+    target = np.array([0.2, 0.3, 1.3, 1.3])
+    assert blocked_fingers(q, target, GROUPS) == 1
+    assert blocked_fingers(q, q.copy(), GROUPS) == 0
+
+
+def test_contact_offset_from_the_wrench() -> None:
+    axis = np.array([0.0, 0.0, 1.0])
+    f = np.array([0.0, 0.0, -5.0])  # the support pushes the hand back along its axis
+    r = np.array([0.03, -0.04, 0.1])  # contact 5 cm off the axis, 10 cm along it
+    assert abs(contact_offset(f, np.cross(r, f), axis) - 0.05) < 1e-9
+    assert contact_offset(f, np.zeros(3), axis) == 0.0
