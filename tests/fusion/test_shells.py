@@ -12,11 +12,12 @@ from contactflow.fusion.generators.finger import (
 from contactflow.fusion.generators.force_torque import ForceTorqueGenerator, ForceTorqueParams
 from contactflow.fusion.generators.motion import MotionSupportHypothesesGenerator
 from contactflow.fusion.generators.null import NullHypothesesGenerator
-from contactflow.fusion.generators.range import RangeHypothesesGenerator
+from contactflow.fusion.generators.range import RangeHypothesesGenerator, RangeParams
 from contactflow.fusion.generators.simulator import SimulatorSupportGenerator
 from contactflow.fusion.generators.tactile import TactileGenerator, TactileParams
 from contactflow.fusion.hypotheses import HypothesisType
 from contactflow.fusion.testing import one_pad_hand, point_cloud, robot_model
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.messages import Array
 from contactflow.nodes.testing import FakeIO
 from contactflow.nodes.wire import NDArray
@@ -129,6 +130,31 @@ def test_range_shell_initialises_then_stays_quiet_without_contact():
     io.feed("points", PointCloud(points=NDArray.of(pts.astype(np.float32))))
     with pytest.raises(ValueError, match="expected the camera position"):
         gen.step()
+
+
+def test_one_robots_head_camera_publishes_range_hypotheses_about_another_robots_contact():
+    params = RangeParams(robot="melfa", require_motion=False)  # a box fixed to the table
+    keys = RangeHypothesesGenerator.default_output_keys(KeySpace("lab"), "tombatossals", "head_range", params)
+    assert keys == {"hypotheses": KeySpace("lab").hypotheses("melfa", "head_range")}
+    gen = RangeHypothesesGenerator("head_range", params)
+    io = started(gen)
+    g = np.arange(-0.03, 0.031, 0.005)
+    top = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    box_top = np.column_stack([top[:, 0] + 0.55, top[:, 1], np.full(len(top), 0.87)])
+    head = (0.1, 0.0, 1.6)  # tombatossals' Kinect, not melfa's
+    away = np.array([[0.9, 0.4, 1.2, 0.01, 0.9, 0.4, 1.25, 0.01]])
+    on_top = np.array([[0.55, 0.0, 0.885, 0.015, 0.55, 0.0, 0.95, 0.015]])  # melfa's fingertip on the box
+    io.feed("robot_model", robot_model(away, robot="melfa"))
+    io.feed("points", point_cloud(box_top, origin=head))
+    gen.step()
+    io.feed("robot_model", robot_model(on_top, robot="melfa"))
+    io.feed("points", point_cloud(box_top, origin=head))
+    gen.step()
+    first, touched = io.published["hypotheses"]
+    assert first.robot == touched.robot == "melfa" and len(first.hypotheses()) == 0
+    h = touched.hypotheses()
+    assert len(h) > 0
+    assert np.linalg.norm(h.location.mean(axis=0) - [0.55, 0.0, 0.87]) < 0.01
 
 
 def joint_state(names, q):
