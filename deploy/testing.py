@@ -179,6 +179,15 @@ class ProbeClient:
         rep = self.wait(lambda e: e.get("id") == cid and e["ev"] == "peers", 5.0)
         return rep["count"] if rep else -1
 
+    def wait_peers(self, n: int, timeout: float = 8.0) -> bool:
+        """Whether the probe's session has ``n`` peers within ``timeout`` s."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.peers() >= n:
+                return True
+            time.sleep(0.2)
+        return False
+
     def close(self) -> None:
         if self.proc.poll() is None:
             try:

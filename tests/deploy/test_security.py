@@ -54,7 +54,7 @@ def secure(tmp_path_factory, lab_factory):
         for who, ns in (("h2", "h2"), ("h3", "h3"), ("obs", "obs"), ("guest", "guest")):
             probes[who] = ProbeClient(lab.wrap(ns, []), eps + [hub_ep], config(who), name=who)
         for who in ("h2", "h3", "obs", "guest"):
-            assert _wait_peers(probes[who], 2), f"{who} did not join the node and the hub"
+            assert probes[who].wait_peers(2), f"{who} did not join the node and the hub"
         yield lab, m, dep, probes
     finally:
         for p in probes.values():
@@ -64,20 +64,12 @@ def secure(tmp_path_factory, lab_factory):
         lab.close()
 
 
-def _wait_peers(probe, n, timeout=8.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if probe.peers() >= n:
-            return True
-        time.sleep(0.2)
-    return False
-
 
 def test_tls_only_listener_refuses_plain_tcp_and_peers_without_credentials(secure):
     lab, m, dep, probes = secure
     plain = ProbeClient(lab.wrap("guest", []), [f"tcp/{lab.addresses['h2']}:7450", f"tcp/{lab.addresses['h1']}:{HUB_PORT}"], name="plain")
     try:
-        assert _wait_peers(probes["guest"], 2), "the credentialed guest should connect (its rights come from the ACL)"
+        assert probes["guest"].wait_peers(2), "the credentialed guest should connect (its rights come from the ACL)"
         assert all(probes[w].peers() == 2 for w in ("h2", "h3", "obs", "guest")), "tools open no extra (plain) links"
         time.sleep(1.5)
         assert plain.peers() == 0

@@ -21,14 +21,6 @@ HOSTS = {
 }
 
 
-def _wait_peers(probe, n, timeout=8.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if probe.peers() >= n:
-            return True
-        time.sleep(0.2)
-    return False
-
 
 @pytest.fixture(scope="module")
 def secure(tmp_path_factory, lab_factory):
@@ -74,7 +66,7 @@ def secure(tmp_path_factory, lab_factory):
         probes["badpw"] = ProbeClient(lab.wrap("guest", []), both, guest("badpw", pw=password + "x"), name="badpw")
         probes["nopw"] = ProbeClient(lab.wrap("guest", []), both, guest("nopw", user=None), name="nopw")
         for who in ("h2", "guest"):
-            assert _wait_peers(probes[who], 2), f"{who} did not join the node and the hub"
+            assert probes[who].wait_peers(2), f"{who} did not join the node and the hub"
         yield lab, m, dep, probes
     finally:
         for p in probes.values():
