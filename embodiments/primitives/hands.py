@@ -78,3 +78,23 @@ def blocked_fingers(q: np.ndarray, target: np.ndarray, groups: dict[str, np.ndar
         seen.add(key)
         n += int(np.abs(q[idx] - target[idx]).max() > margin)
     return n
+
+
+def held_fingers(q: np.ndarray, target: np.ndarray, groups: dict[str, np.ndarray], pads: list[str],
+                 margin: float = 0.15) -> set[str]:
+    """Fingers on the object: the pad senses a contact, or the finger is held ``margin`` short of its ``target``.
+
+    The thesis's "joint configuration or contact information" per finger, so a grasp with the
+    thumb pad on the object and the index wrapped around it counts two fingers. Fingers sharing
+    their joints (a gripper's jaws) count once by configuration.
+    """
+    held = set(pads)
+    seen: set[tuple[int, ...]] = set()
+    for name, idx in groups.items():
+        key = tuple(int(i) for i in idx)
+        if key in seen:
+            continue
+        seen.add(key)
+        if np.abs(q[idx] - target[idx]).max() > margin:
+            held.add(name)
+    return held

@@ -8,7 +8,7 @@ from enum import StrEnum
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive
-from contactflow.embodiments.primitives.hands import ClosingRamp, blocked_fingers, finger_groups
+from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups, held_fingers
 from contactflow.nodes.status import Event
 
 
@@ -103,7 +103,7 @@ class NaiveGrasp(Primitive):
             vals = dict(contacts=len(pads))
             # held open against the command, not against the closed preshape: a finger frozen at a
             # touch stays open by its own target even after the object rolled away
-            if len(pads) >= need or blocked_fingers(self.hand.positions(), self.tight, self.groups) >= need:
+            if len(held_fingers(self.hand.positions(), self.tight, self.groups, pads)) >= need:
                 self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
                 self.succeed(f"grasped with {pads}", **vals)
             else:

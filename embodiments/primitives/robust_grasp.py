@@ -8,7 +8,7 @@ from enum import StrEnum
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive
-from contactflow.embodiments.primitives.hands import ClosingRamp, blocked_fingers, finger_groups
+from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups, held_fingers
 from contactflow.nodes.status import Event
 
 
@@ -223,7 +223,7 @@ class RobustGrasp(Primitive):
         if self.phase is Phase.ADAPT and (self.hand.done() or self.r.time - self._t_phase > 1.0):
             pads = self.pads_in_contact()
             need = min(p.min_contacts, len(self.groups))
-            held = len(pads) >= need or blocked_fingers(self.hand.positions(), self.closed, self.groups) >= need
+            held = len(held_fingers(self.hand.positions(), self.closed, self.groups, pads)) >= need
             vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides, slides_back=self.slides_back,
                         regrasps=self.regrasps, lateral=self.lateral, support_contacts=self.support_contacts)
             if held:
@@ -233,9 +233,14 @@ class RobustGrasp(Primitive):
                 self.fail(f"hand closed without holding (pads in contact: {pads})", **vals)
 
     def _support_contact(self, f: np.ndarray, tau: np.ndarray) -> bool:
-        """An object edge off the hand axis comes closer as the alignment moves toward it; a support touched
-        by a finger does not (it stays under the same finger): then eq. 3.1 cannot centre anything and the
-        sliding grasp (Fig. 3.5a, the hand touching the support) takes over."""
+        """True when eq. 3.1 cannot centre the contact: its estimated offset from the hand axis did not shrink
+        by half the lateral travel of the last ``alignment_probe``.
+
+        An object edge off the axis comes closer as the hand moves toward it; the table under the hanging
+        thumb stays under the thumb, so the alignment would creep ``max_alignment`` away from the object.
+        The sliding grasp (Fig. 3.5a: the hand touching the support) takes over. An object lying along a
+        finger link looks the same and also goes to the sliding grasp.
+        """
         p = self.params
         if np.linalg.norm(f) <= p.force_threshold:
             return False
