@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -252,6 +254,13 @@ modules:
 """
 
 
+def run_until(node, done, step: float, wall_timeout: float = 120.0) -> None:
+    """Step the simulation until ``done()``: the planner thinks in wall time, on its own thread."""
+    deadline = time.monotonic() + wall_timeout
+    while not done() and time.monotonic() < deadline:
+        node.run(step)
+
+
 def test_the_planner_service_goes_around_a_sensed_wall_and_refuses_an_unreachable_goal():
     node = Station(PLANNED)
     node.run(0.1)
@@ -270,10 +279,7 @@ def test_the_planner_service_goes_around_a_sensed_wall_and_refuses_an_unreachabl
     def outcome():
         return [m for m in node.of(EventMsg) if m.module.endswith("/planner") and m.event in (Event.SUCCESS, Event.FAILURE)]
 
-    for _ in range(300):
-        if outcome():
-            break
-        node.run(0.1)
+    run_until(node, outcome, 0.1)
     assert [m.event for m in outcome()] == [Event.SUCCESS], [m.detail for m in outcome()]
     assert np.linalg.norm(node.station.robot.arm("arm").ee_pose()[:3, 3] - goal[:3, 3]) < 0.005
     path = []
@@ -289,8 +295,5 @@ def test_the_planner_service_goes_around_a_sensed_wall_and_refuses_an_unreachabl
     far = np.eye(4)
     far[:3, 3] = (3.0, 0.0, 1.0)
     node.send(CartesianTarget(arm="arm", mode="pose", values=[float(x) for x in far.ravel()]))
-    for _ in range(100):
-        if len(outcome()) > 1:
-            break
-        node.run(0.05)
+    run_until(node, lambda: len(outcome()) > 1, 0.05)
     assert outcome()[-1].event == Event.FAILURE and "no collision-free IK" in outcome()[-1].detail
