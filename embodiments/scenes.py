@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from contactflow.embodiments.world import World, box, cylinder
+from contactflow.embodiments.world import ScrewBottleSpec, World, box, cylinder
 
 
 def thesis_7_3(world: World) -> None:
@@ -14,8 +14,14 @@ def thesis_7_3(world: World) -> None:
     world.add_object(cylinder("target", 0.025, 0.12, xyz=(0.62, 0.0, 0.81), mass=0.15, friction=0.9))
 
 
+def thesis_3_4_2(world: World) -> None:
+    """§3.4.2 (Fig. 3.19): a bottle held upright in reach of the right hand (cap centre at 0.96 m), to be unscrewed."""
+    world.add_table()
+    world.add_screw_bottle(ScrewBottleSpec("bottle", xyz=(0.55, -0.3, 0.75)))
+
+
 def table_only(world: World) -> None:
     world.add_table()
 
 
-SCENES: dict[str, Callable[[World], None]] = {"thesis_7_3": thesis_7_3, "table": table_only}
+SCENES: dict[str, Callable[[World], None]] = {"thesis_7_3": thesis_7_3, "thesis_3_4_2": thesis_3_4_2, "table": table_only}

@@ -25,7 +25,7 @@ from contactflow.embodiments.control.trajectory import (
 )
 from contactflow.embodiments.faults import Fault, FaultMonitor, FaultParams
 from contactflow.embodiments.registry import ArmSpec, HandSpec, RobotSpec
-from contactflow.embodiments.sensors.camera import DepthFrame, RaycastCamera
+from contactflow.embodiments.sensors.camera import DepthCamera, DepthFrame
 from contactflow.embodiments.sensors.encoders import Encoders
 from contactflow.embodiments.sensors.ft import WrenchReading, WristFT
 from contactflow.embodiments.sensors.ground_truth import GroundTruth, read_ground_truth
@@ -326,7 +326,7 @@ class SimRobot:
                 self._ft_of_arm[a.name] = WristFT(self.art, f, seed=self.params.seed + len(self._ft_of_arm),
                                                   kin=self.kin, arm_joints=a.joints)
         self._tactile = {h.name: TactileSensor(self.art, h) for h in self.spec.hands}
-        self._cameras: dict[str, RaycastCamera] = {}
+        self._cameras: dict[str, DepthCamera] = {}
         watched = np.zeros(len(self.art.joint_names), bool)
         for a in self.spec.arms:
             watched[self.art.indices(a.joints)] = True
@@ -401,10 +401,10 @@ class SimRobot:
     def finger_positions(self, hand: str) -> np.ndarray:
         return self.hand(hand).positions()
 
-    def _camera(self, name: str) -> RaycastCamera:
+    def _camera(self, name: str) -> DepthCamera:
         if name not in self._cameras:
             spec = self.spec.camera(name)
-            self._cameras[name] = RaycastCamera(self.world, spec, self.art.links[spec.link])
+            self._cameras[name] = DepthCamera(self.world, spec, self.art.links[spec.link])
         return self._cameras[name]
 
     def camera(self, name: str = "kinect") -> DepthFrame:

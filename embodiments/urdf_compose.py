@@ -84,7 +84,7 @@ class ExtraLink:
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     limits: tuple[float, float] = (-1.57, 1.57)
-    box: tuple[float, float, float] | None = None  # m, collision box size (no visual: box visuals need a render device)
+    box: tuple[float, float, float] | None = None  # m, collision box size (also its visual in a rendering URDF)
     box_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mass: float = 0.5  # kg
 
@@ -125,11 +125,11 @@ def _inertial(mass: float) -> ET.Element:
     return i
 
 
-def _extra_link(e: ExtraLink) -> list[ET.Element]:
+def _extra_link(e: ExtraLink, visuals: bool = False) -> list[ET.Element]:
     link = ET.Element("link", name=e.name)
     link.append(_inertial(e.mass))
     if e.box is not None:
-        for tag in ("collision",):
+        for tag in ("collision", "visual") if visuals else ("collision",):
             g = ET.SubElement(link, tag)
             ET.SubElement(g, "origin", xyz=_fmt(e.box_xyz), rpy="0 0 0")
             geom = ET.SubElement(g, "geometry")
@@ -148,7 +148,7 @@ def _extra_link(e: ExtraLink) -> list[ET.Element]:
     return out
 
 
-def _part_elements(part: Part) -> tuple[list[ET.Element], str]:
+def _part_elements(part: Part, visuals: bool = False) -> tuple[list[ET.Element], str]:
     """Links and joints of a part after dropping and prefixing; returns them and the root link."""
     src = _load(part.source)
     drop = set(part.drop_links)
@@ -161,10 +161,11 @@ def _part_elements(part: Part) -> tuple[list[ET.Element], str]:
         if d not in names:
             raise UrdfError(f"{part.source}: drop_links names {d!r}, which is not a link of the file")
     links = [el for el in links if el.get("name") not in drop]
-    for el in links:
-        # visuals are dropped: the physics-only loader needs a render device to parse them
-        for v in el.findall("visual"):
-            el.remove(v)
+    if not visuals:
+        # the physics-only loader needs a render device to parse visuals
+        for el in links:
+            for v in el.findall("visual"):
+                el.remove(v)
     kept_joints = []
     for j in joints:
         parent, child = j.find("parent").get("link"), j.find("child").get("link")
@@ -192,8 +193,8 @@ def _part_elements(part: Part) -> tuple[list[ET.Element], str]:
     return links + kept_joints, p + roots[0]
 
 
-def compose(comp: Composition) -> ET.Element:
-    """The assembled ``<robot>`` element."""
+def compose(comp: Composition, visuals: bool = False) -> ET.Element:
+    """The assembled ``<robot>`` element; ``visuals`` keeps the parts' visual elements (rendering scenes)."""
     robot = ET.Element("robot", name=comp.name)
     existing: set[str] = set()
 
@@ -219,14 +220,14 @@ def compose(comp: Composition) -> ET.Element:
             progress = False
             for e in list(pending):
                 if e.parent in placed:
-                    add(_extra_link(e), f"extra link {e.name}")
+                    add(_extra_link(e, visuals), f"extra link {e.name}")
                     placed.add(e.name)
                     pending.remove(e)
                     progress = True
 
     place_extras()
     for part in comp.parts:
-        elements, root = _part_elements(part)
+        elements, root = _part_elements(part, visuals)
         if part.mount is not None:
             if f"link:{part.mount.parent}" not in existing:
                 raise UrdfError(f"composition {comp.name}: part {part.source} mounts on unknown link {part.mount.parent!r}")
@@ -243,12 +244,12 @@ def compose(comp: Composition) -> ET.Element:
     return robot
 
 
-def write(comp: Composition, directory: pathlib.Path | None = None) -> pathlib.Path:
-    """Compose and write ``<name>-<digest>.urdf`` to the cache (reused when present)."""
+def write(comp: Composition, directory: pathlib.Path | None = None, visuals: bool = False) -> pathlib.Path:
+    """Compose and write ``<name>-<digest>.urdf`` (``-visual.urdf`` with visuals) to the cache (reused when present)."""
     d = directory or cache_dir()
-    path = d / f"{comp.name}-{comp.digest()}.urdf"
+    path = d / f"{comp.name}-{comp.digest()}{'-visual' if visuals else ''}.urdf"
     if not path.exists():
-        tree = ET.ElementTree(compose(comp))
+        tree = ET.ElementTree(compose(comp, visuals))
         ET.indent(tree)
         tmp = path.with_suffix(f".tmp{os.getpid()}")
         tree.write(tmp, encoding="unicode", xml_declaration=True)

@@ -1,9 +1,11 @@
 """A SAPIEN physics world playing "reality": floor, table, objects and robots.
 
-Scenes are physics-only (``PhysxCpuSystem``); nothing here needs a Vulkan device. Robots are
-loaded through the articulation builder with their visual records dropped, every robot
-gets its own collision group with self-collision disabled (PhysX ignore bits would leak
-between robots otherwise), joint friction is set to zero and gravity is compensated every
+Scenes are physics-only (``PhysxCpuSystem``) unless the camera renders
+(``WorldParams.camera_backend``): then the scene also has a render system, objects get visual
+shapes matching their collision shapes and robots keep their URDF visuals. Robots are loaded
+through the articulation builder (visual records dropped unless rendering); every robot gets
+its own collision group with self-collision disabled (PhysX ignore bits would leak between
+robots otherwise), joint friction is set to zero and gravity is compensated every
 physics step, as a real arm controller does. Stepping is deterministic in lockstep;
 ``realtime=True`` makes :meth:`World.run` sleep to follow the wall clock.
 """
@@ -17,7 +19,9 @@ import numpy as np
 import sapien
 
 from contactflow.embodiments.registry import RobotSpec, get
+from contactflow.embodiments.sensors.render_camera import render_available
 from contactflow.embodiments.transforms import pose_to_matrix, xyz_rpy_to_matrix
+from contactflow.embodiments.urdf_compose import write
 
 
 class WorldError(ValueError):
@@ -33,6 +37,7 @@ class WorldParams:
     position_iterations: int = 10  # PhysX solver iterations of articulations (20 costs ~35 % more physics time)
     velocity_iterations: int = 2
     default_friction: float = 0.6
+    camera_backend: str = "auto"  # auto | render | raycast: auto renders (SAPIEN) when a Vulkan device exists
 
 
 @dataclass(frozen=True)
@@ -103,6 +108,29 @@ _TO_X = sapien.Pose(q=[np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0])
 """PhysX cylinders and capsules lie along x; our specs put them along z."""
 
 
+@dataclass(frozen=True)
+class ScrewBottleSpec:
+    """A bottle whose body is fixed to the world (held, as the other hand does in §3.4.2) and whose cap turns about the bottle axis."""
+
+    name: str
+    xyz: tuple[float, float, float]  # m, centre of the body's bottom face
+    body_radius: float = 0.035  # m
+    body_height: float = 0.16  # m
+    neck_radius: float = 0.012  # m, the neck between the shoulder and the cap keeps fingers off the body
+    neck_height: float = 0.04  # m
+    cap_radius: float = 0.016  # m
+    cap_height: float = 0.02  # m
+    cap_mass: float = 0.02  # kg
+    thread_friction: float = 0.1  # N m, Coulomb torque the thread resists turning with
+    thread_damping: float = 0.02  # N m s/rad, viscous part of the thread's resistance
+    thread_turns: float = 1.5  # turns (counter-clockwise seen from above) until the cap comes free
+    friction: float = 1.0  # surface friction coefficient of body and cap
+
+    def cap_top(self) -> float:
+        """World z of the cap's top face (m)."""
+        return self.xyz[2] + self.body_height + self.neck_height + self.cap_height
+
+
 def _sapien_pose(T: np.ndarray) -> sapien.Pose:
     return sapien.Pose(np.asarray(T, dtype=np.float64))
 
@@ -138,9 +166,12 @@ class SimArticulation:
         scene = world.scene
         loader = scene.create_urdf_loader()
         loader.fix_root_link = True
-        builder = loader.load_file_as_articulation_builder(str(spec.urdf()))
-        for lb in builder.link_builders:
-            lb.visual_records = []
+        # a rendering world keeps the URDF visuals (same links and collisions, so the same joint order)
+        urdf = write(spec.composition, visuals=True) if world.rendering else spec.urdf()
+        builder = loader.load_file_as_articulation_builder(str(urdf))
+        if not world.rendering:
+            for lb in builder.link_builders:
+                lb.visual_records = []
         self.articulation = builder.build()
         self.articulation.set_name(name)
         self.articulation.set_root_pose(_sapien_pose(self.base))
@@ -291,6 +322,109 @@ class SimArticulation:
             self.articulation.set_qf(self.articulation.compute_passive_force(True, True))
 
 
+class SimScrewBottle:
+    """A screw-cap bottle: one articulation rooted (fixed) at the body; the cap turns on a revolute joint about the bottle axis and lifts on a prismatic one.
+
+    The thread's resistance is a viscous part (the turn joint's drive damping, with zero
+    stiffness: PhysX integrates it implicitly, so it stays stable on a light cap) plus a
+    Coulomb torque applied as a joint force before every step, smoothed below ``slip`` rad/s
+    so the explicit force cannot make the cap chatter. The lift joint is locked until the cap
+    has turned ``thread_turns``; then the cap comes free and can be pulled ``cap_travel`` off.
+    ``cap_angle()`` and ``cap_lift()`` are ground truth, for evaluation only.
+    """
+
+    armature = 5e-3  # kg m^2, added cap inertia: keeps the explicit friction force stable
+    cap_travel = 0.1  # m, how far a freed cap can be pulled along the bottle axis
+
+    def __init__(self, world: World, spec: ScrewBottleSpec, group: int) -> None:
+        self.world, self.spec = world, spec
+        s = spec
+        mat = sapien.physx.PhysxMaterial(s.friction, s.friction, 0.0)
+        b = world.scene.create_articulation_builder()
+        body = b.create_link_builder()
+        body.set_name(f"{s.name}_body")
+        half = s.body_height / 2
+        body.add_cylinder_collision(pose=sapien.Pose([0.0, 0.0, half]) * _TO_X, radius=s.body_radius, half_length=half,
+                                    material=mat, density=500.0)
+        body.add_cylinder_collision(pose=sapien.Pose([0.0, 0.0, s.body_height + s.neck_height / 2]) * _TO_X,
+                                    radius=s.neck_radius, half_length=s.neck_height / 2, material=mat, density=500.0)
+        # joint frames turn and slide along their x axis: put it on the bottle axis (+z)
+        axis = sapien.Pose(q=[np.cos(np.pi / 4), 0.0, -np.sin(np.pi / 4), 0.0])
+        thread = b.create_link_builder(body)
+        thread.set_name(f"{s.name}_thread")
+        thread.set_joint_name(f"{s.name}_cap_turn")
+        thread.set_mass_and_inertia(1e-3, sapien.Pose(), [1e-7, 1e-7, 1e-7])
+        thread.set_joint_properties("revolute", limits=[[-np.inf, np.inf]],
+                                    pose_in_parent=sapien.Pose([0.0, 0.0, s.cap_top() - s.xyz[2] - s.cap_height / 2]) * axis,
+                                    pose_in_child=axis, damping=s.thread_damping)
+        cap = b.create_link_builder(thread)
+        cap.set_name(f"{s.name}_cap")
+        cap.set_joint_name(f"{s.name}_cap_lift")
+        cap.add_cylinder_collision(pose=_TO_X, radius=s.cap_radius, half_length=s.cap_height / 2, material=mat,
+                                   density=s.cap_mass / (np.pi * s.cap_radius ** 2 * s.cap_height))
+        cap.set_joint_properties("prismatic", limits=[[0.0, 0.0]], pose_in_parent=axis, pose_in_child=axis)
+        if getattr(world, "rendering", False):
+            body.add_cylinder_visual(pose=sapien.Pose([0.0, 0.0, half]) * _TO_X, radius=s.body_radius, half_length=half)
+            body.add_cylinder_visual(pose=sapien.Pose([0.0, 0.0, s.body_height + s.neck_height / 2]) * _TO_X,
+                                     radius=s.neck_radius, half_length=s.neck_height / 2)
+            cap.add_cylinder_visual(pose=_TO_X, radius=s.cap_radius, half_length=s.cap_height / 2)
+        b.set_initial_pose(sapien.Pose(list(s.xyz)))
+        self.articulation = b.build(fix_root_link=True)
+        self.articulation.set_name(s.name)
+        self.turn, self.lift = self.articulation.get_active_joints()
+        self.turn.set_armature([self.armature])
+        self.turn.set_drive_property(0.0, s.thread_damping, 1e6, "force")
+        self.lift.set_drive_property(0.0, 0.0, 0.0, "force")
+        links = self.articulation.get_links()
+        self.cap_link = links[2]
+        # the cap rests on the neck it is screwed onto: the bottle's own parts never collide
+        for link in links:
+            for shape in link.get_collision_shapes():
+                g = shape.get_collision_groups()
+                shape.set_collision_groups([g[0], g[1], g[2] | (1 << 31), group])
+        inertia = 0.5 * s.cap_mass * s.cap_radius ** 2 + self.armature
+        # the smoothing keeps friction / slip * dt well below the cap's inertia
+        self.slip = max(0.02, 2.0 * s.thread_friction * world.params.timestep / inertia)
+        self.released = False
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def cap_angle(self) -> float:
+        """Cap turn (rad), positive counter-clockwise seen from above: the unscrewing sense of a right-hand thread."""
+        return float(self.articulation.get_qpos()[0])
+
+    def cap_lift(self) -> float:
+        """How far the cap has been pulled off the neck along the bottle axis (m)."""
+        return float(self.articulation.get_qpos()[1])
+
+    def cap_pose(self) -> np.ndarray:
+        return pose_to_matrix(self.cap_link.get_entity_pose())
+
+    def pre_step(self) -> None:
+        w = float(self.articulation.get_qvel()[0])
+        qf = np.zeros(2)
+        qf[0] = -self.spec.thread_friction * float(np.clip(w / self.slip, -1.0, 1.0))
+        self.articulation.set_qf(qf)
+        if not self.released and self.cap_angle() >= 2.0 * np.pi * self.spec.thread_turns:
+            self.released = True
+            self.lift.set_limits([[0.0, self.cap_travel]])
+
+
+def _rendering(backend: str) -> bool:
+    """Whether a world with this camera backend gets a render system."""
+    if backend == "raycast":
+        return False
+    if backend == "auto":
+        return render_available()
+    if backend == "render":
+        if not render_available():
+            raise WorldError("WorldParams.camera_backend is 'render' but no Vulkan device can render here")
+        return True
+    raise WorldError(f"WorldParams.camera_backend {backend!r} is not auto|render|raycast")
+
+
 class World:
     """The physics scene. Add a table, objects and robots, then ``step``."""
 
@@ -299,11 +433,14 @@ class World:
         sapien.physx.set_body_config(sleep_threshold=0.0)
         sapien.physx.set_scene_config(gravity=np.array(self.params.gravity, dtype=np.float32))
         sapien.physx.set_default_material(self.params.default_friction, self.params.default_friction, 0.0)
-        self.scene = sapien.Scene([sapien.physx.PhysxCpuSystem()])
+        self.rendering = _rendering(self.params.camera_backend)
+        systems = [sapien.physx.PhysxCpuSystem()] + ([sapien.render.RenderSystem()] if self.rendering else [])
+        self.scene = sapien.Scene(systems)
         self.scene.set_timestep(self.params.timestep)
-        self.scene.add_ground(self.params.floor_z, render=False)
+        self.scene.add_ground(self.params.floor_z, render=self.rendering)
         self.robots: dict[str, SimArticulation] = {}
         self.objects: dict[str, SimObject] = {}
+        self.bottles: dict[str, SimScrewBottle] = {}
         self.time = 0.0
         self.steps = 0
         self._hooks: list = []
@@ -332,12 +469,20 @@ class World:
                 if len(s.size) != 3:
                     raise WorldError(f"object {spec.name!r}: shapes[{k}] box needs 3 sizes, got {s.size}")
                 b.add_box_collision(pose=pose, half_size=[x / 2 for x in s.size], material=mat, density=density)
+                if self.rendering:
+                    b.add_box_visual(pose=pose, half_size=[x / 2 for x in s.size])
             elif s.kind == "sphere":
                 b.add_sphere_collision(pose=pose, radius=s.size[0], material=mat, density=density)
+                if self.rendering:
+                    b.add_sphere_visual(pose=pose, radius=s.size[0])
             elif s.kind == "cylinder":
                 b.add_cylinder_collision(pose=pose * _TO_X, radius=s.size[0], half_length=s.size[1] / 2, material=mat, density=density)
+                if self.rendering:
+                    b.add_cylinder_visual(pose=pose * _TO_X, radius=s.size[0], half_length=s.size[1] / 2)
             elif s.kind == "capsule":
                 b.add_capsule_collision(pose=pose * _TO_X, radius=s.size[0], half_length=s.size[1] / 2, material=mat, density=density)
+                if self.rendering:
+                    b.add_capsule_visual(pose=pose * _TO_X, radius=s.size[0], half_length=s.size[1] / 2)
             else:
                 raise WorldError(f"object {spec.name!r}: shapes[{k}].kind {s.kind!r} is not box|cylinder|sphere|capsule")
         b.set_initial_pose(_sapien_pose(xyz_rpy_to_matrix(spec.xyz, spec.rpy)))
@@ -359,6 +504,19 @@ class World:
         self.robots[name] = art
         return art
 
+    def add_screw_bottle(self, spec: ScrewBottleSpec) -> SimScrewBottle:
+        """A bottle fixed in place whose cap turns against the thread's friction (unscrew, §3.3.6)."""
+        if spec.name in self.bottles or spec.name in self.objects:
+            raise WorldError(f"screw bottle {spec.name!r} added twice")
+        if min(spec.body_radius, spec.body_height, spec.neck_radius, spec.neck_height, spec.cap_radius, spec.cap_height,
+               spec.cap_mass) <= 0:
+            raise WorldError(f"screw bottle {spec.name!r}: sizes and cap_mass must be positive")
+        if spec.thread_friction < 0 or spec.thread_damping < 0 or spec.thread_turns < 0:
+            raise WorldError(f"screw bottle {spec.name!r}: thread_friction, thread_damping and thread_turns must be >= 0")
+        bottle = SimScrewBottle(self, spec, group=0x8000 + len(self.bottles))
+        self.bottles[spec.name] = bottle
+        return bottle
+
     def remove_object(self, name: str) -> None:
         obj = self.objects.pop(name)
         self.scene.remove_entity(obj.entity)
@@ -376,6 +534,8 @@ class World:
                 fn(self)
             for r in self.robots.values():
                 r.pre_step()
+            for b in self.bottles.values():
+                b.pre_step()
             self.scene.step()
             self.steps += 1
             self.time = self.steps * dt

@@ -167,7 +167,7 @@ def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
 def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random.Generator, progress,
                task) -> list[Touch]:
     from contactflow.embodiments.registry import CameraSpec
-    from contactflow.embodiments.sensors.camera import RaycastCamera
+    from contactflow.embodiments.sensors.camera import DepthCamera
     from contactflow.embodiments.sim_robot import SimRobot
     from contactflow.embodiments.world import World, WorldParams
 
@@ -188,7 +188,7 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
         def read_depth():
             return robot.camera(rig.camera)
     else:
-        camera = RaycastCamera(world, CameraSpec(name="head", link=""),
+        camera = DepthCamera(world, CameraSpec(name="head", link=""),
                                T_world_cam=look_at(np.array([-0.1, rig.object_xy[1], 1.45]), centre))
 
         def read_depth():

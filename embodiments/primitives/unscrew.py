@@ -7,8 +7,14 @@ from enum import StrEnum
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Capability, Primitive
+from contactflow.embodiments.primitives.base import (
+    TACTILE_CONTACT,
+    Capability,
+    Primitive,
+    PrimitiveError,
+)
 from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups
+from contactflow.embodiments.sensors.tactile import taxel_positions
 from contactflow.nodes.status import Event
 
 
@@ -40,26 +46,32 @@ class Unscrew(Primitive):
         twist_velocity: float = 0.5  # rad/s
         closing_velocity: float = 0.6  # rad/s
         recenter: bool = True  # tactile cap re-centring (reactive adaptation)
+        pinch_center: tuple[float, ...] = ()  # m, where a centred cap sits between the pinching fingertips, in the controlled frame; () = where the first pinch found it
         max_cycles: int = 8
 
     def begin(self) -> None:
+        p = self.params
+        if p.pinch_center and len(p.pinch_center) != 3:
+            raise PrimitiveError(f"{self.name}: params.pinch_center must be [x, y, z] (m) or empty, got {list(p.pinch_center)}")
         spec = self.r.spec.hand(self.hand_name)
         groups = finger_groups(spec)
-        pads = [pd.name for pd in spec.pads]
-        n = max(2, min(self.params.grasping_fingers, len(pads)))
-        self.fingers = [pads[-1]] + pads[: n - 1]  # thumb + first fingers
-        self.tips = dict(zip(pads, spec.fingertips, strict=False))
-        closed = np.asarray(spec.preshapes.get("pinch", spec.preshapes["closed"]), dtype=np.float64)
+        pads = list(spec.pads)
+        n = max(2, min(p.grasping_fingers, len(pads)))
+        chosen = [pads[-1]] + pads[: n - 1]  # thumb + first fingers
+        self.fingers = [pd.name for pd in chosen]
+        self.pads = {pd.name: pd for pd in chosen}
+        self.taxels = {pd.name: taxel_positions(pd) for pd in chosen}
         self.goal = self.hand.positions().copy()
+        closed = np.asarray(spec.preshapes["closed"], dtype=np.float64)
         for f in self.fingers:
-            self.goal[groups[f]] = np.asarray(spec.preshapes["closed"], dtype=np.float64)[groups[f]]
-        self.pinch_shape = closed
+            self.goal[groups[f]] = closed[groups[f]]
         self.groups = groups
         self.home = self.r.frame_pose(self.ee_frame).copy()
         self.cycles = 0
         self.corrections = 0
+        self.twists = 0
         self.contacts: list[np.ndarray] = []
-        self.nominal: np.ndarray | None = None
+        self.nominal: np.ndarray | None = np.asarray(p.pinch_center, dtype=np.float64) if p.pinch_center else None
         self._pinch()
 
     def _pinch(self) -> None:
@@ -67,18 +79,49 @@ class Unscrew(Primitive):
         self.phase, self.t_phase = Phase.PINCH, self.r.time
 
     def _tip_gap(self) -> float:
-        a = self.r.frame_pose(self.tips[self.fingers[0]])[:3, 3]
-        b = self.r.frame_pose(self.tips[self.fingers[1]])[:3, 3]
+        a = self.r.frame_pose(self.pads[self.fingers[0]].link)[:3, 3]
+        b = self.r.frame_pose(self.pads[self.fingers[1]].link)[:3, 3]
         return float(np.linalg.norm(a - b))
 
+    def _contact_centre(self) -> np.ndarray | None:
+        """Midpoint of the pinching pads' pressure centroids (world), or None unless every pinching pad touches."""
+        images = self.r.tactile(self.hand_name)
+        pts = []
+        for f in self.fingers:
+            img = images.get(f)
+            if img is None or float(img.max(initial=0.0)) <= TACTILE_CONTACT:
+                return None
+            local = (img[..., None] * self.taxels[f]).sum(axis=(0, 1)) / float(img.sum())
+            T = self.r.frame_pose(self.pads[f].link)
+            pts.append(T[:3, :3] @ local + T[:3, 3])
+        return np.mean(pts, axis=0)
+
+    def _in_hand(self, point: np.ndarray) -> np.ndarray:
+        T = self.r.frame_pose(self.ee_frame)
+        return T[:3, :3].T @ (point - T[:3, 3])
+
     def _record_contacts(self) -> None:
-        """Fingertip midpoint while both pinching fingers touch, in the frame of the start pose."""
-        forces = self.pad_forces()
-        pts = [self.r.frame_pose(self.tips[f])[:3, 3] for f in self.fingers if forces.get(f, 0.0) > 0.05]
-        if len(pts) == len(self.fingers):
-            T = self.r.frame_pose(self.ee_frame)
-            local = T[:3, :3].T @ (np.mean(pts, axis=0) - T[:3, 3])
-            self.contacts.append(self.home[:3, 3] + self.home[:3, :3] @ local)
+        """The contact centre (world) while every pinching pad touches; averaged, it is where the cap is."""
+        c = self._contact_centre()
+        if c is not None:
+            self.contacts.append(c)
+
+    def _twist_about_centre(self) -> None:
+        """Turn about the approach axis through the fingers' centre; re-sent every step as the centre's lever arm turns."""
+        T = self.r.frame_pose(self.ee_frame)
+        # a right-hand thread opens counter-clockwise seen from outside the cap: about -z of a frame approaching along +z
+        w = -self.params.twist_velocity * T[:3, 2]
+        centre = T[:3, :3] @ self.nominal + T[:3, 3]
+        self.twist(np.concatenate([np.cross(w, T[:3, 3] - centre), w]), frame="world")
+
+    def _twisted(self) -> float:
+        R = self.twist_start[:3, :3].T @ self.r.frame_pose(self.ee_frame)[:3, :3]
+        return float(abs(np.arctan2(R[1, 0], R[0, 0])))
+
+    def _keep_closing(self, forces: dict[str, float]) -> None:
+        """Contact with the cap lost while twisting or pulling: the fingers close until they feel it again."""
+        if not any(forces.get(f, 0.0) > TACTILE_CONTACT for f in self.fingers):
+            self.hand.set_fingers(self.goal)
 
     def _regrasp(self, why: str) -> None:
         if self.io is not None:
@@ -99,44 +142,41 @@ class Unscrew(Primitive):
             if all(forces.get(f, 0.0) >= p.finger_grasping_force for f in self.fingers):
                 self.emit_once(Event.GRASP_STABLE, "cap pinched")
                 if self.nominal is None:
-                    # the grasping fingers' centre in the hand frame: where the cap should sit
-                    mid = np.mean([self.r.frame_pose(self.tips[f])[:3, 3] for f in self.fingers], axis=0)
-                    T = self.r.frame_pose(self.ee_frame)
-                    self.nominal = T[:3, :3].T @ (mid - T[:3, 3])
-                self.contacts = []
+                    # no calibrated centre: the cap is taken to sit where this first pinch found it
+                    c = self._contact_centre()
+                    self.nominal = self._in_hand(c) if c is not None else np.zeros(3)
                 self.r.tare_ft(self.arm_name)
-                self.twisted = 0.0
-                # rotate about the axis through the fingers' centre, not the hand frame origin
-                r = self.nominal if self.nominal is not None else np.zeros(3)
-                w = np.array([0.0, 0.0, p.twist_velocity])
-                self.twist(np.concatenate([-np.cross(w, r), w]), frame=self.ee_frame)
+                self.twist_start = self.r.frame_pose(self.ee_frame).copy()
+                self._twist_about_centre()
                 self.phase, self.t_phase = Phase.TWIST, self.r.time
             elif self._tip_gap() < p.finger_min_distance or self.r.time - self.t_phase > 3.0:
                 self.fail("fingers closed without pinching the cap", cycles=self.cycles)
             return
         if self.phase is Phase.TWIST:
             self._record_contacts()
-            self.twisted += p.twist_velocity * dt
+            self._keep_closing(forces)
             torque = float(np.linalg.norm(self.wrench_in(self.ee_frame)[3:]))
             if torque > p.unscrew_torque_limit or self._tip_gap() < p.finger_min_distance:
                 self.halt()
                 self._regrasp(f"twist stopped (torque {torque:.1f} N m)")
                 return
-            if self.twisted >= np.deg2rad(p.twist_angle):
+            if self._twisted() >= np.deg2rad(p.twist_angle):
                 self.halt()
+                self.twists += 1
                 self.start_pull = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
                 self.r.tare_ft(self.arm_name)
                 self.twist(np.array([0.0, 0.0, -p.pull_velocity, 0.0, 0.0, 0.0]), frame=self.ee_frame)
                 self.phase, self.t_phase = Phase.PULL, self.r.time
+                return
+            self._twist_about_centre()
             return
         if self.phase is Phase.PULL:
             self._record_contacts()
             pulled = float(np.linalg.norm(self.r.frame_pose(self.ee_frame)[:3, 3] - self.start_pull))
             f = float(np.linalg.norm(self.wrench_in(self.ee_frame)[:3]))
-            if not any(forces.get(x, 0.0) > 0.05 for x in self.fingers):
-                self.hand.set_fingers(self.goal)
+            self._keep_closing(forces)
             if pulled >= p.cap_removed_distance:
-                self.succeed(cycles=self.cycles + 1, corrections=self.corrections, pulled=pulled)
+                self.succeed(cycles=self.cycles + 1, twists=self.twists, corrections=self.corrections, pulled=pulled)
             elif f > p.pull_force_limit or self._tip_gap() < p.finger_min_distance:
                 self.halt()
                 self._regrasp(f"pull resisted ({f:.1f} N, finger gap {self._tip_gap() * 1000:.0f} mm)")
@@ -145,13 +185,13 @@ class Unscrew(Primitive):
             if self.hand.done() or self.r.time - self.t_phase > 1.0:
                 self.cycles += 1
                 if self.cycles >= p.max_cycles:
-                    self.fail(f"cap not removed after {p.max_cycles} cycles", cycles=self.cycles)
+                    self.fail(f"cap not removed after {p.max_cycles} cycles", cycles=self.cycles, twists=self.twists,
+                              corrections=self.corrections)
                     return
                 goal = self.home.copy()
                 if p.recenter and self.contacts and self.nominal is not None:
-                    # the averaged contacts are the cap centre: move the fingers' centre onto it
-                    c = np.mean(self.contacts, axis=0)
-                    off = c - (self.home[:3, 3] + self.home[:3, :3] @ self.nominal)
+                    # the averaged contacts are the cap centre: bring the fingers' centre of the start pose onto it
+                    off = np.mean(self.contacts, axis=0) - (self.home[:3, :3] @ self.nominal + self.home[:3, 3])
                     off -= (off @ self.home[:3, 2]) * self.home[:3, 2]
                     if np.linalg.norm(off) > 0.002:
                         goal[:3, 3] += off

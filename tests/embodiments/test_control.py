@@ -120,3 +120,67 @@ def test_tombatossals_arms_collide_with_each_other():
     pairs = {(c.body_a.split("/")[-1][:5], c.body_b.split("/")[-1][:5]) for c in robot.ground_truth().contacts}
     assert any({a, b} == {"left_", "right"} for a, b in pairs)
     assert not robot.failed
+
+
+# the right arm after the planned approach of a perturbed grasp (bench grasp, cylinder, error trial 0): the
+# joint-space planner ends with the wrist (joint 7) on its hard limit, inside the IK's margin
+STALL_Q = np.array([-0.137, 0.425, 0.333, -1.997, -0.294, 2.202, 2.8973])
+
+
+def _right_arm_ik():
+    from contactflow.embodiments import registry
+    from contactflow.embodiments.control.ik import VelocityIK
+    from contactflow.embodiments.control.kinematics import Kinematics
+
+    spec = registry.get("tombatossals")
+    arm = spec.arm("right")
+    kin = Kinematics(spec.urdf())
+    ik = VelocityIK(kin, arm.joints, arm.ee_frame, posture=np.asarray(arm.home))
+    return kin, ik
+
+
+def _set_arm(kin, ik, q_arm):
+    q = np.zeros(kin.nq)
+    q[ik.idx] = np.clip(q_arm, kin.lower[ik.idx], kin.upper[ik.idx])
+    kin.update(q)
+    return q
+
+
+def test_ik_leaves_a_joint_limit_smoothly_while_realising_the_twist():
+    kin, ik = _right_arm_ik()
+    _set_arm(kin, ik, STALL_Q)
+    dt = 1.0 / 200.0
+    assert ik.kin.q[ik.idx][6] > ik.upper[6]  # the wrist starts inside the margin
+    twist = np.zeros(6)
+    twist[:3] = kin.frame_pose(ik.frame)[:3, 2] * 0.04  # the grasp approach: forward along the hand axis
+    qd = ik.solve(twist, dt)
+    J = kin.jacobian(ik.frame)[:, ik.idx]
+    # it used to step the wrist back out of the margin in one tick (~4 rad/s, scaled down with the whole
+    # command): a jerk the F/T read as a contact, and a twist not realised
+    assert qd[6] < 0.0
+    assert np.abs(qd).max() < 0.5
+    assert np.linalg.norm(J @ qd - twist) < 2e-3
+
+
+def test_ik_keeps_joint_limits_and_pushes_off_them_in_the_null_space():
+    kin, ik = _right_arm_ik()
+    dt = 1.0 / 200.0
+    q = _set_arm(kin, ik, STALL_Q)
+    hard_lo, hard_hi = kin.lower[ik.idx], kin.upper[ik.idx]
+    # spin the hand about its own axis, which the wrist joint does most directly, until the arm runs out of range
+    for _ in range(2000):
+        w = kin.frame_pose(ik.frame)[:3, 2] * 0.8
+        q[ik.idx] += ik.solve(np.concatenate([np.zeros(3), w]), dt) * dt
+        assert np.all(q[ik.idx] >= hard_lo - 1e-9) and np.all(q[ik.idx] <= hard_hi + 1e-9), q[ik.idx]
+        kin.update(q)
+    # without a task, a joint near its limit is moved away through the redundancy alone, the hand staying put
+    from contactflow.embodiments.control.ik import IKParams, VelocityIK
+
+    free = VelocityIK(kin, ik.joints, ik.frame, posture=None, params=IKParams())
+    near = STALL_Q.copy()
+    near[6] = free.upper[6] - 0.1
+    _set_arm(kin, free, near)
+    qd = free.solve(np.zeros(6), dt)
+    J = kin.jacobian(free.frame)[:, free.idx]
+    assert qd[6] < -0.01
+    assert np.linalg.norm(J @ qd) < 1e-3

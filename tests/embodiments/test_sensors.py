@@ -5,11 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from contactflow.embodiments.registry import PadSpec
-from contactflow.embodiments.sensors.camera import depth_to_points
+from contactflow.embodiments import world as world_module
+from contactflow.embodiments.registry import CameraSpec, PadSpec
+from contactflow.embodiments.sensors.camera import DepthCamera, depth_to_points
+from contactflow.embodiments.sensors.render_camera import render_available
 from contactflow.embodiments.sensors.tactile import pressure, taxel_positions
+from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.testing import make_robot
-from contactflow.embodiments.world import box
+from contactflow.embodiments.world import World, WorldError, WorldParams, box
 from contactflow.nodes.status import Event, Status
 
 MASS = 0.5
@@ -78,26 +81,113 @@ def test_pressure_model_on_flat_and_curved_pads():
     assert front.max() > 0 and np.all(back == 0)
 
 
-def test_camera_cloud_of_a_known_box():
-    robot = make_robot("tombatossals")
-    size, centre = (0.1, 0.06, 0.08), np.array([0.55, 0.0, 0.79])
-    robot.world.add_object(box("target", size, tuple(centre), mass=0.3))
+TOP_DOWN = np.array([[0.0, -1.0, 0.0, 0.65], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 1.5], [0.0, 0.0, 0.0, 1.0]])
+"""A camera 1.5 m above the floor over the table centre, looking straight down."""
+BOX_SIZE, BOX_CENTRE = (0.1, 0.06, 0.08), np.array([0.55, 0.0, 0.79])
+BACKENDS = ("render", "raycast") if render_available() else ("raycast",)
+
+
+@pytest.fixture(scope="module")
+def seen():
+    """tombatossals looking at a known box on the table; one frame per camera backend (one shader compile)."""
+    world = World(WorldParams(camera_backend="auto"))
+    world.add_table()
+    world.add_object(box("target", BOX_SIZE, tuple(BOX_CENTRE), mass=0.3))
+    robot = SimRobot(world, "tombatossals")
     robot.step(0.1)
-    frame = robot.camera("kinect")
+    spec = robot.spec.camera("kinect")
+    cams = {b: DepthCamera(world, spec, robot.art.links[spec.link], backend=b) for b in BACKENDS}
+    frames = {b: c.capture(robot.time) for b, c in cams.items()}
+    return robot, cams, frames
+
+
+def _box_top(points: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    P = points
+    near = P[(np.abs(P[:, 0] - centre[0]) < 0.08) & (np.abs(P[:, 1] - centre[1]) < 0.06) & (P[:, 2] > 0.755) & (P[:, 2] < 0.9)]
+    return near[near[:, 2] > near[:, 2].max() - 0.003]
+
+
+def _assert_box_top(top: np.ndarray, centre: np.ndarray) -> None:
+    assert len(top) > 200
+    assert top[:, 2].mean() == pytest.approx(centre[2] + BOX_SIZE[2] / 2, abs=5e-3)
+    assert top[:, 0].min() == pytest.approx(centre[0] - BOX_SIZE[0] / 2, abs=5e-3)
+    assert top[:, 0].max() == pytest.approx(centre[0] + BOX_SIZE[0] / 2, abs=5e-3)
+    assert top[:, 1].min() == pytest.approx(centre[1] - BOX_SIZE[1] / 2, abs=5e-3)
+    assert top[:, 1].max() == pytest.approx(centre[1] + BOX_SIZE[1] / 2, abs=5e-3)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_camera_cloud_of_a_known_box(seen, backend):
+    robot, _, frames = seen
+    frame = frames[backend]
     assert frame.depth.shape == (480, 640)
     assert np.allclose(depth_to_points(frame.depth, frame.K, frame.T_world_cam), frame.points, atol=1e-4)
-    P = frame.points
-    near = P[(np.abs(P[:, 0] - centre[0]) < 0.08) & (np.abs(P[:, 1] - centre[1]) < 0.06) & (P[:, 2] > 0.755) & (P[:, 2] < 0.9)]
-    top = near[near[:, 2] > near[:, 2].max() - 0.003]
-    assert len(top) > 200
-    assert top[:, 2].mean() == pytest.approx(centre[2] + size[2] / 2, abs=5e-3)
-    assert top[:, 0].min() == pytest.approx(centre[0] - size[0] / 2, abs=5e-3)
-    assert top[:, 0].max() == pytest.approx(centre[0] + size[0] / 2, abs=5e-3)
-    assert top[:, 1].min() == pytest.approx(centre[1] - size[1] / 2, abs=5e-3)
-    assert top[:, 1].max() == pytest.approx(centre[1] + size[1] / 2, abs=5e-3)
+    _assert_box_top(_box_top(frame.points, BOX_CENTRE), BOX_CENTRE)
+    names = np.array(frame.label_names)
+    hit = names[frame.labels[frame.pixels[:, 0], frame.pixels[:, 1]]]
+    assert set(hit) >= {"table", "target"}
     gt = robot.ground_truth()
-    assert np.allclose(gt.object_poses["target"][:3, 3], centre, atol=2e-3)
+    assert np.allclose(gt.object_poses["target"][:3, 3], BOX_CENTRE, atol=2e-3)
     assert any({c.body_a, c.body_b} == {"target", "table"} for c in gt.contacts)
+
+
+def test_the_camera_follows_a_moved_box(seen):
+    robot, cams, _ = seen
+    obj = robot.world.objects["target"]
+    T = obj.pose()
+    moved = T.copy()
+    moved[:2, 3] += (0.05, -0.1)
+    try:
+        obj.set_pose(moved)
+        for cam in cams.values():
+            frame = cam.capture(robot.time)
+            _assert_box_top(_box_top(frame.points, moved[:3, 3]), moved[:3, 3])
+    finally:
+        obj.set_pose(T)
+
+
+def test_backends_agree_on_table_and_object_pixels(seen):
+    robot, _, frames = seen
+    assert robot.world.rendering == render_available()
+    if not robot.world.rendering:
+        assert robot.camera("kinect").labels.shape == (480, 640)
+        return
+    r, y = frames["render"], frames["raycast"]
+    assert np.array_equal(r.K, y.K) and np.array_equal(r.T_world_cam, y.T_world_cam)
+    rn, yn = np.array((*r.label_names, "")), np.array((*y.label_names, ""))
+    r_hit, y_hit = rn[r.labels], yn[y.labels]
+    for name in ("table", "target"):
+        on_r, on_y = r_hit == name, y_hit == name
+        both = on_r & on_y
+        assert both.sum() > 0.99 * max(on_r.sum(), on_y.sum())  # the same pixels see it
+        assert np.abs(r.depth[both] - y.depth[both]).max() < 3e-3
+    # the robot's own camera renders (SimRobot builds its camera with the world's backend)
+    own = robot.camera("kinect")
+    assert np.abs(own.depth - r.depth)[(own.depth > 0) & (r.depth > 0)].max() < 1e-4
+    own_hit = rn[own.labels].astype(str)
+    on_robot = np.char.startswith(own_hit, "left_") | np.char.startswith(own_hit, "right_")
+    assert on_robot.sum() > 1000  # the arms' URDF visuals are rendered
+
+
+def test_camera_backend_choice():
+    assert World(WorldParams(camera_backend="raycast")).rendering is False
+    with pytest.raises(WorldError, match="camera_backend 'laser'"):
+        World(WorldParams(camera_backend="laser"))
+    world = World(WorldParams(camera_backend="raycast"))
+    with pytest.raises(ValueError, match="backend 'render' needs a world"):
+        DepthCamera(world, CameraSpec("c", ""), T_world_cam=np.eye(4), backend="render")
+    assert DepthCamera(world, CameraSpec("c", ""), T_world_cam=np.eye(4)).backend == "raycast"
+
+
+def test_without_a_vulkan_device_auto_ray_casts_and_render_is_refused(monkeypatch):
+    monkeypatch.setattr(world_module, "render_available", lambda: False)
+    world = World(WorldParams(camera_backend="auto"))
+    assert world.rendering is False
+    world.add_table()
+    frame = DepthCamera(world, CameraSpec("c", ""), T_world_cam=TOP_DOWN).capture(0.0)
+    assert frame.depth[240, 320] == pytest.approx(1.5 - 0.75, abs=1e-4)  # the table top, 1.5 m camera height
+    with pytest.raises(WorldError, match="no Vulkan device"):
+        World(WorldParams(camera_backend="render"))
 
 
 def test_encoders_follow_the_fingers(melfa):

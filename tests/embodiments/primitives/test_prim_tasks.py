@@ -48,7 +48,9 @@ def test_pick_and_place_runs_end_to_end() -> None:
 
 
 def test_clear_the_table_cycles_until_no_object_is_left() -> None:
-    world = World(WorldParams())
+    # two grasps in a row are contact-chaotic: a tenth of a millimetre in the first cluster's
+    # centroid (rendered vs ray-cast cylinder tessellation) changes where the second object ends
+    world = World(WorldParams(camera_backend="raycast"))
     world.add_table()
     world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
     world.add_object(box("cube", (0.055, 0.055, 0.07), xyz=(0.5, -0.15, 0.785), mass=0.15, friction=0.8))
