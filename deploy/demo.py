@@ -192,7 +192,7 @@ def _plots(out: Path, rec: Record, tasks: list[dict]) -> None:
         fig, ax = plt.subplots(figsize=(6.4, 4.8))
         im = ax.imshow(f.depth.numpy(), cmap="viridis")
         fig.colorbar(im, ax=ax, label="depth (m)")
-        ax.set_title(f"tombatossals {f.camera} depth, t_sim={f.hdr.t_sim:.1f} s")
+        ax.set_title(f"tombatossals {f.camera} depth, {f.hdr.t_wall - rec.t0:.1f} s into the demo")
         fig.savefig(frames / f"kinect_{i}.png", dpi=100)
         plt.close(fig)
 
