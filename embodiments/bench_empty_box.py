@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import pathlib
 import time
@@ -85,15 +86,49 @@ def in_box(robot: SimRobot, names: list[str]) -> int:
     return n
 
 
-def sweep_points(z: float, lines: int = 4, margin: float = 0.03) -> list[float]:
-    """Serpentine exploration trajectory over the box bottom (Fig. 3.26a), flat [x, y, z, ...]."""
+@functools.lru_cache(maxsize=1)
+def hand_footprint(band: float = HEIGHT) -> tuple[float, ...]:
+    """Box [lo x, y, z, hi x, y, z] (m), in the controlled frame, of the closed exploring hand's lowest ``band`` m.
+
+    Measured on the collision shapes. Only that part of a top-down hand goes below the walls'
+    top and meets the objects: the wider palm and wrist above it pass over the walls.
+    """
+    from contactflow.embodiments.hand_geometry import hand_points
+
+    robot = SimRobot(World(WorldParams()), ROBOT)
+    robot.hand(robot.spec.arm(ARM).hand).preshape("closed")
+    robot.step(1.5)
+    pts = hand_points(robot, ARM)
+    low = pts[pts[:, 2] >= pts[:, 2].max() - band]  # the approach axis (z) points down
+    return tuple(float(v) for v in np.concatenate([low.min(axis=0), low.max(axis=0)]))
+
+
+def _world_extent(footprint: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets (lo, hi) from the controlled frame, world axes, of the footprint under the top-grasp orientation."""
+    R = top_grasp_pose((0.0, 0.0, 0.0))[:3, :3]
+    lo, hi = np.asarray(footprint[:3]), np.asarray(footprint[3:])
+    corners = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    w = corners @ R.T
+    return w.min(axis=0), w.max(axis=0)
+
+
+def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float = 0.008) -> list[float]:
+    """Serpentine exploration trajectory over the box bottom (Fig. 3.26a), flat [x, y, z, ...] of the controlled frame.
+
+    The whole hand (``footprint``) stays ``clearance`` inside the walls and above the bottom:
+    a wall it bumped into would read as an object, and a hand dragged on the bottom would push.
+    """
     cx, cy = BOX_CENTER
-    xs = np.linspace(cx - INNER[0] / 2 + margin, cx + INNER[0] / 2 - margin, lines)
-    y0, y1 = cy - INNER[1] / 2 + margin + 0.02, cy + INNER[1] / 2 - margin
+    lo, hi = _world_extent(footprint)
+    x0, x1 = cx - INNER[0] / 2 - lo[0] + clearance, cx + INNER[0] / 2 - hi[0] - clearance
+    y0, y1 = cy - INNER[1] / 2 - lo[1] + clearance, cy + INNER[1] / 2 - hi[1] - clearance
+    if x1 < x0 or y1 < y0:
+        raise ValueError(f"sweep_points: a hand of footprint {footprint} does not fit in the box ({INNER} m inside)")
+    z = BOTTOM - lo[2] + clearance
     pts: list[float] = []
-    for k, x in enumerate(xs):
+    for k, x in enumerate(np.linspace(x0, x1, lines)):
         ya, yb = (y0, y1) if k % 2 == 0 else (y1, y0)
-        pts += [float(x), float(ya), z, float(x), float(yb), z]
+        pts += [float(x), float(ya), float(z), float(x), float(yb), float(z)]
     return pts
 
 
@@ -110,8 +145,9 @@ def task_params(strategy: str, seed: int) -> dict:
         area = [cx - INNER[0] / 2 + 0.02, cy - INNER[1] / 2 + 0.02, cx + INNER[0] / 2 - 0.02, cy + INNER[1] / 2 - 0.02]
         return {"arm": ARM, "area": area, "bottom": BOTTOM, "height": approach_z - BOTTOM, "target": tvec, "seed": seed}
     start = pose6(top_grasp_pose((cx, cy, approach_z)))
+    footprint = hand_footprint()
     return {"arm": ARM, "start": [start[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")], "bottom": BOTTOM,
-            "sweep": sweep_points(BOTTOM + 0.025), "approach_z": approach_z, "target": tvec}
+            "sweep": sweep_points(footprint), "footprint": list(footprint), "approach_z": approach_z, "target": tvec}
 
 
 def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:

@@ -13,7 +13,9 @@ import numpy as np
 
 @dataclass(frozen=True)
 class FaultParams:
-    max_joint_speed: float = 20.0  # rad/s or m/s, faster means the simulation exploded
+    max_joint_speed: float = 20.0  # rad/s or m/s, faster for ``explosion_time`` means the simulation exploded
+    explosion_time: float = 0.02  # s; a light finger phalanx chattering in contact spikes for one tick
+    burst_speed: float = 200.0  # rad/s or m/s, faster is an explosion at once
     limit_excess: float = 0.3  # rad, this far beyond a joint limit means an explosion
     stuck_error: float = 0.08  # rad, tracking error of a joint that does not move
     stuck_speed: float = 0.02  # rad/s
@@ -37,6 +39,7 @@ class FaultMonitor:
         self.watched = np.ones(len(self.names), bool) if watched is None else np.asarray(watched, bool)
         self.params = params or FaultParams()
         self._stuck_since = np.full(len(self.names), np.nan)
+        self._fast_since = np.full(len(self.names), np.nan)
 
     def check(self, t: float, q: np.ndarray, qd: np.ndarray, target: np.ndarray,
               sensor_stamps: dict[str, float] | None = None) -> Fault | None:
@@ -45,7 +48,9 @@ class FaultMonitor:
             if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
                 bad = [self.names[i] for i in np.nonzero(~(np.isfinite(q) & np.isfinite(qd)))[0]]
                 return Fault("nan", f"non-finite joint state in {bad[:4]}")
-            fast = np.abs(qd) > p.max_joint_speed
+            over = np.abs(qd) > p.max_joint_speed
+            self._fast_since = np.where(over, np.where(np.isnan(self._fast_since), t, self._fast_since), np.nan)
+            fast = (np.abs(qd) > p.burst_speed) | (over & (t - np.nan_to_num(self._fast_since, nan=t) >= p.explosion_time))
             out = (q < self.lower - p.limit_excess) | (q > self.upper + p.limit_excess)
             if fast.any() or out.any():
                 i = int(np.nonzero(fast | out)[0][0])
@@ -73,3 +78,4 @@ class FaultMonitor:
 
     def reset(self) -> None:
         self._stuck_since[:] = np.nan
+        self._fast_since[:] = np.nan

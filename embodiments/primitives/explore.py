@@ -15,9 +15,13 @@ class Explore(Primitive):
     """Guarded sweep: straight along ``direction`` (world) or through ``sweep`` points until a contact.
 
     A contact above ``floor_z`` (a known support such as a box bottom, told apart by
-    proprioception, §3.4.3) is an object: SUCCESS with the contact pose and ``x, y`` moved
-    ``lead`` m ahead along the motion (where the object is). A contact on the support or a
-    finished sweep ends with OBJECT_NOT_FOUND (FAILURE).
+    proprioception, §3.4.3) is an object: SUCCESS with the approach pose that puts the hand's
+    grasp centre over the contact, moved ``lead`` m further along the horizontal motion (where
+    the object is). The contact is located on the wrist wrench's line of action (eq. 4.8):
+    where it leaves the hand's ``footprint`` through the side leading the motion, or without a
+    footprint its point nearest the controlled frame; a contact sensed by the pads alone is at
+    the touching pads. A contact on the support or a finished sweep ends with OBJECT_NOT_FOUND
+    (FAILURE).
     """
 
     requires = Capability(ft=True)
@@ -32,7 +36,9 @@ class Explore(Primitive):
         max_distance: float = 0.3  # m, along ``direction``
         floor_z: float = -1.0  # m, contacts at or below this height are on the known support
         floor_margin: float = 0.015  # m
-        lead: float = 0.03  # m, the object is this far ahead of the hand along the motion
+        lead: float = 0.03  # m, the object's centre is this far beyond the contact along the horizontal motion
+        footprint: tuple[float, ...] = ()  # m, [lo x, y, z, hi x, y, z] box of the hand in the controlled frame
+        locate_force: float = 1.0  # N, weaker wrenches do not locate the contact (the pads do)
         preshape: str = ""  # hand preshape while exploring ("" = keep; Fig. 3.26a uses a compact one)
 
     def begin(self) -> None:
@@ -41,6 +47,8 @@ class Explore(Primitive):
         if pts.size % 3:
             raise ValueError(f"{self.name}.params.sweep: expected a multiple of 3 values, got {pts.size}")
         self.points = list(pts.reshape(-1, 3))
+        if p.footprint and len(p.footprint) != 6:
+            raise ValueError(f"{self.name}.params.footprint: expected [lo x, y, z, hi x, y, z], got {list(p.footprint)}")
         d = np.asarray(p.direction, dtype=np.float64)
         if not self.points and (d.shape != (3,) or np.linalg.norm(d) < 1e-9):
             raise ValueError(f"{self.name}: params.direction must be a non-zero 3-vector, got {p.direction}")
@@ -69,11 +77,15 @@ class Explore(Primitive):
             moving = self._dir if self._dir is not None else self.d
             on_floor = bool(pos[2] <= p.floor_z + p.floor_margin) and abs(float(moving[2])) > 0.7
             self.emit_once(Event.CONTACT, "explored into a contact", {"on_floor": float(on_floor)})
-            # approach pose: the hand's grasp centre over the object, ``lead`` ahead of the contact
+            at = self.locate(T, moving)
+            # approach pose: the hand's grasp centre over the object, ``lead`` beyond the contact
             there = T.copy()
-            there[:2, 3] += moving[:2] * p.lead
+            there[:3, 3] = at
+            ahead = np.array([moving[0], moving[1], 0.0])
+            if np.linalg.norm(ahead) > 0.3:
+                there[:3, 3] += ahead / np.linalg.norm(ahead) * p.lead
             vals = pose6(hand_pose_for(self.r.spec.name, there))
-            vals.update(contact_x=float(pos[0]), contact_y=float(pos[1]), contact_z=float(pos[2]),
+            vals.update(contact_x=float(at[0]), contact_y=float(at[1]), contact_z=float(at[2]),
                         on_floor=float(on_floor), waypoint=float(self.k))
             if on_floor:
                 self.fail("touched the support, no object here", event=Event.OBJECT_NOT_FOUND, **vals)
@@ -101,3 +113,43 @@ class Explore(Primitive):
         if self._dir is None or float(d @ self._dir) < 0.95 or abs(speed - self._speed) > 0.3 * self._speed:
             self._dir, self._speed = d, speed
             self.twist(np.concatenate([d * speed, np.zeros(3)]))
+
+    def locate(self, T: np.ndarray, moving: np.ndarray) -> np.ndarray:
+        """Where the hand touched (world): on the wrench's line of action, else at the touching pads."""
+        p = self.params
+        w = self.r.ft(self.arm_name)
+        f, tau = np.asarray(w.force, dtype=np.float64), np.asarray(w.torque, dtype=np.float64)
+        fn = float(np.linalg.norm(f))
+        if fn < p.locate_force:
+            pads = set(self.pads_in_contact())
+            links = [pad.link for pad in self.r.spec.hand(self.hand_name).pads if pad.name in pads] if pads else []
+            if not links:
+                return T[:3, 3].copy()
+            return np.mean([self.r.frame_pose(k)[:3, 3] for k in links], axis=0)
+        return wrench_contact(f, tau, self.r.frame_pose(w.frame)[:3, 3], T, moving, p.footprint)
+
+
+def wrench_contact(force: np.ndarray, torque: np.ndarray, origin: np.ndarray, T_hand: np.ndarray,
+                   moving: np.ndarray, footprint: tuple[float, ...] = ()) -> np.ndarray:
+    """A single contact's point (world) from the wrench on the hand (world axes, torque about ``origin``).
+
+    The force acts somewhere on the line {x : (x - origin) x f = torque}. With the hand's
+    ``footprint`` box (controlled frame ``T_hand``) the point is where the line crosses the
+    box face leading ``moving``; otherwise, or when the line runs along that face, it is the
+    line's point nearest the controlled frame's origin.
+    """
+    f = np.asarray(force, dtype=np.float64)
+    u = f / np.linalg.norm(f)
+    p0 = np.asarray(origin, dtype=np.float64) + np.cross(f, np.asarray(torque, dtype=np.float64)) / float(f @ f)
+    R, c = T_hand[:3, :3], T_hand[:3, 3]
+    nearest = p0 + float((c - p0) @ u) * u
+    if len(footprint) != 6:
+        return nearest
+    lo, hi = np.asarray(footprint[:3], dtype=np.float64), np.asarray(footprint[3:], dtype=np.float64)
+    a, d, m = R.T @ (p0 - c), R.T @ u, R.T @ np.asarray(moving, dtype=np.float64)
+    k = int(np.argmax(np.abs(m)))
+    if abs(d[k]) < 0.3:
+        return nearest
+    face = hi[k] if m[k] > 0 else lo[k]
+    local = np.clip(a + (face - a[k]) / d[k] * d, lo, hi)
+    return c + R @ local

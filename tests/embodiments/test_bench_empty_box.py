@@ -25,12 +25,20 @@ def test_bench_empty_box_quick(tmp_path) -> None:
     assert (tmp_path / "empty_box.png").stat().st_size > 0 and (tmp_path / "empty_box.md").exists()
 
 
-def test_sweep_covers_the_box_bottom() -> None:
-    pts = bench_empty_box.sweep_points(0.8)
-    xy = [(pts[i], pts[i + 1]) for i in range(0, len(pts), 3)]
-    xs = sorted({round(x, 3) for x, _ in xy})
-    assert len(xs) == 4 and xs[-1] - xs[0] > 0.1
-    assert all(abs(pts[i + 2] - 0.8) < 1e-9 for i in range(0, len(pts), 3))
+def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:
+    fp = bench_empty_box.hand_footprint()  # the closed hand, measured on its collision shapes
+    assert 0.02 < fp[5] < 0.05  # the curled fingers reach below the controlled frame
+    lo, hi = bench_empty_box._world_extent(fp)
+    pts = np.asarray(bench_empty_box.sweep_points(fp)).reshape(-1, 3)
+    (cx, cy), (ix, iy) = bench_empty_box.BOX_CENTER, bench_empty_box.INNER
+    assert np.all(pts[:, 0] + lo[0] > cx - ix / 2) and np.all(pts[:, 0] + hi[0] < cx + ix / 2)
+    assert np.all(pts[:, 1] + lo[1] > cy - iy / 2) and np.all(pts[:, 1] + hi[1] < cy + iy / 2)
+    gap = pts[:, 2] + lo[2] - bench_empty_box.BOTTOM  # the hand's lowest point above the bottom
+    assert np.all(gap > 0.005) and np.all(gap < 0.02)  # clear of the bottom, below every object's top
+    assert len({round(x, 4) for x in pts[:, 0]}) == 3
+    assert pts[:, 1].max() - pts[:, 1].min() > 0.08  # serpentine legs along the box
+    with pytest.raises(ValueError, match="does not fit in the box"):
+        bench_empty_box.sweep_points((-0.2, -0.2, -0.1, 0.2, 0.2, 0.03))
 
 
 def test_vision_approach_is_a_filtered_grasp_synthesis_axis_of_the_box() -> None:

@@ -46,7 +46,7 @@ def test_monitor_unit_rules():
     ok = np.zeros(2)
     assert m.check(0.0, ok, ok, ok) is None
     assert m.check(0.0, np.array([np.nan, 0.0]), ok, ok).kind == "nan"
-    assert m.check(0.0, ok, np.array([0.0, 100.0]), ok).kind == "explosion"
+    assert m.check(0.0, ok, np.array([0.0, 1000.0]), ok).kind == "explosion"
     assert m.check(0.0, np.array([2.0, 0.0]), ok, ok).kind == "explosion"
     target = np.array([0.5, 0.0])
     assert m.check(0.0, ok, ok, target) is None
@@ -88,3 +88,15 @@ def test_sensor_loss_names_the_known_sensors():
     robot = make_robot("melfa", table=False)
     with pytest.raises(ValueError, match=r"no sensor 'nose' \(F/T by arm: \['arm'\], tactile by hand: \['gripper'\]"):
         robot.inject_fault("sensor_loss", sensor="nose")
+
+
+def test_a_one_tick_speed_spike_is_chatter_a_sustained_one_an_explosion():
+    """A light finger phalanx chattering in contact spikes past the speed limit for one control tick."""
+    m = FaultMonitor(["finger"], np.array([-0.2]), np.array([1.6]))
+    q, spike = np.array([0.7]), np.array([-38.0])
+    assert m.check(0.0, q, spike, q) is None
+    assert m.check(0.005, q, np.array([0.5]), q) is None  # back to normal: no fault
+    assert m.check(0.010, q, spike, q) is None
+    assert m.check(0.015, q, spike, q) is None
+    fault = m.check(0.035, q, spike, q)  # still that fast after explosion_time
+    assert fault is not None and fault.kind == "explosion" and "finger" in fault.detail

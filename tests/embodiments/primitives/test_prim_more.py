@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from contactflow.embodiments.primitives.base import matrix6, pose6, top_grasp_pose
+from contactflow.embodiments.primitives.explore import Explore, wrench_contact
 from contactflow.embodiments.primitives.profiles import GRASP_CENTER
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot
@@ -54,6 +55,7 @@ def test_explore_tells_objects_from_the_support(tomba) -> None:
     assert outcome(run_primitive(runner, "move_to", {"arm": "right", "target": vec(top_grasp_pose((0.4, -0.3, 0.9)))})).event is Event.SUCCESS
     floor = run_primitive(runner, "explore", {"arm": "right", "floor_z": 0.78, "velocity": 0.05})
     assert Event.OBJECT_NOT_FOUND in labels(floor)  # the table, by proprioception
+    assert not robot.failed and Event.HARDWARE_FAILURE not in labels(floor)  # a guarded touch is no fault
     run_primitive(runner, "transport", {"arm": "right", "target": [0, 0, 0.04, 0, 0, 0], "relative": True})
     # sweep toward the cylinder at the height of its body: the fingers bump into it
     here = robot.frame_pose("right_grasp")[:3, 3]
@@ -111,3 +113,53 @@ def test_gripper_close_until_force_hold_lift_on_melfa() -> None:
     # declared per-embodiment differences: no unscrew with a parallel gripper
     refused = outcome(run_primitive(runner, "unscrew", {}))
     assert refused.event is Event.ERROR and "parallel" in refused.detail
+
+
+def test_wrench_contact_finds_the_point_on_the_line_of_action() -> None:
+    point, origin = np.array([0.52, -0.30, 0.80]), np.array([0.55, -0.33, 0.95])
+    hand = np.eye(4)
+    hand[:3, 3] = (0.55, -0.33, 0.83)
+    up = np.array([0.0, 0.0, 4.0])  # the hand moving down touches a top
+    down = wrench_contact(up, np.cross(point - origin, up), origin, hand, np.array([0.0, 0.0, -1.0]))
+    assert np.allclose(down, [point[0], point[1], hand[2, 3]], atol=1e-9)  # the line's point nearest the hand
+    push_up = np.array([0.3, -0.2, 4.0])  # with friction
+    torque = np.cross(point - origin, push_up)
+    # with the hand's box the point is where the line leaves it on the side leading the motion
+    on_face = wrench_contact(push_up, torque, origin, hand, np.array([0.0, 0.0, -1.0]), (-0.1, -0.1, -0.03, 0.1, 0.1, 0.2))
+    assert np.allclose(on_face, point, atol=0.002)
+    side = np.array([0.0, -3.0, 0.2])  # sweeping along +y into an object's side
+    lateral = wrench_contact(side, np.cross(point - origin, side), origin, hand, np.array([0.0, 1.0, 0.0]),
+                             (-0.1, -0.1, -0.1, 0.1, 0.03, 0.1))
+    assert np.allclose(lateral, point, atol=0.002)
+
+
+def test_explore_locates_an_off_centre_contact_and_approaches_over_it() -> None:
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(cylinder("can", 0.025, 0.07, xyz=(0.55, -0.37, 0.785), mass=0.15, friction=0.8))
+    robot = SimRobot(world, "tombatossals")
+    runner = LocalPrimitiveRunner(robot)
+    run_primitive(runner, "move_to", {"arm": "right", "target": vec(top_grasp_pose((0.55, -0.32, 0.92)))})
+    seen: list[np.ndarray] = []
+    original = Explore.halt
+
+    def halt(self) -> None:  # the true contacts when the explore stops (evaluation only)
+        hits = [c for c in robot.ground_truth().contacts if "can" in (c.body_a, c.body_b)]
+        seen.append(np.average([c.position for c in hits], axis=0, weights=[c.force for c in hits]))
+        original(self)
+
+    Explore.halt = halt
+    try:
+        ev = outcome(run_primitive(runner, "explore", {"arm": "right", "floor_z": 0.75, "floor_margin": 0.035,
+                                                       "preshape": "closed"}, max_time=10.0))
+    finally:
+        Explore.halt = original
+    assert ev.event is Event.SUCCESS and seen
+    hand = robot.frame_pose("right_grasp")[:3, 3]
+    assert np.hypot(*(hand[:2] - seen[0][:2])) > 0.02  # the can touched the side of the hand, not its centre
+    contact = np.array([ev.values["contact_x"], ev.values["contact_y"]])
+    assert np.hypot(*(contact - seen[0][:2])) < 0.01
+    approach = matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")
+    centre = approach @ np.r_[GRASP_CENTER["tombatossals"], 1.0]
+    assert np.hypot(*(centre[:2] - contact)) < 1e-6  # the hand's grasp centre is put over the contact
+    assert not robot.failed
