@@ -10,7 +10,7 @@ module type's declaration); the interface layer mixes it with other commanders b
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
@@ -163,30 +163,21 @@ class CartesianControllerService(Module):
         return Status.RUNNING
 
 
+M = TypeVar("M", bound=Module)
+
+
 def command_port(arm: str) -> tuple[Port, ...]:
     """The output of a commander of arm ``arm``: joint commands on the resource ``arm_<arm>``."""
     return (Port(COMMAND_PORT, JointCommand, f"joint command of arm {arm!r}", resource=f"arm_{arm}"),)
 
 
-class LeftArmCartesianController(CartesianControllerService):
-    """Cartesian controller of the arm ``left`` (tombatossals, baxter); commands resource ``arm_left``."""
-
-    arm = "left"
-    resources = ("arm_left",)
-    outputs = command_port("left")
-
-
-class RightArmCartesianController(CartesianControllerService):
-    """Cartesian controller of the arm ``right`` (tombatossals, baxter); commands resource ``arm_right``."""
-
-    arm = "right"
-    resources = ("arm_right",)
-    outputs = command_port("right")
+def for_arm(name: str, base: type[M], arm: str) -> type[M]:
+    """``base`` bound to the arm ``arm`` as class ``name``: a module type per arm, each claiming its own resource."""
+    return type(name, (base,), {
+        "__doc__": f"{base.__doc__.splitlines()[0]} Arm {arm!r}; commands resource ``arm_{arm}``.",
+        "__module__": base.__module__, "arm": arm, "resources": (f"arm_{arm}",), "outputs": command_port(arm)})
 
 
-class SingleArmCartesianController(CartesianControllerService):
-    """Cartesian controller of the arm ``arm`` (melfa); commands resource ``arm_arm``."""
-
-    arm = "arm"
-    resources = ("arm_arm",)
-    outputs = command_port("arm")
+LeftArmCartesianController = for_arm("LeftArmCartesianController", CartesianControllerService, "left")  # tombatossals, baxter
+RightArmCartesianController = for_arm("RightArmCartesianController", CartesianControllerService, "right")
+SingleArmCartesianController = for_arm("SingleArmCartesianController", CartesianControllerService, "arm")  # melfa

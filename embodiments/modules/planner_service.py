@@ -35,7 +35,7 @@ from contactflow.embodiments.messages import (
     PointCloud,
     Wrench,
 )
-from contactflow.embodiments.modules.cartesian_service import command_port, measured_q
+from contactflow.embodiments.modules.cartesian_service import for_arm, measured_q
 from contactflow.embodiments.modules.sim_interface import COMMAND_PORT
 from contactflow.embodiments.transforms import xyz_rpy_to_matrix
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
@@ -185,25 +185,6 @@ class PlannerService(Module):
                          {"planning_time": float(self.plan.planning_time), "length": float(self.plan.length)})
 
 
-class LeftArmPlanner(PlannerService):
-    """Planning service of the arm ``left`` (tombatossals, baxter); commands resource ``arm_left``."""
-
-    arm = "left"
-    resources = ("arm_left",)
-    outputs = command_port("left")
-
-
-class RightArmPlanner(PlannerService):
-    """Planning service of the arm ``right`` (tombatossals, baxter); commands resource ``arm_right``."""
-
-    arm = "right"
-    resources = ("arm_right",)
-    outputs = command_port("right")
-
-
-class SingleArmPlanner(PlannerService):
-    """Planning service of the arm ``arm`` (melfa); commands resource ``arm_arm``."""
-
-    arm = "arm"
-    resources = ("arm_arm",)
-    outputs = command_port("arm")
+LeftArmPlanner = for_arm("LeftArmPlanner", PlannerService, "left")  # tombatossals, baxter
+RightArmPlanner = for_arm("RightArmPlanner", PlannerService, "right")
+SingleArmPlanner = for_arm("SingleArmPlanner", PlannerService, "arm")  # melfa
