@@ -214,6 +214,13 @@ def names() -> list[str]:
     return sorted(_ROBOTS)
 
 
+def configured(name: str, where: str) -> RobotSpec:
+    """The spec of robot ``name`` named in a configuration at ``where``; ValueError naming the place."""
+    if name not in _ROBOTS:
+        raise ValueError(f"{where}: {name!r} is not a registered embodiment {names()}")
+    return get(name)
+
+
 def get(name: str) -> RobotSpec:
     """The spec of robot ``name`` (validated)."""
     if name not in _ROBOTS:

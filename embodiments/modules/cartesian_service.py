@@ -10,7 +10,7 @@ module type's declaration); the interface layer mixes it with other commanders b
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, TypeVar
+from typing import TYPE_CHECKING, ClassVar, TypeVar
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from contactflow.embodiments.modules.sim_interface import COMMAND_PORT
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
 from contactflow.nodes.status import Status
 from contactflow.nodes.wire import NDArray
+
+if TYPE_CHECKING:
+    from contactflow.embodiments.registry import ArmSpec, RobotSpec
 
 _SIZES = {"pose": 16, "twist": 6, "wrench": 6, "stop": 0}
 
@@ -73,18 +76,10 @@ class CartesianControllerService(Module):
 
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)
-        from contactflow.embodiments import registry
         from contactflow.embodiments.transforms import xyz_rpy_to_matrix
 
         p = self.params
-        if p.robot not in registry.names():
-            raise ValueError(f"{self.name}.params.robot: {p.robot!r} is not a registered embodiment {registry.names()}")
-        spec = registry.get(p.robot)
-        arms = {a.name: a for a in spec.arms}
-        if self.arm not in arms:
-            raise ValueError(f"{self.name}: robot {p.robot!r} has no arm {self.arm!r} (arms: {sorted(arms)}); "
-                             f"use the controller type of one of those arms")
-        a = arms[self.arm]
+        spec, a = arm_of(self)
         self.joints = list(a.joints)
         self.kin = Kinematics(spec.urdf(), xyz_rpy_to_matrix(spec.base_xyz, spec.base_rpy))
         self.ik = VelocityIK(self.kin, a.joints, a.ee_frame, posture=np.asarray(a.home), params=IKParams(damping=p.damping))
@@ -164,6 +159,18 @@ class CartesianControllerService(Module):
 
 
 M = TypeVar("M", bound=Module)
+
+
+def arm_of(module: Module) -> tuple[RobotSpec, ArmSpec]:
+    """The robot spec of ``module.params.robot`` and its arm ``module.arm``; errors name the module."""
+    from contactflow.embodiments import registry
+
+    spec = registry.configured(module.params.robot, f"{module.name}.params.robot")
+    arms = {a.name: a for a in spec.arms}
+    if module.arm not in arms:
+        raise ValueError(f"{module.name}: robot {spec.name!r} has no arm {module.arm!r} (arms: {sorted(arms)}); "
+                         f"use the module type of one of those arms")
+    return spec, arms[module.arm]
 
 
 def command_port(arm: str) -> tuple[Port, ...]:

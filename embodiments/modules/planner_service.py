@@ -35,7 +35,7 @@ from contactflow.embodiments.messages import (
     PointCloud,
     Wrench,
 )
-from contactflow.embodiments.modules.cartesian_service import for_arm, measured_q
+from contactflow.embodiments.modules.cartesian_service import arm_of, for_arm, measured_q
 from contactflow.embodiments.modules.sim_interface import COMMAND_PORT
 from contactflow.embodiments.transforms import xyz_rpy_to_matrix
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
@@ -81,18 +81,12 @@ class PlannerService(Module):
 
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)
-        from contactflow.embodiments import registry
 
         p = self.params
-        if p.robot not in registry.names():
-            raise ValueError(f"{self.name}.params.robot: {p.robot!r} is not a registered embodiment {registry.names()}")
         if p.planner not in PLANNERS:
             raise ValueError(f"{self.name}.params.planner: {p.planner!r} is not one of {sorted(PLANNERS)}")
-        self.spec = spec = registry.get(p.robot)
-        arms = {a.name: a for a in spec.arms}
-        if self.arm not in arms:
-            raise ValueError(f"{self.name}: robot {p.robot!r} has no arm {self.arm!r} (arms: {sorted(arms)})")
-        self.arm_spec = arms[self.arm]
+        self.spec, self.arm_spec = arm_of(self)
+        spec = self.spec
         self.base = xyz_rpy_to_matrix(spec.base_xyz, spec.base_rpy)
         self.kin = Kinematics(spec.urdf(), self.base)
         self.fixtures = [Obstacle("floor", "box", (10.0, 10.0, 0.1), xyz_rpy_to_matrix((0.0, 0.0, -0.05)))]

@@ -144,8 +144,7 @@ class SimInterface(Module):
         from contactflow.embodiments.world import World, WorldParams
 
         p = self.params
-        if p.robot not in registry.names():
-            raise ValueError(f"{self.name}.params.robot: {p.robot!r} is not a registered embodiment {registry.names()}")
+        registry.configured(p.robot, f"{self.name}.params.robot")
         if p.scene not in SCENES:
             raise ValueError(f"{self.name}.params.scene: {p.scene!r} is not one of {sorted(SCENES)}")
         if p.rate_hz <= 0:
