@@ -25,7 +25,9 @@ from contactflow.nodes.host import ModuleHost
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.messages import Clock, Command, EventMsg
 from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
+from contactflow.nodes.registry import resolve
 from contactflow.nodes.status import Event, Status
+from contactflow.nodes.testing import FakeIO
 from contactflow.nodes.transport import LocalTransport, ZenohSettings, ZenohTransport
 from contactflow.nodes.wire import NDArray, decode, decode_any, encode, stamp
 from contactflow.nodes.yamldoc import YamlDoc
@@ -297,3 +299,14 @@ def test_the_planner_service_goes_around_a_sensed_wall_and_refuses_an_unreachabl
     node.send(CartesianTarget(arm="arm", mode="pose", values=[float(x) for x in far.ravel()]))
     run_until(node, lambda: len(outcome()) > 1, 0.05)
     assert outcome()[-1].event == Event.FAILURE and "no collision-free IK" in outcome()[-1].detail
+
+
+@pytest.mark.parametrize(("module", "params", "message"), [
+    ("sim_interface", {"robot": "nope"}, r"station\.params\.robot: 'nope' is not a registered embodiment"),
+    ("cartesian_controller_left", {"robot": "melfa"}, r"station: robot 'melfa' has no arm 'left'"),
+    ("planner_arm", {"robot": "nope"}, r"station\.params\.robot: 'nope' is not a registered embodiment"),
+])
+def test_a_misconfigured_robot_or_arm_is_refused_naming_the_module(module, params, message):
+    m = resolve(module)("station", resolve(module).Params(**params))
+    with pytest.raises(ValueError, match=message):
+        m.setup(FakeIO())
