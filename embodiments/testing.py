@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from contactflow.embodiments.sim_robot import SimRobot
-from contactflow.embodiments.world import World
+from contactflow.embodiments.world import World, box
+from contactflow.nodes.status import Status
 
 
 def make_robot(name: str, table: bool = True) -> SimRobot:
@@ -14,6 +15,24 @@ def make_robot(name: str, table: bool = True) -> SimRobot:
     if table:
         w.add_table()
     return SimRobot(w, name)
+
+
+def melfa_around_plate(mass: float) -> SimRobot:
+    """melfa with its open gripper lowered around a thin plate of ``mass`` kg standing on the table.
+
+    The plate is 8 mm across the pads' rows (narrower than the 17.5 mm pads), 4 cm wide, 6 cm tall.
+    """
+    robot = make_robot("melfa")
+    arm = robot.arm("arm")
+    T0 = arm.ee_pose()
+    robot.world.add_object(box("obj", (0.04, 0.008, 0.06), (T0[0, 3], T0[1, 3], 0.78), mass=mass, friction=0.8))
+    robot.step(0.2)
+    down = T0.copy()
+    down[2, 3] = 0.80
+    arm.move_pose(down, speed=0.15)
+    if arm.wait(5.0) != Status.SUCCESS:
+        raise RuntimeError(f"melfa did not reach the plate: {arm.status}")
+    return robot
 
 
 def line_deviation(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:

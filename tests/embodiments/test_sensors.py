@@ -11,7 +11,7 @@ from contactflow.embodiments.sensors.camera import DepthCamera, depth_to_points
 from contactflow.embodiments.sensors.render_camera import render_available
 from contactflow.embodiments.sensors.tactile import pressure, taxel_positions
 from contactflow.embodiments.sim_robot import SimRobot
-from contactflow.embodiments.testing import make_robot
+from contactflow.embodiments.testing import make_robot, melfa_around_plate
 from contactflow.embodiments.world import World, WorldError, WorldParams, box
 from contactflow.nodes.status import Event, Status
 
@@ -21,20 +21,12 @@ MASS = 0.5
 @pytest.fixture(scope="module")
 def grasp():
     """melfa picks a 0.5 kg box: (robot, tactile while open, tactile while holding)."""
-    robot = make_robot("melfa")
+    robot = melfa_around_plate(MASS)
     arm, hand = robot.arm("arm"), robot.hand("gripper")
-    T0 = arm.ee_pose()
-    # a thin plate (8 mm across the pads' rows, narrower than the 17.5 mm pads)
-    robot.world.add_object(box("obj", (0.04, 0.008, 0.06), (T0[0, 3], T0[1, 3], 0.78), mass=MASS, friction=0.8))
-    robot.step(0.2)
-    down = T0.copy()
-    down[2, 3] = 0.80
-    arm.move_pose(down, speed=0.15)
-    assert arm.wait(5.0) == Status.SUCCESS
     open_tactile = robot.tactile("gripper")
     hand.close()
     assert hand.wait(3.0) == Status.SUCCESS
-    up = down.copy()
+    up = arm.ee_pose()
     up[2, 3] = 0.95
     arm.move_pose(up, speed=0.15)
     assert arm.wait(5.0) == Status.SUCCESS

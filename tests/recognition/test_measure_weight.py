@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from contactflow.embodiments.messages import Wrench
-from contactflow.embodiments.testing import make_robot
-from contactflow.embodiments.world import box
+from contactflow.embodiments.testing import melfa_around_plate
 from contactflow.nodes.module import Layer
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.testing import FakeIO, run_module
@@ -72,15 +71,8 @@ def _weigh(robot, params: MeasureWeight.Params) -> tuple[Status, FakeIO]:
 
 
 def test_weight_of_a_lifted_mass_from_the_simulated_wrist_ft():
-    robot = make_robot("melfa")
+    robot = melfa_around_plate(MASS)
     arm, hand = robot.arm("arm"), robot.hand("gripper")
-    T0 = arm.ee_pose()
-    robot.world.add_object(box("obj", (0.04, 0.008, 0.06), (T0[0, 3], T0[1, 3], 0.78), mass=MASS, friction=0.8))
-    robot.step(0.2)
-    down = T0.copy()
-    down[2, 3] = 0.80
-    arm.move_pose(down, speed=0.15)
-    assert arm.wait(5.0) == Status.SUCCESS
     # the baseline is taken with the hand free around the object: once the jaws squeeze it
     # on the table they already carry part of its weight
     status, before = _weigh(robot, MeasureWeight.Params(mode="baseline"))
@@ -88,7 +80,7 @@ def test_weight_of_a_lifted_mass_from_the_simulated_wrist_ft():
     base = before.events[-1].values
     hand.close()
     assert hand.wait(3.0) == Status.SUCCESS
-    up = down.copy()
+    up = arm.ee_pose()
     up[2, 3] = 0.90
     arm.move_pose(up, speed=0.25)
     assert arm.wait(5.0) == Status.SUCCESS
