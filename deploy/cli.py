@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import inspect
 import json
 import logging
 import os
@@ -215,7 +216,8 @@ def new(kind: Annotated[str, typer.Argument(help="service | primitive | task")],
 
 @app.command()
 def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMARKS)}")],
-          out: Path = Path("bench-results"), quick: bool = False) -> None:
+          out: Path = Path("bench-results"), quick: bool = False,
+          jobs: Annotated[int, typer.Option(min=1, help="worker processes, for benchmarks made of independent runs")] = 1) -> None:
     """Run a benchmark: prints a table and writes JSON (and plots) under OUT."""
     path = BENCHMARKS.get(name)
     if path is None:
@@ -226,8 +228,14 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
     except ModuleNotFoundError as exc:
         console.print(f"[red]benchmark {name!r} is not available: {exc}[/]")
         raise typer.Exit(1) from None
+    extra = {}
+    if jobs != 1:
+        if "jobs" not in inspect.signature(mod.run).parameters:
+            console.print(f"[red]benchmark {name!r} does not take --jobs[/] (it measures one process or pairs them itself)")
+            raise typer.Exit(2)
+        extra["jobs"] = jobs
     out.mkdir(parents=True, exist_ok=True)
-    mod.run(out, quick=quick)
+    mod.run(out, quick=quick, **extra)
     console.print(f"results in {out}")
 
 

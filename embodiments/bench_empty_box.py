@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 
+from contactflow.embodiments.parallel import run_all
 from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
 from contactflow.embodiments.sim_robot import SimRobot
@@ -33,6 +34,8 @@ TABLE_Z = 0.75
 BOTTOM = TABLE_Z + WALL  # m, top of the box bottom
 TARGET_XY = (0.55, -0.02)  # where the objects are put, outside the box
 STRATEGIES = ("random", "exploration", "vision")
+MAX_TIME = 1200.0  # s of simulated time per run (the thesis gives no limit; Fig. 3.27: the last object alone can take dozens of random attempts)
+MAX_ATTEMPTS = 90  # grasp attempts per run
 THESIS = {"random": {"attempts": 30.5, "time": 284.1, "success": 1.0},
           "exploration": {"attempts": 32.8, "time": 334.8, "success": 1.0},
           "vision": {"attempts": 7.1, "time": 101.4, "success": 1.0}}
@@ -176,15 +179,19 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
                 stop["now"] = True
 
     t0 = robot.time
-    res, _ = _run_until(tasks, f"empty_box_{strategy}", robot, task_params(strategy, seed), runner, count,
-                             stop, max_time, names)
+    res, _, emptied = _run_until(tasks, f"empty_box_{strategy}", robot, task_params(strategy, seed), runner, count,
+                                 stop, max_time, names)
     left = in_box(robot, names)
-    return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts, "time": robot.time - t0,
+    end = emptied if left == 0 and emptied is not None else robot.time
+    return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts, "time": end - t0,
             "left": left, "success": left == 0, "result": str(res)}
 
 
-def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, names) -> tuple[str, object]:
-    """Run the strategy task; the supervisor (ground truth) ends it once the box is empty."""
+def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, names) -> tuple[str, object, float | None]:
+    """Run the strategy task; the supervisor (ground truth) ends it once the box is empty.
+
+    Returns the result, the engine and the simulated time the box was found empty (None if never).
+    """
     from contactflow.nodes.taskengine import TaskEngine
 
     engine = TaskEngine(runner, lambda: robot.time, library=tasks, on_progress=on_progress)
@@ -199,10 +206,12 @@ def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, 
         if robot.time < next_check:
             continue
         next_check = robot.time + 0.25
-        if in_box(robot, names) == 0:
+        if in_box(robot, names) > 0:
+            empty_since = None
+        else:
             # let the running place finish before the supervisor stops the robot
             empty_since = robot.time if empty_since is None else empty_since
-            if robot.time - empty_since > 8.0 or engine.state(run)[:1] in (["detect"], ["pick_spot"], ["above"]):
+            if robot.time - empty_since > 8.0 or engine.state(run)[:1] in (["detect"], ["clear_view"], ["pick_spot"], ["above"]):
                 engine.cancel(run, "supervisor: the box is empty")
         if stop["now"] and in_box(robot, names) > 0 and not engine.done(run):
             engine.cancel(run, "supervisor: attempt limit")
@@ -211,10 +220,12 @@ def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, 
     for inst in list(runner.active):
         runner.stop(inst)
     res = engine.result(run)
-    return (f"{res.event}:{res.label or res.detail}" if res else "none"), engine
+    return (f"{res.event}:{res.label or res.detail}" if res else "none"), engine, empty_since
 
 
-def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None) -> dict:
+def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, jobs: int = 1,
+        max_time: float | None = None, max_attempts: int | None = None) -> dict:
+    """Every strategy ``runs`` times (seeds 100, 101, ...) on ``jobs`` processes; caps per run in simulated s and attempts."""
     from rich.console import Console
     from rich.progress import Progress as Bar
     from rich.table import Table
@@ -223,21 +234,21 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None) -> 
     out_dir.mkdir(parents=True, exist_ok=True)
     n_runs = runs if runs is not None else (1 if quick else 10)
     n_objects = 1 if quick else 5
-    max_attempts = 2 if quick else 60
-    max_time = 30.0 if quick else 900.0
-    results = []
+    max_attempts = max_attempts if max_attempts is not None else (2 if quick else MAX_ATTEMPTS)
+    max_time = max_time if max_time is not None else (30.0 if quick else MAX_TIME)
     t_start = time.perf_counter()
-    plan = [(s, k) for s in STRATEGIES for k in range(n_runs)]
+    plan = [(s, 100 + k, n_objects, max_attempts, max_time) for s in STRATEGIES for k in range(n_runs)]
     partial = out_dir / "empty_box_runs.jsonl"  # one line per finished run, for long benchmarks
     partial.write_text("")
     with Bar(transient=True) as bar:
-        job = bar.add_task("empty the box", total=len(plan))
-        for s, k in plan:
-            bar.update(job, description=f"{s} run {k + 1}/{n_runs}")
-            results.append(run_once(s, 100 + k, n_objects, max_attempts, max_time))
+        job = bar.add_task(f"empty the box ({jobs} process{'es' if jobs > 1 else ''})", total=len(plan))
+
+        def done(_: int, r: dict) -> None:
             with partial.open("a") as f:
-                f.write(json.dumps(results[-1]) + "\n")
-            bar.update(job, advance=1)
+                f.write(json.dumps(r) + "\n")
+            bar.update(job, advance=1, description=f"{r['strategy']} seed {r['seed']}: {r['left']} left")
+
+        results = run_all(run_once, plan, jobs, done)
     rows = []
     for s in STRATEGIES:
         rs = [r for r in results if r["strategy"] == s]
@@ -245,7 +256,7 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None) -> 
                      "time": float(np.mean([r["time"] for r in rs])),
                      "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs)})
     summary = {"benchmark": "empty_box", "robot": ROBOT, "objects": n_objects, "runs_per_strategy": n_runs,
-               "quick": quick, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
+               "quick": quick, "max_time": max_time, "max_attempts": max_attempts, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
                "runs": results}
     (out_dir / "empty_box.json").write_text(json.dumps(summary, indent=1))
     md = ["| method | attempts | time (sim s) | task success | thesis attempts | thesis time | thesis success |",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import pathlib
 import time
@@ -11,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from contactflow.embodiments.parallel import run_all
 from contactflow.embodiments.primitives.base import pose6
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot
@@ -130,7 +132,20 @@ def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int) -> di
             "grasp_values": {k: float(x) for k, x in grasp.values.items()}, "sim_time": robot.time - t0}
 
 
-def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n_objects: int | None = None) -> dict:
+@functools.cache
+def _approach(name: str) -> np.ndarray:
+    return vision_approach(next(s for s in objects() if s.name == name))
+
+
+def _trial(t: Trial) -> dict:
+    """One planned trial in this process (the approach of each object is computed once per process)."""
+    spec = next(s for s in objects() if s.name == t.obj)
+    # same seed for naive and robust: both face the same perturbed approach vector
+    return run_trial(spec, _approach(t.obj), t, seed=1000 * t.trial + zlib.crc32(t.obj.encode()) % 997)
+
+
+def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n_objects: int | None = None,
+        jobs: int = 1) -> dict:
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
@@ -143,18 +158,15 @@ def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n
     if quick:
         specs = [s for s in objects() if s.name == "cylinder"]
     plan = [Trial(s.name, c, e, k) for s in specs for e in (False, True) for c in ("naive", "robust") for k in range(n_trials)]
-    results: list[dict] = []
     t_start = time.perf_counter()
-    approaches: dict[str, np.ndarray] = {}
     with Progress(transient=True) as progress:
         task = progress.add_task("grasp trials", total=len(plan))
-        for t in plan:
-            spec = next(s for s in specs if s.name == t.obj)
-            if t.obj not in approaches:
-                approaches[t.obj] = vision_approach(spec)
-            # same seed for naive and robust: both face the same perturbed approach vector
-            results.append(run_trial(spec, approaches[t.obj], t, seed=1000 * t.trial + zlib.crc32(t.obj.encode()) % 997))
-            progress.update(task, advance=1, description=f"{t.obj} {t.controller}{' + error' if t.error else ''}")
+
+        def done(_: int, r: dict) -> None:
+            progress.update(task, advance=1,
+                            description=f"{r['object']} {r['controller']}{' + error' if r['error'] else ''}")
+
+        results = run_all(_trial, [(t,) for t in plan], jobs, done)
     rows = []
     for c in ("naive", "robust"):
         for e in (False, True):

@@ -71,7 +71,7 @@ class DetectObjects(Primitive):
     class Params(Primitive.Params):
         region: tuple[float, ...] = (0.3, -0.6, 0.74, 1.0, 0.6, 1.2)  # m, world box [xmin, ymin, zmin, xmax, ymax, zmax]
         support_z: float = -1.0  # m, known support height (< 0: fit the table plane)
-        select: str = "largest"  # largest | leftmost | nearest | random
+        select: str = "largest"  # largest | leftmost | nearest | random (random also turns the hand yaw by 90, 180 or 270 deg in half the draws, so a retry is not the same failed grasp)
         standoff: float = 0.05  # m, approach starts this far outside the object's box
         grasp_depth: float = 0.06  # m, grasp frame below the object top (clipped to half the height)
         yaw: float = 1.5707963267948966  # rad, hand yaw of the top grasp
@@ -97,6 +97,8 @@ class DetectObjects(Primitive):
         if len(p.direction) != 3 or not np.all(np.isfinite(p.direction)):
             raise ValueError(f"{self.name}: params.direction must be 3 finite numbers, got {p.direction}")
         self.region = region
+        self._yaw = p.yaw
+        self._rng = np.random.default_rng(p.seed)
 
     def _order(self, clusters: list) -> list:
         p = self.params
@@ -105,7 +107,7 @@ class DetectObjects(Primitive):
         if p.select == "nearest":
             return sorted(clusters, key=lambda c: float(np.linalg.norm(c.centroid[:2])))
         if p.select == "random":
-            k = int(np.random.default_rng(p.seed + int(self.r.time * 1000)).integers(len(clusters)))
+            k = int(self._rng.integers(len(clusters)))
             return [clusters[k]] + clusters[:k] + clusters[k + 1:]
         return clusters
 
@@ -116,9 +118,9 @@ class DetectObjects(Primitive):
         d = np.asarray(av.direction, float)
         if d[2] <= -np.cos(np.radians(VERTICAL_TOL_DEG)):
             # a fitted support normal's noise is no reason to tilt the hand off the top grasp
-            return hand_pose_for(self.r.spec.name, top_grasp_pose(av.position, self.params.yaw))
+            return hand_pose_for(self.r.spec.name, top_grasp_pose(av.position, self._yaw))
         T = np.eye(4)
-        T[:3, :3] = orthonormal_frame(d, np.array([np.cos(self.params.yaw), np.sin(self.params.yaw), 0.0]))
+        T[:3, :3] = orthonormal_frame(d, np.array([np.cos(self._yaw), np.sin(self._yaw), 0.0]))
         T[:3, 3] = av.position
         return hand_pose_for(self.r.spec.name, T)
 
@@ -164,6 +166,13 @@ class DetectObjects(Primitive):
         if not clusters:
             self.fail("no object in the region", event=Event.OBJECT_NOT_FOUND, count=0)
             return
+        if p.select == "random":
+            # a fresh draw per detection (the seed alone would repeat it): the run's seed and the time
+            self._rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
+        yaws = [p.yaw]
+        if p.select == "random" and self._rng.random() < 0.5:
+            # half the draws keep the configured yaw (the hand's best), the others start a quarter or half turn off it
+            yaws = [p.yaw + k * np.pi / 2 for k in (*self._rng.permutation([1, 2, 3]), 0)]
         arms = [p.arm] if p.arm else list(self.r.arms)
         bases = np.array([self.r.frame_pose(self.r.spec.arm(a).base_link)[:3, 3] for a in arms])
         ik = self._reach()
@@ -172,11 +181,13 @@ class DetectObjects(Primitive):
             filters = GraspFilters(p.standoff, p.hand_radius, p.hand_length, tuple(p.direction), p.max_angle_deg,
                                    tuple(base), p.max_distance)
             others = [c.points for c in clusters if c is not pick]
-            avs = synthesize_grasps(pick.points, pick.box, filters, np.vstack(others) if others else None, plane,
-                                    ik=ik, pose=self.hand_pose, first_reachable=True)
-            if avs:
-                self._detected(pick, avs[0], len(clusters))
-                return
+            for yaw in yaws:
+                self._yaw = float(yaw)
+                avs = synthesize_grasps(pick.points, pick.box, filters, np.vstack(others) if others else None, plane,
+                                        ik=ik, pose=self.hand_pose, first_reachable=True)
+                if avs:
+                    self._detected(pick, avs[0], len(clusters))
+                    return
         self.fail(f"no approach vector of the {len(clusters)} objects passes the filters", count=len(clusters))
 
     def _detected(self, pick, av, count: int) -> None:

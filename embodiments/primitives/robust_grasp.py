@@ -71,6 +71,7 @@ class RobustGrasp(Primitive):
         max_alignment: float = 0.04  # m, lateral travel of the alignment before giving up on it
         alignment_probe: float = 0.01  # m, lateral travel after which the contact must have come closer to the hand axis (else it is the support: slide)
         closing_velocity: float = 0.8  # rad/s (m/s for a gripper), finger closing during the sliding grasp
+        pressing_closing_velocity: float = -1.0  # rad/s (m/s), finger closing while eq. 3.2 backs off the support (< 0: closing_velocity)
         grasp_effort: float = 0.5  # 0..1 finger force limit while closing
         final_effort: float = 1.0  # 0..1 finger force limit after force adaptation
         finger_lost_shift: float = 0.025  # m, shift toward the contacts (Fig. 3.2 uses 5 cm on the SDH2; half the allegro finger spacing here)
@@ -190,11 +191,14 @@ class RobustGrasp(Primitive):
             return
         if self.phase is Phase.SLIDE:
             assert self._ramp is not None
+            fz = float(self.wrench_in(self.ee_frame)[:3] @ self.dir)
+            vz = sliding_velocity(fz, p.force_threshold, p.correction_velocity) if p.sliding else 0.0
+            # "light contact with the supporting plane": fingers closing faster than the hand backs off press it
+            self._ramp.speed = p.pressing_closing_velocity if vz < 0.0 and p.pressing_closing_velocity >= 0.0 \
+                else p.closing_velocity
             target = self._ramp.advance(dt)
             self.hand.set_fingers(target, effort=p.grasp_effort)
             if p.sliding:
-                fz = float(self.wrench_in(self.ee_frame)[:3] @ self.dir)
-                vz = sliding_velocity(fz, p.force_threshold, p.correction_velocity)
                 if vz != 0.0:
                     self.slides += 1
                     self.slides_back += int(vz < 0.0)

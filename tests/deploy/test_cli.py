@@ -149,6 +149,12 @@ def test_echo_prints_decoded_messages_of_a_node_process(generated_node):
     assert isinstance(Vector(values=doc["msg"]["values"]).values[0], float)
 
 
+def test_bench_jobs_is_refused_by_a_benchmark_that_measures_processes_itself(tmp_path):
+    result = invoke("bench", "messaging", "--quick", "--jobs", 2, "--out", tmp_path)
+    assert result.exit_code == 2 and "does not take --jobs" in result.output, result.output
+    assert not (tmp_path / "messaging.json").exists()
+
+
 def test_bench_messaging_quick_writes_its_json(tmp_path):
     result = invoke("bench", "messaging", "--quick", "--out", tmp_path)
     assert result.exit_code == 0, result.output

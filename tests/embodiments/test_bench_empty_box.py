@@ -16,12 +16,14 @@ from contactflow.nodes.status import Event
 
 
 def test_bench_empty_box_quick(tmp_path) -> None:
-    summary = bench_empty_box.run(tmp_path, quick=True)
+    summary = bench_empty_box.run(tmp_path, quick=True, jobs=2)  # runs on two worker processes
     assert [r["method"] for r in summary["rows"]] == ["random", "exploration", "vision"]
     assert all(r["runs"] == 1 for r in summary["rows"])
     assert all(run["attempts"] >= 1 for run in summary["runs"])  # every strategy found something to try
     saved = json.loads((tmp_path / "empty_box.json").read_text())
     assert saved["benchmark"] == "empty_box" and len(saved["runs"]) == 3
+    assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [(s, 100) for s in bench_empty_box.STRATEGIES]
+    assert all(r["time"] <= saved["max_time"] + 1.0 for r in saved["runs"])
     assert (tmp_path / "empty_box.png").stat().st_size > 0 and (tmp_path / "empty_box.md").exists()
 
 

@@ -32,6 +32,24 @@ def tomba() -> tuple[SimRobot, LocalPrimitiveRunner]:
     return robot, LocalPrimitiveRunner(robot)
 
 
+def test_random_detection_varies_the_hand_yaw_so_a_retry_differs(tomba) -> None:
+    robot, runner = tomba
+
+    def hand_x(params: dict) -> np.ndarray:
+        ev = outcome(run_primitive(runner, "detect_objects", params, max_time=2.0))
+        assert ev.event is Event.SUCCESS, ev.detail
+        return matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")[:3, 0]
+
+    # the same object, detected again: "largest" repeats the configured yaw (and so a failed grasp)
+    fixed = [hand_x({"standoff": 0.04}) for _ in range(2)]
+    assert np.allclose(fixed[0], fixed[1], atol=1e-6)
+    drawn = [hand_x({"standoff": 0.04, "select": "random", "seed": 7}) for _ in range(8)]
+    turned = [float(np.degrees(np.arccos(np.clip(x @ fixed[0], -1.0, 1.0)))) for x in drawn]
+    assert min(turned) < 1.0  # half the draws keep the configured yaw ...
+    assert max(turned) > 80.0  # ... the others turn the hand by a quarter or half turn
+    assert all(min(abs(t - a) for a in (0.0, 90.0, 180.0)) < 1.0 for t in turned)
+
+
 def test_detect_objects_and_place_location(tomba) -> None:
     robot, runner = tomba
     seen = outcome(run_primitive(runner, "detect_objects", {}, max_time=2.0))

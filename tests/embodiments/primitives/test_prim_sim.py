@@ -73,6 +73,10 @@ def _hand_efforts(robot: SimRobot) -> float:
     return float(sum(abs(e) for n, e in zip(names, efforts, strict=True) if n in joints))
 
 
+# eq. 3.2 as in the thesis (the allegro profile slows the fingers while backing off: test_bench_grasp.py)
+THESIS_SLIDING = {"closing_velocity": 0.8, "pressing_closing_velocity": -1.0, "correction_velocity": 0.005}
+
+
 def test_robust_grasp_sliding_backs_off_the_table_and_force_adaptation_tightens() -> None:
     world = World(WorldParams())
     world.add_table()
@@ -83,7 +87,8 @@ def test_robust_grasp_sliding_backs_off_the_table_and_force_adaptation_tightens(
     run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.3, 0.88)))})
     # eq. 3.2 and the force adaptation alone: the box ends up between the ring finger and the thumb,
     # which the finger-lost correction (tested below) would turn into a regrasp
-    runner.start("g", "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "alignment": False, "finger_lost": False})
+    runner.start("g", "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "alignment": False, "finger_lost": False,
+                                       **THESIS_SLIDING})
     prim = runner.active["g"].prim
     trace: list[tuple[str, float, float]] = []
     events = []
