@@ -115,7 +115,9 @@ def judge(robot: SimRobot, name: str, z0: float) -> tuple[bool, str]:
     return True, "stable"
 
 
-def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int) -> dict:
+def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int,
+              grasp_params: dict[str, object] | None = None) -> dict:
+    """One trial: move to the (perturbed) approach, grasp, lift, judge; ``grasp_params`` override the grasp's."""
     rng = np.random.default_rng(seed)
     _, robot, runner = scene(spec)
     goal = perturb(approach, rng) if t.error else approach
@@ -124,7 +126,8 @@ def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int) -> di
     move = outcome(run_primitive(runner, "move_to", {"arm": ARM, "target": [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
                                  max_time=10.0))
     z0 = float(robot.ground_truth().object_poses[spec.name][2, 3])
-    grasp = outcome(run_primitive(runner, f"{t.controller}_grasp", {"arm": ARM, "pregrasp_type": "open"}, max_time=25.0))
+    grasp = outcome(run_primitive(runner, f"{t.controller}_grasp", {"arm": ARM, "pregrasp_type": "open", **(grasp_params or {})},
+                                 max_time=25.0))
     lift = outcome(run_primitive(runner, "lift", {"arm": ARM, "distance": 0.1, "watch_grasp": False}, max_time=6.0))
     ok, why = judge(robot, spec.name, z0)
     return {"object": t.obj, "controller": t.controller, "error": t.error, "trial": t.trial, "success": ok,
@@ -137,11 +140,12 @@ def _approach(name: str) -> np.ndarray:
     return vision_approach(next(s for s in objects() if s.name == name))
 
 
-def _trial(t: Trial) -> dict:
+def _trial(t: Trial, grasp_params: dict[str, object] | None = None) -> dict:
     """One planned trial in this process (the approach of each object is computed once per process)."""
     spec = next(s for s in objects() if s.name == t.obj)
     # same seed for naive and robust: both face the same perturbed approach vector
-    return run_trial(spec, _approach(t.obj), t, seed=1000 * t.trial + zlib.crc32(t.obj.encode()) % 997)
+    return run_trial(spec, _approach(t.obj), t, seed=1000 * t.trial + zlib.crc32(t.obj.encode()) % 997,
+                     grasp_params=grasp_params)
 
 
 def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n_objects: int | None = None,

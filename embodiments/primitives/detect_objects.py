@@ -97,30 +97,32 @@ class DetectObjects(Primitive):
         if len(p.direction) != 3 or not np.all(np.isfinite(p.direction)):
             raise ValueError(f"{self.name}: params.direction must be 3 finite numbers, got {p.direction}")
         self.region = region
-        self._yaw = p.yaw
-        self._rng = np.random.default_rng(p.seed)
 
-    def _order(self, clusters: list) -> list:
+    def _order(self, clusters: list, rng: np.random.Generator) -> list:
         p = self.params
         if p.select == "leftmost":
             return sorted(clusters, key=lambda c: -c.centroid[1])
         if p.select == "nearest":
             return sorted(clusters, key=lambda c: float(np.linalg.norm(c.centroid[:2])))
         if p.select == "random":
-            k = int(self._rng.integers(len(clusters)))
+            k = int(rng.integers(len(clusters)))
             return [clusters[k]] + clusters[:k] + clusters[k + 1:]
         return clusters
 
-    def hand_pose(self, av) -> np.ndarray:
-        """Controlled-frame pose putting the hand's grasp centre on the approach start, z along the approach."""
+    def hand_pose(self, av, yaw: float | None = None) -> np.ndarray:
+        """Controlled-frame pose putting the hand's grasp centre on the approach start, z along the approach.
+
+        The hand's x axis follows ``yaw`` (default: ``params.yaw``) as far as the approach allows.
+        """
+        yaw = self.params.yaw if yaw is None else yaw
         from contactflow.recognition.geometry import orthonormal_frame
 
         d = np.asarray(av.direction, float)
         if d[2] <= -np.cos(np.radians(VERTICAL_TOL_DEG)):
             # a fitted support normal's noise is no reason to tilt the hand off the top grasp
-            return hand_pose_for(self.r.spec.name, top_grasp_pose(av.position, self._yaw))
+            return hand_pose_for(self.r.spec.name, top_grasp_pose(av.position, yaw))
         T = np.eye(4)
-        T[:3, :3] = orthonormal_frame(d, np.array([np.cos(self._yaw), np.sin(self._yaw), 0.0]))
+        T[:3, :3] = orthonormal_frame(d, np.array([np.cos(yaw), np.sin(yaw), 0.0]))
         T[:3, 3] = av.position
         return hand_pose_for(self.r.spec.name, T)
 
@@ -149,7 +151,11 @@ class DetectObjects(Primitive):
         return ik
 
     def update(self) -> None:
-        from contactflow.recognition.grasp_synthesis import GraspFilters, synthesize_grasps
+        from contactflow.recognition.grasp_synthesis import (
+            GraspFilters,
+            reachability_filter,
+            synthesize_grasps,
+        )
 
         p = self.params
         if self.elapsed < p.settle:
@@ -166,38 +172,38 @@ class DetectObjects(Primitive):
         if not clusters:
             self.fail("no object in the region", event=Event.OBJECT_NOT_FOUND, count=0)
             return
-        if p.select == "random":
-            # a fresh draw per detection (the seed alone would repeat it): the run's seed and the time
-            self._rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
+        # a fresh draw per detection (the seed alone would repeat it): the run's seed and the time
+        rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
         yaws = [p.yaw]
-        if p.select == "random" and self._rng.random() < 0.5:
+        if p.select == "random" and rng.random() < 0.5:
             # half the draws keep the configured yaw (the hand's best), the others start a quarter or half turn off it
-            yaws = [p.yaw + k * np.pi / 2 for k in (*self._rng.permutation([1, 2, 3]), 0)]
+            yaws = [p.yaw + k * np.pi / 2 for k in (*rng.permutation([1, 2, 3]), 0)]
         arms = [p.arm] if p.arm else list(self.r.arms)
         bases = np.array([self.r.frame_pose(self.r.spec.arm(a).base_link)[:3, 3] for a in arms])
         ik = self._reach()
-        for pick in self._order(clusters):
+        for pick in self._order(clusters, rng):
             base = bases[int(np.argmin(np.linalg.norm(bases - pick.centroid, axis=1)))]  # the nearest arm's
             filters = GraspFilters(p.standoff, p.hand_radius, p.hand_length, tuple(p.direction), p.max_angle_deg,
                                    tuple(base), p.max_distance)
             others = [c.points for c in clusters if c is not pick]
+            # the geometric filters do not depend on the yaw: only the reachability is checked per yaw
+            avs = synthesize_grasps(pick.points, pick.box, filters, np.vstack(others) if others else None, plane)
             for yaw in yaws:
-                self._yaw = float(yaw)
-                avs = synthesize_grasps(pick.points, pick.box, filters, np.vstack(others) if others else None, plane,
-                                        ik=ik, pose=self.hand_pose, first_reachable=True)
-                if avs:
-                    self._detected(pick, avs[0], len(clusters))
+                reached = avs if ik is None else reachability_filter(
+                    avs, ik, pose=lambda av, yaw=yaw: self.hand_pose(av, yaw), first=True)
+                if reached:
+                    self._detected(pick, reached[0], len(clusters), yaw)
                     return
         self.fail(f"no approach vector of the {len(clusters)} objects passes the filters", count=len(clusters))
 
-    def _detected(self, pick, av, count: int) -> None:
+    def _detected(self, pick, av, count: int, yaw: float) -> None:
         p = self.params
         pts = pick.points
         c = pick.centroid
         top, bottom = float(pts[:, 2].max()), float(pts[:, 2].min())
         size = pts.max(axis=0) - pts.min(axis=0)
         grasp_z = top - min(p.grasp_depth, max(0.5 * (top - bottom), 0.01))
-        approach = self.hand_pose(av)
+        approach = self.hand_pose(av, yaw)
         d = av.direction
         dims = np.sort(pick.box.extent)[::-1]
         vals = dict(count=count, cx=float(c[0]), cy=float(c[1]), cz=float(c[2]), top=top,

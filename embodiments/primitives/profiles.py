@@ -8,11 +8,12 @@ PROFILES: dict[str, dict[str, dict[str, object]]] = {
     # one external finger are dropped by the reopen-shift-regrasp (clear_table needs a third pick, a low
     # box caught by ring + thumb is lost), and it never fired in 18 grasp-bench trials with error
     "tombatossals": {
-        # the allegro closes at 0.3 rad/s (not 0.8) and the sliding grasp backs off at 1 cm/s (not the
-        # thesis's 5 mm/s): faster fingers outrun eq. 3.2, press the table with tens of N and squeeze
-        # round objects out (ball and tape: 0/10 -> 10/10 centred, 60 -> 67 % in 60 error trials)
+        # while eq. 3.2 backs off the table the allegro's fingers close at 0.3 rad/s (not 0.8) and the hand
+        # backs off at 1 cm/s (not the thesis's 5 mm/s): faster fingers press the table with tens of N and
+        # squeeze round objects out (grasp bench, centred: ball and tape 0/10 -> 10/10; a uniform 0.3 rad/s
+        # close tips a 12 cm cylinder over)
         "robust_grasp": {"torque_threshold": 0.1, "alignment_axes": "xy", "finger_lost": False,
-                         "closing_velocity": 0.8, "pressing_closing_velocity": 0.3, "correction_velocity": 0.01},
+                         "pressing_closing_velocity": 0.3, "correction_velocity": 0.01},
     },
     # parallel gripper: no finger-lost correction (two fingers, no external finger to lose)
     "melfa": {

@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import functools
 import json
-import zlib
-
-import numpy as np
 
 from contactflow.embodiments import bench_grasp
 
@@ -19,15 +15,9 @@ def test_bench_grasp_quick(tmp_path) -> None:
     assert (tmp_path / "grasp.png").stat().st_size > 0 and (tmp_path / "grasp.md").exists()
 
 
-@functools.cache
-def _approach(name: str) -> np.ndarray:
-    return bench_grasp.vision_approach(next(s for s in bench_grasp.objects() if s.name == name))
-
-
-def _trial(name: str, controller: str, error: bool = False, trial: int = 0) -> dict:
-    spec = next(s for s in bench_grasp.objects() if s.name == name)
-    seed = 1000 * trial + zlib.crc32(name.encode()) % 997 if error else 0  # the benchmark's seed of that trial
-    return bench_grasp.run_trial(spec, _approach(name), bench_grasp.Trial(name, controller, error, trial), seed=seed)
+def _trial(name: str, controller: str, error: bool = False, trial: int = 0, **grasp_params) -> dict:
+    """The benchmark's own trial (same approach, seed and judge)."""
+    return bench_grasp._trial(bench_grasp.Trial(name, controller, error, trial), grasp_params)
 
 
 def test_naive_grasp_success_means_the_object_is_held() -> None:
@@ -56,27 +46,12 @@ def test_perturbed_approach_ending_on_the_wrist_limit_still_grasps() -> None:
         assert r["grasp"] in ("success", "failure"), r
 
 
-def _grasp_centred(name: str, **params) -> tuple[bool, str, dict]:
-    from contactflow.embodiments.primitives.base import pose6
-    from contactflow.embodiments.primitives.runner import outcome, run_primitive
-
-    spec = next(s for s in bench_grasp.objects() if s.name == name)
-    _, robot, runner = bench_grasp.scene(spec)
-    v = pose6(_approach(name))
-    run_primitive(runner, "move_to", {"arm": "right", "target": [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]})
-    z0 = float(robot.ground_truth().object_poses[name][2, 3])
-    g = outcome(run_primitive(runner, "robust_grasp", {"arm": "right", "pregrasp_type": "open", **params}, max_time=25.0))
-    run_primitive(runner, "lift", {"arm": "right", "distance": 0.1, "watch_grasp": False}, max_time=6.0)
-    ok, why = bench_grasp.judge(robot, name, z0)
-    return ok, why, g.values
-
-
 def test_allegro_sliding_grasp_keeps_a_light_contact_with_the_table() -> None:
     # the ball, centred: fingers closing at 0.8 rad/s while eq. 3.2 backs off at the thesis's 5 mm/s
     # press the table with tens of N and squeeze the ball out; the allegro profile slows the
     # fingers while the hand backs off and backs off at 1 cm/s
-    ok, why, vals = _grasp_centred("ball")
-    assert ok, why
-    assert vals["slides_back"] > 0  # the sliding grasp did back off the table
-    ok_fast, _, _ = _grasp_centred("ball", pressing_closing_velocity=-1.0, correction_velocity=0.005)
-    assert not ok_fast, "the ball is held without the slower closing: the test no longer exercises it"
+    r = _trial("ball", "robust")
+    assert r["success"], r["why"]
+    assert r["grasp_values"]["slides_back"] > 0  # the sliding grasp did back off the table
+    fast = _trial("ball", "robust", pressing_closing_velocity=-1.0, correction_velocity=0.005)
+    assert not fast["success"], "the ball is held without the slower closing: the test no longer exercises it"
