@@ -127,7 +127,7 @@ def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int,
                                  max_time=10.0))
     z0 = float(robot.ground_truth().object_poses[spec.name][2, 3])
     grasp = outcome(run_primitive(runner, f"{t.controller}_grasp", {"arm": ARM, "pregrasp_type": "open", **(grasp_params or {})},
-                                 max_time=25.0))
+                                 max_time=90.0))
     lift = outcome(run_primitive(runner, "lift", {"arm": ARM, "distance": 0.1, "watch_grasp": False}, max_time=6.0))
     ok, why = judge(robot, spec.name, z0)
     return {"object": t.obj, "controller": t.controller, "error": t.error, "trial": t.trial, "success": ok,

@@ -1,4 +1,4 @@
-"""Robust grasp (thesis §3.3.1, Fig. 3.2): alignment by wrist torque (eq. 3.1), sliding grasp (eq. 3.2), finger-lost correction, force adaptation."""
+"""Robust grasp (thesis §3.3.1, Fig. 3.2): alignment by wrist torque (eq. 3.1), sliding grasp (eq. 3.2), finger-lost correction, force adaptation; optional levelling and search."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from contactflow.embodiments.primitives.base import Capability, Primitive
 from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups, held_fingers
@@ -48,11 +49,49 @@ def sliding_velocity(fz: float, force_threshold: float, vz: float) -> float:
     return 0.0
 
 
+def levelled_pose(T: np.ndarray, direction: np.ndarray, pivot: np.ndarray, tolerance: float) -> np.ndarray | None:
+    """The pose ``T`` turned so the hand-frame ``direction`` points straight down (world -z), about the hand-frame
+    point ``pivot``; None when it is already down or more than ``tolerance`` rad away (not a top grasp).
+
+    A top grasp tilted by the approach error lands one side of the hand first: the fingers on
+    that side press the support while the others close above the object and squeeze it out.
+    The turn is the smallest one, so the yaw about the vertical is kept.
+    """
+    d = T[:3, :3] @ direction
+    down = np.array([0.0, 0.0, -1.0])
+    angle = float(np.arccos(np.clip(d @ down, -1.0, 1.0)))
+    if tolerance <= 0.0 or angle < 1e-3 or angle > tolerance:
+        return None
+    axis = np.cross(d, down)
+    R = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+    c = T[:3, :3] @ pivot
+    goal = T.copy()
+    goal[:3, :3] = R @ T[:3, :3]
+    goal[:3, 3] += c - R @ c
+    return goal
+
+
+def search_poses(T_start: np.ndarray, T_now: np.ndarray, direction: np.ndarray, xdir: np.ndarray,
+                 offset: tuple[float, float]) -> list[np.ndarray]:
+    """Where the hand goes to search after closing on nothing: back out along the approach to the height
+    where it began (no sideways drag through what it missed), then over ``T_start`` shifted by ``offset``
+    (hand-frame x, y, across the approach)."""
+    R0 = T_start[:3, :3]
+    d = R0 @ direction
+    back = T_now.copy()
+    back[:3, 3] -= ((back[:3, 3] - T_start[:3, 3]) @ d) * d
+    over = T_start.copy()
+    over[:3, 3] += R0 @ (offset[0] * xdir + offset[1] * np.cross(direction, xdir))
+    return [back, over]
+
+
 class RobustGrasp(Primitive):
     """Reactive grasp: approach along the grasp direction, centre on the object, close while sliding, adapt force.
 
     Per embodiment: the finger-lost correction needs a multi-finger hand with tactile pads
-    on its two external fingers (F1, F3 of Fig. 3.2); a parallel gripper skips it.
+    on its two external fingers (F1, F3 of Fig. 3.2); a parallel gripper skips it. Two
+    corrections the thesis does not have are off by default: levelling a tilted top grasp
+    before the descent, and searching beside the start after a close that holds nothing.
     """
 
     requires = Capability(ft=True, hand=True)
@@ -81,6 +120,9 @@ class RobustGrasp(Primitive):
         alignment_axes: str = "x"  # "x": eq. 3.1 (torque about hand y moves along x); "xy": also torque about x moves along y
         sliding: bool = True  # enable the sliding correction (eq. 3.2)
         finger_lost: bool = True  # finger-lost correction: part of the primitive in the thesis (Fig. 3.2); needs a multi-finger hand
+        level_tolerance: float = 0.0  # rad, a grasp direction within this angle of straight down is turned straight down before the approach (objects rest on level supports; 0: off, as in the thesis)
+        level_pivot: tuple[float, ...] = (0.0, 0.0, 0.0)  # m, hand-frame point kept in place while levelling (where the hand holds an object)
+        search_offsets: tuple[float, ...] = ()  # m, hand-frame (x, y) pairs: after a close that holds nothing, descend again shifted by the next pair (none in the thesis)
 
     def begin(self) -> None:
         p = self.params
@@ -94,6 +136,12 @@ class RobustGrasp(Primitive):
         self.spec = self.r.spec.hand(self.hand_name)
         self.groups = finger_groups(self.spec)
         self.closed = np.asarray(self.spec.preshapes["closed"], dtype=np.float64)
+        if len(p.search_offsets) % 2:
+            raise ValueError(f"{self.name}: params.search_offsets must hold (x, y) pairs, got {len(p.search_offsets)} numbers")
+        self.T_start: np.ndarray | None = None
+        self.levelled = 0.0
+        self._goals: list[np.ndarray] = []
+        self.searches = 0
         self.regrasps = 0
         self.aligns = 0
         self.slides = 0
@@ -110,9 +158,21 @@ class RobustGrasp(Primitive):
             opened = np.asarray(self.spec.preshapes["open"], dtype=np.float64)
             s = float(np.clip(p.pregrasp_size, 0.0, 1.0))
             self.hand.set_fingers(self.closed + s * (opened - self.closed))
+        self._leveling = self._level()
         self.phase = Phase.PRESHAPE
 
     # -- helpers -------------------------------------------------------------------------
+    def _level(self) -> bool:
+        """Start turning a nearly downward grasp direction straight down; False when there is nothing to turn."""
+        p = self.params
+        T = self.r.frame_pose(self.ee_frame)
+        goal = levelled_pose(T, self.dir, np.asarray(p.level_pivot, dtype=np.float64), p.level_tolerance)
+        if goal is None:
+            return False
+        self.levelled = float(np.linalg.norm(Rotation.from_matrix(T[:3, :3].T @ goal[:3, :3]).as_rotvec()))
+        self.arm.move_pose(goal, speed=0.05)
+        return True
+
     def _to(self, phase: Phase) -> None:
         self.phase, self._t_phase = phase, self.r.time
 
@@ -121,6 +181,8 @@ class RobustGrasp(Primitive):
 
     def _start_align(self) -> None:
         self.r.tare_ft(self.arm_name)
+        if self.T_start is None:
+            self.T_start = self.r.frame_pose(self.ee_frame).copy()
         self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
         self.x0 = self.p0.copy()
         self._probe = None
@@ -137,7 +199,7 @@ class RobustGrasp(Primitive):
         p = self.params
         dt = 1.0 / p.rate_hz
         if self.phase is Phase.PRESHAPE:
-            if self.hand.done() or self.r.time - self._t_phase > 1.0:
+            if (self.hand.done() and (not self._leveling or self.arm.done())) or self.r.time - self._t_phase > 2.0:
                 self._start_align()
             return
         if self.phase is Phase.ALIGN:
@@ -216,11 +278,13 @@ class RobustGrasp(Primitive):
             return
         if self.phase is Phase.REOPEN:
             if self.hand.done() or self.r.time - self._t_phase > 1.0:
-                self.arm.move_pose(self.shift_goal, speed=0.05)
-                self._to(Phase.SHIFT)
+                self._next_goal()
             return
         if self.phase is Phase.SHIFT:
-            if self.arm.done() or self.r.time - self._t_phase > 3.0:
+            if self.arm.done() or self.r.time - self._t_phase > self._shift_time:
+                if self._goals:
+                    self._next_goal()
+                    return
                 self._contact_seen = False
                 self._start_align()
             return
@@ -230,10 +294,11 @@ class RobustGrasp(Primitive):
             held = len(held_fingers(self.hand.positions(), self.closed, self.groups, pads)) >= need
             vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides, slides_back=self.slides_back,
                         regrasps=self.regrasps, lateral=self.lateral, support_contacts=self.support_contacts)
+            vals.update(searches=self.searches, levelled=self.levelled)
             if held:
                 self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
                 self.succeed(f"grasped with {pads}", **vals)
-            else:
+            elif not self._search():
                 self.fail(f"hand closed without holding (pads in contact: {pads})", **vals)
 
     def _support_contact(self, f: np.ndarray, tau: np.ndarray) -> bool:
@@ -285,14 +350,41 @@ class RobustGrasp(Primitive):
         if np.linalg.norm(d) < 1e-6:
             return False
         shift = T[:3, :3] @ (d / np.linalg.norm(d) * p.finger_lost_shift - self.dir * 0.02)
-        self.shift_goal = T.copy()
-        self.shift_goal[:3, 3] += shift
+        goal = T.copy()
+        goal[:3, 3] += shift
         self.regrasps += 1
         if self.io is not None:
             self.io.log(f"finger lost: {lost} without contact, shifting toward {kept}")
-        if p.pregrasp_type:
-            self.hand.preshape(p.pregrasp_type)
+        self._reopen([goal])
+        return True
+
+    def _search(self) -> bool:
+        """The hand closed on nothing: reopen and descend again beside the start (the next of
+        ``search_offsets``); False when none is left."""
+        p = self.params
+        k = 2 * self.searches
+        if k + 1 >= len(p.search_offsets) or self.T_start is None:
+            return False
+        self.searches += 1
+        offset = (p.search_offsets[k], p.search_offsets[k + 1])
+        if self.io is not None:
+            self.io.log(f"closed on nothing: search {self.searches} at {offset[0]:+.3f}, {offset[1]:+.3f} m")
+        self._reopen(search_poses(self.T_start, self.r.frame_pose(self.ee_frame), self.dir, self.xdir, offset))
+        return True
+
+    def _reopen(self, goals: list[np.ndarray]) -> None:
+        """Open to the preshape, then visit ``goals`` (controlled-frame poses) before approaching again."""
+        self._goals = list(goals)
+        if self.params.pregrasp_type:
+            self.hand.preshape(self.params.pregrasp_type)
         else:
             self.hand.open()
         self._to(Phase.REOPEN)
-        return True
+
+    def _next_goal(self) -> None:
+        goal = self._goals.pop(0)
+        speed = 0.05
+        dist = float(np.linalg.norm(goal[:3, 3] - self.r.frame_pose(self.ee_frame)[:3, 3]))
+        self._shift_time = dist / speed + 1.5
+        self.arm.move_pose(goal, speed=speed)
+        self._to(Phase.SHIFT)

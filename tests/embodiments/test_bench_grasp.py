@@ -29,8 +29,9 @@ def test_naive_grasp_success_means_the_object_is_held() -> None:
 
 def test_robust_grasp_alignment_leaves_a_support_contact_to_the_sliding_grasp() -> None:
     # the 3 cm wood block, approach error trial 9: the hanging thumb touches the table first; eq. 3.1
-    # used to creep 4 cm sideways on that torque and close beside the block
-    r = _trial("wood", "robust", error=True, trial=9)
+    # used to creep 4 cm sideways on that torque and close beside the block (levelling off: it changes
+    # which part of the hand lands first)
+    r = _trial("wood", "robust", error=True, trial=9, level_tolerance=0.0, search_offsets=[])
     assert r["grasp_values"]["support_contacts"] >= 1
     assert r["grasp_values"]["lateral"] < 0.02
     assert r["success"], r["why"]
@@ -53,5 +54,26 @@ def test_allegro_sliding_grasp_keeps_a_light_contact_with_the_table() -> None:
     r = _trial("ball", "robust")
     assert r["success"], r["why"]
     assert r["grasp_values"]["slides_back"] > 0  # the sliding grasp did back off the table
-    fast = _trial("ball", "robust", pressing_closing_velocity=-1.0, correction_velocity=0.005)
+    fast = _trial("ball", "robust", pressing_closing_velocity=-1.0, correction_velocity=0.005, search_offsets=[])
     assert not fast["success"], "the ball is held without the slower closing: the test no longer exercises it"
+
+
+def test_levelling_the_tilted_approach_saves_the_grasp() -> None:
+    # the car, approach error trial 6: tilted by 15 deg, one side of the hand lands first and the
+    # closing fingers push the car away; levelled about the grasp centre it is held
+    tilted = _trial("car", "robust", error=True, trial=6, level_tolerance=0.0, search_offsets=[])
+    assert not tilted["success"], "the tilted grasp holds: the test no longer exercises the levelling"
+    assert tilted["grasp_values"]["levelled"] == 0.0
+    levelled = _trial("car", "robust", error=True, trial=6, search_offsets=[])
+    assert levelled["grasp_values"]["levelled"] > 0.2  # rad, the profile levels it
+    assert levelled["success"], levelled["why"]
+
+
+def test_a_close_on_nothing_searches_where_the_hand_pushed_the_object() -> None:
+    # the wood block, approach error trial 6: the first close misses and pushes it aside
+    missed = _trial("wood", "robust", error=True, trial=6, search_offsets=[])
+    assert missed["grasp"] == "failure" and not missed["success"], missed
+    assert missed["grasp_values"]["searches"] == 0
+    found = _trial("wood", "robust", error=True, trial=6)
+    assert found["grasp"] == "success" and found["success"], found["why"]
+    assert found["grasp_values"]["searches"] >= 1

@@ -4,13 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from contactflow.embodiments.primitives.base import Primitive, PrimitiveError, matrix6, pose6
 from contactflow.embodiments.primitives.catalog import CATALOG
 from contactflow.embodiments.primitives.place import place_velocity
 from contactflow.embodiments.primitives.place_location import free_spot
 from contactflow.embodiments.primitives.release import release_velocity
-from contactflow.embodiments.primitives.robust_grasp import alignment_velocity, sliding_velocity
+from contactflow.embodiments.primitives.robust_grasp import (
+    alignment_velocity,
+    levelled_pose,
+    search_poses,
+    sliding_velocity,
+)
 from contactflow.embodiments.primitives.slide import slide_velocity
 from contactflow.embodiments.primitives.transport import (
     force_field,
@@ -78,3 +84,40 @@ def test_pose_helpers_and_free_spot() -> None:
     spot = free_spot(np.array([[0.5, 0.0]]), np.array([0.4, -0.1, 0.6, 0.1]), 0.05)
     assert spot is not None and np.linalg.norm(spot - [0.5, 0.0]) >= 0.05
     assert free_spot(np.array([[0.5, 0.0]]), np.array([0.49, -0.01, 0.51, 0.01]), 0.05) is None
+
+
+def _top_grasp(tilt_deg: tuple[float, float, float]) -> np.ndarray:
+    """A hand pointing its z axis down (top grasp), turned by roll, pitch, yaw in its own frame."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("x", np.pi).as_matrix() @ Rotation.from_euler("xyz", tilt_deg, degrees=True).as_matrix()
+    T[:3, 3] = (0.5, -0.3, 0.9)
+    return T
+
+
+def test_levelling_turns_a_tilted_top_grasp_down_about_the_pivot_and_keeps_its_yaw() -> None:
+    z = np.array([0.0, 0.0, 1.0])
+    pivot = np.array([-0.055, 0.015, 0.0])
+    T = _top_grasp((10.0, -12.0, 30.0))
+    goal = levelled_pose(T, z, pivot, tolerance=0.4)
+    assert goal is not None
+    assert np.allclose(goal[:3, :3] @ z, (0.0, 0.0, -1.0), atol=1e-9)
+    assert np.allclose(goal[:3, :3] @ pivot + goal[:3, 3], T[:3, :3] @ pivot + T[:3, 3], atol=1e-9)
+    # the yaw survives: the hand x axis keeps its heading in the horizontal plane (within the tilt)
+    hx0, hx1 = T[:2, 0] / np.linalg.norm(T[:2, 0]), goal[:2, 0] / np.linalg.norm(goal[:2, 0])
+    assert float(hx0 @ hx1) > np.cos(np.deg2rad(8.0))
+    assert levelled_pose(_top_grasp((0.0, 0.0, 30.0)), z, pivot, 0.4) is None  # already down
+    assert levelled_pose(_top_grasp((40.0, 0.0, 0.0)), z, pivot, 0.4) is None  # not a top grasp
+    assert levelled_pose(T, z, pivot, 0.0) is None  # off (the thesis)
+
+
+def test_search_backs_out_along_the_approach_then_goes_over_the_offset() -> None:
+    z = np.array([0.0, 0.0, 1.0])
+    x = np.array([1.0, 0.0, 0.0])
+    T0 = _top_grasp((0.0, 0.0, 90.0))
+    now = T0.copy()
+    now[:3, 3] += (0.01, 0.02, -0.12)  # descended 12 cm and drifted while closing
+    back, over = search_poses(T0, now, z, x, (0.09, -0.08))
+    assert np.allclose(back[:3, 3], (0.51, -0.28, 0.9))  # straight up, no sideways drag
+    assert np.allclose(over[:3, :3], T0[:3, :3])
+    shift = T0[:3, :3].T @ (over[:3, 3] - T0[:3, 3])
+    assert np.allclose(shift, (0.09, -0.08, 0.0))
