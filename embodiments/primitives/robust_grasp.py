@@ -141,6 +141,7 @@ class RobustGrasp(Primitive):
         self.T_start: np.ndarray | None = None
         self.levelled = 0.0
         self._goals: list[np.ndarray] = []
+        self._shift_time = 0.0
         self.searches = 0
         self.regrasps = 0
         self.aligns = 0
@@ -158,7 +159,7 @@ class RobustGrasp(Primitive):
             opened = np.asarray(self.spec.preshapes["open"], dtype=np.float64)
             s = float(np.clip(p.pregrasp_size, 0.0, 1.0))
             self.hand.set_fingers(self.closed + s * (opened - self.closed))
-        self._leveling = self._level()
+        self._levelling = self._level()
         self.phase = Phase.PRESHAPE
 
     # -- helpers -------------------------------------------------------------------------
@@ -199,7 +200,7 @@ class RobustGrasp(Primitive):
         p = self.params
         dt = 1.0 / p.rate_hz
         if self.phase is Phase.PRESHAPE:
-            if (self.hand.done() and (not self._leveling or self.arm.done())) or self.r.time - self._t_phase > 2.0:
+            if (self.hand.done() and (not self._levelling or self.arm.done())) or self.r.time - self._t_phase > 2.0:
                 self._start_align()
             return
         if self.phase is Phase.ALIGN:
@@ -359,8 +360,8 @@ class RobustGrasp(Primitive):
         return True
 
     def _search(self) -> bool:
-        """The hand closed on nothing: reopen and descend again beside the start (the next of
-        ``search_offsets``); False when none is left."""
+        """The hand closed on nothing: reopen and descend again from the start shifted by the next of
+        ``search_offsets``; False when none is left."""
         p = self.params
         k = 2 * self.searches
         if k + 1 >= len(p.search_offsets) or self.T_start is None:
