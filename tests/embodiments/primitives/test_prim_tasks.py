@@ -26,6 +26,19 @@ def test_task_file_loads_every_thesis_task() -> None:
         bind_plan(tasks["pick"], {})
 
 
+def test_empty_box_strategies_go_on_after_an_attempt_that_ends_in_an_error() -> None:
+    # an attempt whose back-off transport faulted ended a vision run with 4 objects left (bench seed 104)
+    tasks, _ = load()
+    for name in ("empty_box_vision", "empty_box_random", "empty_box_exploration"):
+        g = tasks[name]
+        attempts = [n for n in g.nodes if n.startswith("attempt")]
+        assert attempts, name
+        for node in attempts:
+            for event in (Event.SUCCESS, Event.FAILURE, Event.ERROR):
+                assert any(e.origin == node and event in e.events and not g.nodes[e.dest].kind.terminal
+                           for e in g.edges), (name, node, event)
+
+
 def test_pick_and_place_runs_end_to_end() -> None:
     world = World(WorldParams())
     world.add_table()
