@@ -66,4 +66,5 @@ class PlaceLocation(Primitive):
         if spot is None:
             self.fail("no free place in the region")
             return
-        self.succeed(**pose6(top_grasp_pose((spot[0], spot[1], p.support_z + p.height), p.yaw)))
+        # the held object sits at the hand's grasp centre, not at the controlled frame
+        self.succeed(**pose6(hand_pose_for(self.r.spec.name, top_grasp_pose((spot[0], spot[1], p.support_z + p.height), p.yaw))))

@@ -76,7 +76,4 @@ def test_clear_the_table_cycles_until_no_object_is_left() -> None:
     assert res.status is Status.SUCCESS and res.label == "done", res
     assert len(picks) == 2  # one grasp per object, then detect found nothing (Fig. 3.1c)
     poses = robot.ground_truth().object_poses
-    # nothing is left in the cleared region (y < -0.08); a put-down cylinder may fall and roll (it is
-    # held 12-19 deg tilted), the cube cannot: it is in the drop region, give or take its offset in the hand
-    assert all(poses[n][1, 3] > -0.08 for n in ("cyl", "cube"))
-    assert 0.42 < poses["cube"][0, 3] < 0.63 and -0.03 < poses["cube"][1, 3] < 0.15
+    assert all(poses[n][1, 3] > -0.02 for n in ("cyl", "cube"))  # both in the drop region
