@@ -49,8 +49,7 @@ class PlaceLocation(Primitive):
         if p.mode == "random":
             rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
             x, y = rng.uniform(region[:2], region[2:])
-            # a blind grasp guess: the hand's grasp centre over the random spot
-            self.succeed(**pose6(hand_pose_for(self.r.spec.name, top_grasp_pose((x, y, p.support_z + p.height), p.yaw))))
+            self._spot(x, y)  # a blind grasp guess
             return
         if p.mode != "free":
             raise ValueError(f"{self.name}: params.mode must be free or random, got {p.mode!r}")
@@ -66,5 +65,9 @@ class PlaceLocation(Primitive):
         if spot is None:
             self.fail("no free place in the region")
             return
-        # the held object sits at the hand's grasp centre, not at the controlled frame
-        self.succeed(**pose6(hand_pose_for(self.r.spec.name, top_grasp_pose((spot[0], spot[1], p.support_z + p.height), p.yaw))))
+        self._spot(spot[0], spot[1])
+
+    def _spot(self, x: float, y: float) -> None:
+        """Succeed with the hand pose that puts its grasp centre (where it holds an object) over (x, y)."""
+        p = self.params
+        self.succeed(**pose6(hand_pose_for(self.r.spec.name, top_grasp_pose((x, y, p.support_z + p.height), p.yaw))))

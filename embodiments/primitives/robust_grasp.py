@@ -49,9 +49,10 @@ def sliding_velocity(fz: float, force_threshold: float, vz: float) -> float:
     return 0.0
 
 
-def levelled_pose(T: np.ndarray, direction: np.ndarray, pivot: np.ndarray, tolerance: float) -> np.ndarray | None:
-    """The pose ``T`` turned so the hand-frame ``direction`` points straight down (world -z), about the hand-frame
-    point ``pivot``; None when it is already down or more than ``tolerance`` rad away (not a top grasp).
+def levelled_pose(T: np.ndarray, direction: np.ndarray, pivot: np.ndarray,
+                  tolerance: float) -> tuple[np.ndarray, float] | None:
+    """(pose, turn in rad): ``T`` turned so the hand-frame ``direction`` points straight down (world -z), about the
+    hand-frame point ``pivot``; None when it is already down or more than ``tolerance`` rad away (not a top grasp).
 
     A top grasp tilted by the approach error lands one side of the hand first: the fingers on
     that side press the support while the others close above the object and squeeze it out.
@@ -68,7 +69,7 @@ def levelled_pose(T: np.ndarray, direction: np.ndarray, pivot: np.ndarray, toler
     goal = T.copy()
     goal[:3, :3] = R @ T[:3, :3]
     goal[:3, 3] += c - R @ c
-    return goal
+    return goal, angle
 
 
 def search_poses(T_start: np.ndarray, T_now: np.ndarray, direction: np.ndarray, xdir: np.ndarray,
@@ -167,10 +168,10 @@ class RobustGrasp(Primitive):
         """Start turning a nearly downward grasp direction straight down; False when there is nothing to turn."""
         p = self.params
         T = self.r.frame_pose(self.ee_frame)
-        goal = levelled_pose(T, self.dir, np.asarray(p.level_pivot, dtype=np.float64), p.level_tolerance)
-        if goal is None:
+        levelled = levelled_pose(T, self.dir, np.asarray(p.level_pivot, dtype=np.float64), p.level_tolerance)
+        if levelled is None:
             return False
-        self.levelled = float(np.linalg.norm(Rotation.from_matrix(T[:3, :3].T @ goal[:3, :3]).as_rotvec()))
+        goal, self.levelled = levelled
         self.arm.move_pose(goal, speed=0.05)
         return True
 

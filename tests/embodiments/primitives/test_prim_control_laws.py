@@ -98,8 +98,10 @@ def test_levelling_turns_a_tilted_top_grasp_down_about_the_pivot_and_keeps_its_y
     z = np.array([0.0, 0.0, 1.0])
     pivot = np.array([-0.055, 0.015, 0.0])
     T = _top_grasp((10.0, -12.0, 30.0))
-    goal = levelled_pose(T, z, pivot, tolerance=0.4)
-    assert goal is not None
+    levelled = levelled_pose(T, z, pivot, tolerance=0.4)
+    assert levelled is not None
+    goal, turn = levelled
+    assert turn == pytest.approx(np.arccos(-(T[:3, :3] @ z)[2]))
     assert np.allclose(goal[:3, :3] @ z, (0.0, 0.0, -1.0), atol=1e-9)
     assert np.allclose(goal[:3, :3] @ pivot + goal[:3, 3], T[:3, :3] @ pivot + T[:3, 3], atol=1e-9)
     # the yaw survives: the hand x axis keeps its heading in the horizontal plane (within the tilt)
