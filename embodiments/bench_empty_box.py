@@ -28,6 +28,7 @@ ROBOT = "tombatossals"
 ARM = "right"
 BOX_CENTER = (0.55, -0.32)
 INNER = (0.22, 0.26)  # m, inner x, y size of the box
+CELLS = tuple((x, y) for x in (-0.05, 0.05) for y in (-0.08, 0.0, 0.08))  # m, layout cells from the box centre (jittered 1 cm)
 WALL = 0.01  # m, wall thickness
 HEIGHT = 0.045  # m, wall height above the bottom (the open allegro fingers pass over it)
 TABLE_Z = 0.75
@@ -58,8 +59,7 @@ def container() -> ObjectSpec:
 def contents(rng: np.random.Generator, n: int) -> list[ObjectSpec]:
     """Five household-like objects of primitive and compound shapes in a jittered 3x2 layout."""
     cx, cy = BOX_CENTER
-    cells = [(-0.05, -0.08), (-0.05, 0.0), (-0.05, 0.08), (0.05, -0.08), (0.05, 0.0), (0.05, 0.08)]
-    order = rng.permutation(len(cells))[:n]
+    order = rng.permutation(len(CELLS))[:n]
     makers = [
         lambda x, y: cylinder("can", 0.025, 0.07, xyz=(x, y, BOTTOM + 0.035), mass=0.15, friction=0.8),
         lambda x, y: box("cube", (0.045, 0.045, 0.045), xyz=(x, y, BOTTOM + 0.0225), mass=0.1, friction=0.8),
@@ -71,7 +71,7 @@ def contents(rng: np.random.Generator, n: int) -> list[ObjectSpec]:
     ]
     out = []
     for k, cell in zip(range(n), order, strict=False):
-        dx, dy = cells[cell]
+        dx, dy = CELLS[cell]
         j = rng.uniform(-0.01, 0.01, 2)
         out.append(makers[k](cx + dx + j[0], cy + dy + j[1]))
     return out

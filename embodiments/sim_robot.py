@@ -169,16 +169,17 @@ class ArmHandle(_Commanded):
         self._start("guarded")
 
     def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
-             obstacles: tuple = (), cloud: np.ndarray | None = None):
+             obstacles: tuple = (), cloud: np.ndarray | None = None, rest: bool = False):
         """OMPL plan from the current commanded joints to a joint goal or a 4x4 pose of the controlled frame.
 
         Collision-checked against the given ``obstacles`` (planning ``Obstacle`` records) and
         point ``cloud`` (N, 3) plus the cell's fixtures (the table): what the caller sensed.
+        With ``rest`` a pose goal's joints are solved from the home posture (see ``plan_arm``).
         """
         from contactflow.embodiments.control.planning import plan_arm
 
         return plan_arm(self.robot, self, goal, planner=planner, timeout=timeout, checker=checker,
-                        obstacles=obstacles, cloud=cloud)
+                        obstacles=obstacles, cloud=cloud, rest=rest)
 
     # -- control tick ----------------------------------------------------------------------
     def _tick(self, dt: float) -> None:

@@ -357,11 +357,14 @@ def sensed_cloud(robot, camera: str = "kinect", self_margin: float = 0.03, fixtu
 
 def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
              obstacles: tuple[Obstacle, ...] | list[Obstacle] = (), cloud: np.ndarray | None = None,
-             fixtures: bool = True, seed: int | None = None) -> Plan | None:
+             fixtures: bool = True, seed: int | None = None, rest: bool = False) -> Plan | None:
     """Plan ``arm`` of a SimRobot from its commanded joints to a joint goal or a 4x4 pose.
 
     Collisions are checked against ``obstacles`` and the point ``cloud`` the caller sensed or
     was given, plus the cell's fixtures when ``fixtures``; never against the simulated objects.
+    A pose goal's joints are the IK solution found from the current joints, or with ``rest``
+    from the arm's home posture: the same pose then gives the same arm posture, however the
+    arm got there (a 7-joint arm's elbow otherwise drifts from move to move).
     """
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
     q_full = robot._kin_q_cmd()
@@ -377,7 +380,11 @@ def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: fl
     ap = ArmPlanner(kin, arm.joints, check.valid, q_full)
     goal = np.asarray(goal, dtype=np.float64)
     if goal.shape == (4, 4):
-        q_goal = solve_ik(kin, arm.joints, arm.spec.ee_frame, goal, q_full, check.valid)
+        q_seed = q_full
+        if rest:
+            q_seed = q_full.copy()
+            q_seed[kin.q_index(arm.joints)] = arm.spec.home
+        q_goal = solve_ik(kin, arm.joints, arm.spec.ee_frame, goal, q_seed, check.valid)
         if q_goal is None:
             return None
     else:

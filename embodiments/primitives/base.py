@@ -369,3 +369,29 @@ def top_grasp_pose(xyz: np.ndarray | tuple[float, ...], yaw: float = np.pi / 2) 
     T[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.diag([1.0, -1.0, -1.0])
     T[:3, 3] = xyz
     return T
+
+
+def wall_yaws(yaws: list[float], xy, walls: tuple[float, ...], margin: float,
+              wall_side: tuple[float, ...]) -> list[float]:
+    """``yaws`` (of top grasps) for an object at ``xy`` within ``margin`` of a wall of ``walls`` [xmin, ymin, xmax, ymax]:
+    the quarter turn of ``yaws[0]`` that puts the hand's ``wall_side`` toward the nearest wall comes first.
+
+    Which side of a hand can face a wall while it grasps an object beside it depends on the
+    hand (where its fingers and thumb land, which of them push the object); it is measured
+    per hand. Without walls, or far from them, ``yaws`` is returned unchanged.
+    """
+    if len(walls) != 4 or margin <= 0.0 or not yaws:
+        return yaws
+    x, y = float(xy[0]), float(xy[1])
+    gaps = np.array([x - walls[0], walls[2] - x, y - walls[1], walls[3] - y])
+    side = int(np.argmin(gaps))
+    if gaps[side] >= margin:
+        return yaws
+    out = np.array([(-1.0, 0.0), (1.0, 0.0), (0.0, -1.0), (0.0, 1.0)][side])
+    sx, sy = np.asarray(wall_side, dtype=np.float64)[:2] / np.linalg.norm(wall_side[:2])
+
+    def facing(yaw: float) -> float:  # the hand's ``wall_side`` in world xy (top grasp: hand z down) . the wall's outward normal
+        return float((sx * np.array([np.cos(yaw), np.sin(yaw)]) + sy * np.array([np.sin(yaw), -np.cos(yaw)])) @ out)
+
+    best = max((yaws[0] + k * np.pi / 2 for k in range(4)), key=facing)
+    return [best] + [a for a in yaws if abs(np.angle(np.exp(1j * (a - best)))) > 1e-6]

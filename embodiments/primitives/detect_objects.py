@@ -6,7 +6,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Capability, Primitive, pose6, top_grasp_pose
+from contactflow.embodiments.primitives.base import (
+    Capability,
+    Primitive,
+    pose6,
+    top_grasp_pose,
+    wall_yaws,
+)
 from contactflow.embodiments.primitives.profiles import hand_pose_for
 from contactflow.nodes.status import Event
 
@@ -40,6 +46,20 @@ def segment_scene(points: np.ndarray, region: np.ndarray, support_z: float | Non
     return plane, extract_clusters(above, eps=eps, min_size=min_size, plane=plane)
 
 
+def observed_fraction(points: np.ndarray, region: np.ndarray, cell: float = 0.01) -> float:
+    """Fraction of the ``region``'s ground cells (``cell`` m squares) that hold a point of ``points`` (world, in the region).
+
+    A cell without a point was not seen: behind a wall, an arm or out of the image. An
+    empty-looking region that was barely seen is not known to be empty.
+    """
+    lo, hi = np.asarray(region[:2], dtype=np.float64), np.asarray(region[3:5], dtype=np.float64)
+    shape = np.maximum(np.ceil((hi - lo) / cell).astype(int), 1)
+    if len(points) == 0:
+        return 0.0
+    ij = np.clip(np.floor((np.asarray(points)[:, :2] - lo) / cell).astype(int), 0, shape - 1)
+    return len(np.unique(ij[:, 0] * shape[1] + ij[:, 1])) / float(shape[0] * shape[1])
+
+
 def segment_objects(points: np.ndarray, region: np.ndarray, support_z: float | None = None,
                     min_height: float = 0.01, eps: float = 0.015, min_size: int = 30) -> list[np.ndarray]:
     """Object clusters (largest first) of a world-frame cloud inside ``region`` [xmin, ymin, zmin, xmax, ymax, zmax]."""
@@ -55,12 +75,14 @@ class DetectObjects(Primitive):
     ``direction`` (default straight down, the top grasp), within ``max_distance`` of the arm
     base and, with ``reachable``, when the arm's IK (pinocchio) reaches the hand pose; the
     best ranked one wins. Without ``arm`` the nearest arm base counts and any arm of the
-    robot may reach it. The hand's
+    robot may reach it. Beside a container wall (``walls``) the hand turns its ``wall_side`` to it. The hand's
     x axis follows ``yaw`` (about world z) as far as the approach allows (within
     ``VERTICAL_TOL_DEG`` of straight down it is the top grasp of that yaw), and the hand's
     grasp centre (per embodiment) is put on the approach start. If the selected object has
     no approach passing the filters the next one is tried; none ends with FAILURE. With
-    no object in the region it ends with OBJECT_NOT_FOUND (the "no objects left" edge).
+    no object in the region it ends with OBJECT_NOT_FOUND (the "no objects left" edge),
+    unless less than ``min_observed`` of the region's ground was seen (an arm in the view):
+    then FAILURE, as the region is not known to be empty.
     """
 
     requires = Capability(camera=True)
@@ -86,6 +108,10 @@ class DetectObjects(Primitive):
         seed: int = 0  # for select=random
         settle: float = 0.1  # s waited before the snapshot
         self_margin: float = 0.02  # m, points this close to the robot model are removed
+        walls: tuple[float, ...] = ()  # m, [xmin, ymin, xmax, ymax] inner sides of a container the objects are in (none: no walls)
+        wall_margin: float = 0.055  # m, an object centre this close to a wall is grasped with ``wall_side`` toward it
+        wall_side: tuple[float, ...] = (1.0, 0.0)  # hand-frame (x, y) direction put toward a nearby wall (per hand, measured)
+        min_observed: float = 0.0  # fraction of the region's ground (1 cm cells) seen before "no object" is believed
 
     def begin(self) -> None:
         p = self.params
@@ -96,6 +122,8 @@ class DetectObjects(Primitive):
             raise ValueError(f"{self.name}: params.region must be [xmin, ymin, zmin, xmax, ymax, zmax], got {p.region}")
         if len(p.direction) != 3 or not np.all(np.isfinite(p.direction)):
             raise ValueError(f"{self.name}: params.direction must be 3 finite numbers, got {p.direction}")
+        if not 0.0 <= p.min_observed <= 1.0:
+            raise ValueError(f"{self.name}: params.min_observed must be a fraction in [0, 1], got {p.min_observed}")
         self.region = region
 
     def _order(self, clusters: list, rng: np.random.Generator) -> list:
@@ -170,7 +198,12 @@ class DetectObjects(Primitive):
             pts = pts[model.distance(pts) > p.self_margin]  # the robot's own arms are not objects
         plane, clusters = segment_scene(pts, self.region, support, min_size=p.min_size)
         if not clusters:
-            self.fail("no object in the region", event=Event.OBJECT_NOT_FOUND, count=0)
+            seen = observed_fraction(pts, self.region)
+            if seen < p.min_observed:
+                self.fail(f"no object seen, but only {100 * seen:.0f} % of the region was in view "
+                          f"(min_observed {100 * p.min_observed:.0f} %)", count=0, observed=seen)
+                return
+            self.fail("no object in the region", event=Event.OBJECT_NOT_FOUND, count=0, observed=seen)
             return
         # a fresh draw per detection (the seed alone would repeat it): the run's seed and the time
         rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
@@ -182,6 +215,7 @@ class DetectObjects(Primitive):
         bases = np.array([self.r.frame_pose(self.r.spec.arm(a).base_link)[:3, 3] for a in arms])
         ik = self._reach()
         for pick in self._order(clusters, rng):
+            yaws = wall_yaws(yaws, pick.centroid, p.walls, p.wall_margin, p.wall_side)
             base = bases[int(np.argmin(np.linalg.norm(bases - pick.centroid, axis=1)))]  # the nearest arm's
             filters = GraspFilters(p.standoff, p.hand_radius, p.hand_length, tuple(p.direction), p.max_angle_deg,
                                    tuple(base), p.max_distance)

@@ -32,6 +32,7 @@ class MoveTo(Primitive):
         timeout: float = 20.0  # s
         guarded: bool = False  # a contact over abort_force ends the motion with SUCCESS (a guarded move)
         preshape: str = ""  # hand preshape taken at the start ("" = keep)
+        rest_posture: bool = False  # planned: the goal's arm posture is solved from the home posture, not the current one
 
     def begin(self) -> None:
         p = self.params
@@ -45,7 +46,8 @@ class MoveTo(Primitive):
         self.planned = False
         if p.planning:
             cloud = planning_cloud(self, p.obstacles, "obstacles", p.sense_obstacles)
-            plan = self.arm.plan(self.goal, planner=p.planner, timeout=p.planning_timeout, cloud=cloud)
+            plan = self.arm.plan(self.goal, planner=p.planner, timeout=p.planning_timeout, cloud=cloud,
+                                 rest=p.rest_posture)
             if plan is not None:
                 self.arm.execute(plan, abort_force=p.abort_force, speed=5 * p.speed)
                 self.planned = True

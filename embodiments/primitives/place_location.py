@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Primitive, pose6, top_grasp_pose
+from contactflow.embodiments.primitives.base import Primitive, pose6, top_grasp_pose, wall_yaws
 from contactflow.embodiments.primitives.profiles import hand_pose_for
 from contactflow.nodes.status import Event
 
@@ -40,6 +40,9 @@ class PlaceLocation(Primitive):
         camera: str = "kinect"
         mode: str = "free"  # free | random
         seed: int = 0  # random mode
+        walls: tuple[float, ...] = ()  # m, random mode: [xmin, ymin, xmax, ymax] inner sides of the container grasped in (none: no walls)
+        wall_margin: float = 0.055  # m, a spot this close to a wall gets the hand's ``wall_side`` toward it
+        wall_side: tuple[float, ...] = (1.0, 0.0)  # hand-frame (x, y) direction put toward a nearby wall (per hand, measured)
 
     def update(self) -> None:
         p = self.params
@@ -49,7 +52,7 @@ class PlaceLocation(Primitive):
         if p.mode == "random":
             rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
             x, y = rng.uniform(region[:2], region[2:])
-            self._spot(x, y)  # a blind grasp guess
+            self._spot(x, y, wall_yaws([p.yaw], (x, y), p.walls, p.wall_margin, p.wall_side)[0])  # a blind grasp guess
             return
         if p.mode != "free":
             raise ValueError(f"{self.name}: params.mode must be free or random, got {p.mode!r}")
@@ -65,9 +68,9 @@ class PlaceLocation(Primitive):
         if spot is None:
             self.fail("no free place in the region")
             return
-        self._spot(spot[0], spot[1])
+        self._spot(spot[0], spot[1], p.yaw)
 
-    def _spot(self, x: float, y: float) -> None:
+    def _spot(self, x: float, y: float, yaw: float) -> None:
         """Succeed with the hand pose that puts its grasp centre (where it holds an object) over (x, y)."""
         p = self.params
-        self.succeed(**pose6(hand_pose_for(self.r.spec.name, top_grasp_pose((x, y, p.support_z + p.height), p.yaw))))
+        self.succeed(**pose6(hand_pose_for(self.r.spec.name, top_grasp_pose((x, y, p.support_z + p.height), yaw))))

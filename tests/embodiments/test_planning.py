@@ -160,3 +160,22 @@ def test_execution_stops_on_unexpected_contact():
     robot.step(0.3)
     assert np.abs(arm.qd()).max() < 0.05  # stopped
     assert np.linalg.norm(arm.ee_pose()[:3, 3] - goal[:3, 3]) > 0.05
+
+
+def test_rest_posture_gives_one_arm_posture_for_a_pose_whatever_the_start():
+    # a 7-joint arm's goal joints otherwise follow the start: an elbow drifted over a box hid it from the head camera
+    robot = make_robot("tombatossals")
+    arm = robot.arm("right")
+    home = np.asarray(arm.spec.home)
+    goal = arm.ee_pose()
+    goal[:3, 3] += (0.05, -0.05, -0.05)
+    finals: dict[bool, list[np.ndarray]] = {True: [], False: []}
+    for twist in (-0.6, 0.6):
+        arm.move_joints(home + np.array([twist, 0.0, -twist, 0.0, 0.0, 0.0, 0.0]), speed=1.0)
+        assert arm.wait(10.0) == Status.SUCCESS
+        for rest in (True, False):
+            plan = arm.plan(goal, planner="RRTConnect", timeout=3.0, rest=rest)
+            assert plan is not None and plan.success
+            finals[rest].append(plan.waypoints[-1])
+    assert np.abs(finals[True][0] - finals[True][1]).max() < 1e-6
+    assert np.abs(finals[False][0] - finals[False][1]).max() > 0.1

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from contactflow.embodiments.primitives.base import Primitive, PrimitiveError, matrix6, pose6
+from contactflow.embodiments.primitives.base import (
+    Primitive,
+    PrimitiveError,
+    matrix6,
+    pose6,
+    top_grasp_pose,
+    wall_yaws,
+)
 from contactflow.embodiments.primitives.catalog import CATALOG
 from contactflow.embodiments.primitives.place import place_velocity
 from contactflow.embodiments.primitives.place_location import free_spot
@@ -123,3 +130,18 @@ def test_search_backs_out_along_the_approach_then_goes_over_the_offset() -> None
     assert np.allclose(over[:3, :3], T0[:3, :3])
     shift = T0[:3, :3].T @ (over[:3, 3] - T0[:3, 3])
     assert np.allclose(shift, (0.09, -0.08, 0.0))
+
+
+def test_wall_yaws_turn_the_hand_side_measured_for_walls_toward_the_nearest_wall() -> None:
+    walls = (0.4, -0.5, 0.7, -0.14)  # [xmin, ymin, xmax, ymax]
+    yaws = [np.pi / 2, np.pi, 0.0]
+    assert wall_yaws(yaws, (0.55, -0.32), walls, 0.055, (0.0, -1.0)) == yaws  # far from every wall
+    assert wall_yaws(yaws, (0.68, -0.32), (), 0.055, (0.0, -1.0)) == yaws  # no walls given
+    assert wall_yaws(yaws, (0.68, -0.32), walls, 0.0, (0.0, -1.0)) == yaws  # margin 0: off
+    for xy, outward in (((0.68, -0.32), (1, 0)), ((0.42, -0.32), (-1, 0)), ((0.55, -0.48), (0, -1)),
+                        ((0.55, -0.16), (0, 1)), ((0.67, -0.48), (0, -1))):  # the last: a corner, the -y wall is nearer
+        got = wall_yaws(yaws, xy, walls, 0.055, (0.0, -1.0))
+        hand = top_grasp_pose((xy[0], xy[1], 0.8), got[0])
+        assert hand[:3, :3] @ np.array([0.0, -1.0, 0.0]) == pytest.approx([*outward, 0.0], abs=1e-9), xy
+        assert len(got) == len(set(np.round(np.mod(got, 2 * np.pi), 6))) and set(np.round(np.mod(yaws, 2 * np.pi), 6)) <= set(
+            np.round(np.mod(got, 2 * np.pi), 6))  # the other yaws follow, none lost or repeated

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from contactflow.embodiments.primitives.base import matrix6, pose6, top_grasp_pose
+from contactflow.embodiments.primitives.detect_objects import observed_fraction
 from contactflow.embodiments.primitives.explore import Explore, wrench_contact
 from contactflow.embodiments.primitives.profiles import GRASP_CENTER
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
@@ -48,6 +49,28 @@ def test_random_detection_varies_the_hand_yaw_so_a_retry_differs(tomba) -> None:
     assert min(turned) < 1.0  # half the draws keep the configured yaw ...
     assert max(turned) > 80.0  # ... the others turn the hand by a quarter or half turn
     assert all(min(abs(t - a) for a in (0.0, 90.0, 180.0)) < 1.0 for t in turned)
+
+
+def test_observed_fraction_counts_the_region_cells_holding_a_point() -> None:
+    region = np.array([0.0, 0.0, 0.7, 0.2, 0.1, 1.0])
+    xs, ys = np.meshgrid(np.arange(0.005, 0.1, 0.01), np.arange(0.005, 0.1, 0.01))
+    half = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.75)], axis=1)  # x < 0.1 of 0.2
+    assert observed_fraction(half, region) == pytest.approx(0.5)
+    assert observed_fraction(np.vstack([half, half + [0.1, 0.0, 0.0]]), region) == pytest.approx(1.0)
+    assert observed_fraction(np.zeros((0, 3)), region) == 0.0
+
+
+def test_detect_objects_does_not_call_a_barely_seen_region_empty(tomba) -> None:
+    robot, runner = tomba
+    # the table's left half is in view; the same width beyond the table's back edge is floor, below the region
+    seen = [0.3, 0.2, 0.74, 0.9, 0.6, 1.2]
+    beyond = [0.3, 0.2, 0.74, 2.0, 0.6, 1.2]
+    empty = run_primitive(runner, "detect_objects", {"region": seen, "min_observed": 0.7}, max_time=2.0)
+    assert Event.OBJECT_NOT_FOUND in labels(empty) and outcome(empty).values["observed"] > 0.9
+    unsure = run_primitive(runner, "detect_objects", {"region": beyond, "min_observed": 0.7}, max_time=2.0)
+    assert Event.OBJECT_NOT_FOUND not in labels(unsure)
+    assert outcome(unsure).event is Event.FAILURE and outcome(unsure).values["observed"] < 0.7
+    assert "in view" in outcome(unsure).detail
 
 
 def test_detect_objects_and_place_location(tomba) -> None:
