@@ -215,14 +215,14 @@ class DetectObjects(Primitive):
         bases = np.array([self.r.frame_pose(self.r.spec.arm(a).base_link)[:3, 3] for a in arms])
         ik = self._reach()
         for pick in self._order(clusters, rng):
-            yaws = wall_yaws(yaws, pick.centroid, p.walls, p.wall_margin, p.wall_side)
+            pick_yaws = wall_yaws(yaws, pick.centroid, p.walls, p.wall_margin, p.wall_side)
             base = bases[int(np.argmin(np.linalg.norm(bases - pick.centroid, axis=1)))]  # the nearest arm's
             filters = GraspFilters(p.standoff, p.hand_radius, p.hand_length, tuple(p.direction), p.max_angle_deg,
                                    tuple(base), p.max_distance)
             others = [c.points for c in clusters if c is not pick]
             # the geometric filters do not depend on the yaw: only the reachability is checked per yaw
             avs = synthesize_grasps(pick.points, pick.box, filters, np.vstack(others) if others else None, plane)
-            for yaw in yaws:
+            for yaw in pick_yaws:
                 reached = avs if ik is None else reachability_filter(
                     avs, ik, pose=lambda av, yaw=yaw: self.hand_pose(av, yaw), first=True)
                 if reached:

@@ -8,7 +8,7 @@ import pytest
 from contactflow.embodiments.primitives.base import matrix6, pose6, top_grasp_pose
 from contactflow.embodiments.primitives.detect_objects import observed_fraction
 from contactflow.embodiments.primitives.explore import Explore, wrench_contact
-from contactflow.embodiments.primitives.profiles import GRASP_CENTER
+from contactflow.embodiments.primitives.profiles import GRASP_CENTER, WALL_SIDE
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import World, WorldParams, box, cylinder
@@ -204,3 +204,17 @@ def test_explore_locates_an_off_centre_contact_and_approaches_over_it() -> None:
     centre = approach @ np.r_[GRASP_CENTER["tombatossals"], 1.0]
     assert np.hypot(*(centre[:2] - contact)) < 1e-6  # the hand's grasp centre is put over the contact
     assert not robot.failed
+
+
+def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for_walls(tomba) -> None:
+    robot, runner = tomba
+    walls = [0.4, -0.5, 0.58, -0.1]  # the cylinder at x 0.55 is 3 cm from the +x wall
+    side = np.array([*WALL_SIDE, 0.0])
+    ev = outcome(run_primitive(runner, "detect_objects", {"standoff": 0.04, "walls": walls}, max_time=2.0))
+    assert ev.event is Event.SUCCESS, ev.detail
+    hand = matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")
+    assert hand[:3, :3] @ side == pytest.approx([1.0, 0.0, 0.0], abs=1e-6)
+    spot = outcome(run_primitive(runner, "place_location", {"mode": "random", "region": [0.45, -0.48, 0.5, -0.47],
+                                                           "walls": walls}))
+    hand = matrix6(tuple(spot.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "random spot")
+    assert hand[:3, :3] @ side == pytest.approx([0.0, -1.0, 0.0], abs=1e-6)  # 2-3 cm from the -y wall
