@@ -11,8 +11,10 @@ GRASP_CENTER: dict[str, tuple[float, float, float]] = {
 """Robot name -> where an object sits in a closing hand, in the controlled (grasp) frame (m)."""
 
 
-WALL_SIDE = (0.0, -1.0)
-"""tombatossals: the allegro's hand-frame side put toward a container wall when it grasps beside one."""
+WALL_SIDE: dict[str, tuple[float, float]] = {
+    "tombatossals": (0.0, -1.0),  # the allegro's ring-finger side
+}
+"""Robot name -> the hand-frame (x, y) side put toward a container wall when grasping beside one (measured)."""
 
 PROFILES: dict[str, dict[str, dict[str, object]]] = {
     # simulated wrist F/T of the panda arms: contact torques are tenths of N m, not the JR3's N m.
@@ -36,7 +38,7 @@ PROFILES: dict[str, dict[str, dict[str, object]]] = {
         # beside a box wall the allegro grasps best with its ring-finger side (-y) to the wall: 7 of 9 wall
         # positions (brick, cube, can; other sides 0-4 of 9); at the walls and corners of the empty-box scene
         # 63/120 single grasps vs 27/120 with the four yaws in turn (cylindrical preshape, jittered positions)
-        **{name: {"wall_side": WALL_SIDE} for name in ("detect_objects", "place_location")},
+        **{name: {"wall_side": WALL_SIDE["tombatossals"]} for name in ("detect_objects", "place_location")},
     },
     # parallel gripper: no finger-lost correction (two fingers, no external finger to lose)
     "melfa": {

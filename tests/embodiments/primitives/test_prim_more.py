@@ -209,7 +209,7 @@ def test_explore_locates_an_off_centre_contact_and_approaches_over_it() -> None:
 def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for_walls(tomba) -> None:
     robot, runner = tomba
     walls = [0.4, -0.5, 0.58, -0.1]  # the cylinder at x 0.55 is 3 cm from the +x wall
-    side = np.array([*WALL_SIDE, 0.0])
+    side = np.array([*WALL_SIDE["tombatossals"], 0.0])
     ev = outcome(run_primitive(runner, "detect_objects", {"standoff": 0.04, "walls": walls}, max_time=2.0))
     assert ev.event is Event.SUCCESS, ev.detail
     hand = matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")
