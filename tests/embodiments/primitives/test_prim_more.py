@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contactflow.embodiments.primitives.base import matrix6, pose6, top_grasp_pose
-from contactflow.embodiments.primitives.detect_objects import observed_fraction
+from contactflow.embodiments.primitives.detect_objects import observed_fraction, top_centred
 from contactflow.embodiments.primitives.explore import Explore, wrench_contact
 from contactflow.embodiments.primitives.profiles import GRASP_CENTER, WALL_SIDE
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
@@ -58,6 +58,27 @@ def test_observed_fraction_counts_the_region_cells_holding_a_point() -> None:
     assert observed_fraction(half, region) == pytest.approx(0.5)
     assert observed_fraction(np.vstack([half, half + [0.1, 0.0, 0.0]]), region) == pytest.approx(1.0)
     assert observed_fraction(np.zeros((0, 3)), region) == 0.0
+
+
+def test_top_centred_puts_a_top_grasp_over_the_object_top_not_the_seen_side() -> None:
+    from contactflow.recognition.grasp_synthesis import ApproachVector
+
+    # a 5 cm can seen from -x: its whole top and the near half of its side
+    a, z = np.meshgrid(np.linspace(0.0, 2 * np.pi, 48, endpoint=False), np.linspace(0.0, 0.07, 15))
+    r, t = np.meshgrid(np.linspace(0.0, 0.025, 6), np.linspace(0.0, 2 * np.pi, 48, endpoint=False))
+    side = np.stack([0.5 + 0.025 * np.cos(a.ravel()), 0.1 + 0.025 * np.sin(a.ravel()), z.ravel()], axis=1)
+    top = np.stack([0.5 + (r * np.cos(t)).ravel(), 0.1 + (r * np.sin(t)).ravel(), np.full(r.size, 0.07)], axis=1)
+    pts = np.vstack([side[side[:, 0] < 0.5], top])
+    down = ApproachVector(pts.mean(axis=0) + [0.0, 0.0, 0.14], np.array([0.0, 0.0, -1.0]))
+    assert 0.5 - down.position[0] > 0.008  # through the centroid of what was seen
+    centred = top_centred(down, pts, 0.015)
+    # the side's top 1.5 cm still pulls a little
+    assert np.hypot(centred.position[0] - 0.5, centred.position[1] - 0.1) < 0.005
+    thin = top_centred(down, pts, 0.002).position
+    assert np.hypot(thin[0] - 0.5, thin[1] - 0.1) < 0.002
+    assert centred.position[2] == down.position[2] and np.array_equal(centred.direction, down.direction)
+    sideways = ApproachVector(np.array([0.4, 0.1, 0.04]), np.array([1.0, 0.0, 0.0]))
+    assert top_centred(sideways, pts, 0.015) is sideways
 
 
 def test_detect_objects_does_not_call_a_barely_seen_region_empty(tomba) -> None:
