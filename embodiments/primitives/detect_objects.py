@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -66,8 +66,6 @@ def top_centred(av, points: np.ndarray, band: float):
     A camera sees an object's top and its near side: the centroid of all the points lies
     toward the camera, by a centimetre on a 5 cm can. Its top is seen whole.
     """
-    from dataclasses import replace
-
     if av.direction[2] > -np.cos(np.radians(VERTICAL_TOL_DEG)):
         return av
     top = points[points[:, 2] >= points[:, 2].max() - band]

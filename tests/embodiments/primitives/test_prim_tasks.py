@@ -42,7 +42,7 @@ def test_empty_box_strategies_go_on_after_an_attempt_that_ends_in_an_error() -> 
 def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -> None:
     # the fingers take the pregrasp at the approach start: the cylindrical one reaches 6.6 cm below the grasp
     # centre, and 5 cm above an object's top it came down on it and its neighbours (first attempts in the
-    # 5-object box: 9/64 removed an object, 17/64 from 10 cm)
+    # 5-object box: 9/64 removed an object, 17/64 from 10 cm with the grasp centred on the object's top)
     from contactflow.embodiments.hand_geometry import hand_points
     from contactflow.embodiments.primitives.profiles import GRASP_CENTER
 
