@@ -60,13 +60,18 @@ def observed_fraction(points: np.ndarray, region: np.ndarray, cell: float = 0.01
     return len(np.unique(ij[:, 0] * shape[1] + ij[:, 1])) / float(shape[0] * shape[1])
 
 
+def is_top_grasp(direction) -> bool:
+    """An approach within ``VERTICAL_TOL_DEG`` of straight down: a fitted normal's noise is no reason to tilt the hand."""
+    return bool(direction[2] <= -np.cos(np.radians(VERTICAL_TOL_DEG)))
+
+
 def top_centred(av, points: np.ndarray, band: float):
     """A top grasp ``av`` moved (in xy) over the centroid of the object ``points`` within ``band`` m of its top; other approaches unchanged.
 
     A camera sees an object's top and its near side: the centroid of all the points lies
     toward the camera, by a centimetre on a 5 cm can. Its top is seen whole.
     """
-    if av.direction[2] > -np.cos(np.radians(VERTICAL_TOL_DEG)):
+    if not is_top_grasp(av.direction):
         return av
     top = points[points[:, 2] >= points[:, 2].max() - band]
     return replace(av, position=np.array([*top[:, :2].mean(axis=0), av.position[2]]))
@@ -159,8 +164,7 @@ class DetectObjects(Primitive):
         from contactflow.recognition.geometry import orthonormal_frame
 
         d = np.asarray(av.direction, float)
-        if d[2] <= -np.cos(np.radians(VERTICAL_TOL_DEG)):
-            # a fitted support normal's noise is no reason to tilt the hand off the top grasp
+        if is_top_grasp(d):
             return hand_pose_for(self.r.spec.name, top_grasp_pose(av.position, yaw))
         T = np.eye(4)
         T[:3, :3] = orthonormal_frame(d, np.array([np.cos(yaw), np.sin(yaw), 0.0]))
