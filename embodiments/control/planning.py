@@ -58,6 +58,8 @@ class Plan:
     planner: str
     planning_time: float  # s
     success: bool
+    why_not: str = ""  # a failed plan's reason: which end state is invalid, or the time-out
+    timed_out: bool = False  # the search ran out of time (a fresh try may find a path; invalid ends never)
 
     @property
     def length(self) -> float:
@@ -233,9 +235,12 @@ class ArmPlanner:
         start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
         t0 = time.perf_counter()
         fail = Plan(self.joints, np.stack([start]), planner, 0.0, False)
-        if not self.valid(start) or not self.valid(goal):
-            fail.planning_time = time.perf_counter() - t0
-            return fail
+        for label, q in (("start", start), ("goal", goal)):
+            if not self.valid(q):
+                limits = np.any(q < self.lower) or np.any(q > self.upper)
+                fail.why_not = f"the {label} state is {'outside the joint limits' if limits else 'in collision'}"
+                fail.planning_time = time.perf_counter() - t0
+                return fail
         if seed is not None:
             seed_ompl(seed)
         space = ob.RealVectorStateSpace(n)
@@ -265,6 +270,7 @@ class ArmPlanner:
         ss.setPlanner(p)
         ok = bool(ss.solve(timeout)) and ss.haveExactSolutionPath()
         if not ok:
+            fail.why_not, fail.timed_out = f"{planner} found no path in {timeout} s", True
             fail.planning_time = time.perf_counter() - t0
             return fail
         if self.params.simplify:

@@ -62,7 +62,8 @@ class PlannerService(Module):
         rate_hz: float = 200.0  # Hz, the joint control rate (§6.3.1)
         robot: str = "melfa"  # embodiment registry name
         planner: str = "KPIECE1"  # KPIECE1 (the thesis) or RRTConnect
-        timeout: float = 2.0  # s of planning time
+        timeout: float = 2.0  # s of planning time per try
+        tries: int = 2  # fresh plans before giving up (a sampling planner's time to a path has a long tail)
         speed: float = 0.5  # rad/s, joint speed bound of the execution
         abort_force: float = 8.0  # N, wrist force change that aborts the execution
         table: bool = True  # the cell has the standard table (a declared fixture)
@@ -85,6 +86,8 @@ class PlannerService(Module):
         p = self.params
         if p.planner not in PLANNERS:
             raise ValueError(f"{self.name}.params.planner: {p.planner!r} is not one of {sorted(PLANNERS)}")
+        if p.tries < 1:
+            raise ValueError(f"{self.name}.params.tries: {p.tries} (at least one plan is tried)")
         self.spec, self.arm_spec = arm_of(self)
         spec = self.spec
         self.base = xyz_rpy_to_matrix(spec.base_xyz, spec.base_rpy)
@@ -109,8 +112,12 @@ class PlannerService(Module):
         if q_goal is None:
             return None, "no collision-free IK solution for the goal"
         planner = ArmPlanner(kin, a.joints, check.valid, q_full)
-        plan = planner.plan(q_full[planner.idx], q_goal, planner=p.planner, timeout=p.timeout, seed=p.seed)
-        return plan, "" if plan.success else f"{p.planner} found no path in {p.timeout} s"
+        tries = 0
+        while True:
+            plan = planner.plan(q_full[planner.idx], q_goal, planner=p.planner, timeout=p.timeout, seed=p.seed)
+            tries += 1
+            if plan.success or not plan.timed_out or self._cancel or tries == p.tries:
+                return plan, plan.why_not + (f" ({tries} tries)" if tries > 1 and not plan.success else "")
 
     def _request(self, t: CartesianTarget, q: np.ndarray) -> None:
         where = f"{self.name}: input 'goal' ({t.hdr.source or 'unknown source'})"

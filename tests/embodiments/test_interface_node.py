@@ -251,7 +251,7 @@ modules:
   - {name: station, type: sim_interface, params: {robot: melfa, model_hz: 0, ground_truth_hz: 0}}
   - name: planner
     type: planner_arm
-    params: {planner: RRTConnect, timeout: 5.0, speed: 1.0}
+    params: {planner: RRTConnect, timeout: 10.0, speed: 1.0}
     inputs: {joint_state: station.joint_state, goal: commander.target, cloud: commander.cloud, wrench: station.wrench}
 """
 
@@ -305,6 +305,7 @@ def test_the_planner_service_goes_around_a_sensed_wall_and_refuses_an_unreachabl
     ("sim_interface", {"robot": "nope"}, r"station\.params\.robot: 'nope' is not a registered embodiment"),
     ("cartesian_controller_left", {"robot": "melfa"}, r"station: robot 'melfa' has no arm 'left'"),
     ("planner_arm", {"robot": "nope"}, r"station\.params\.robot: 'nope' is not a registered embodiment"),
+    ("planner_arm", {"robot": "melfa", "tries": 0}, r"station\.params\.tries: 0"),
 ])
 def test_a_misconfigured_robot_or_arm_is_refused_naming_the_module(module, params, message):
     m = resolve(module)("station", resolve(module).Params(**params))

@@ -7,6 +7,7 @@ import pytest
 
 from contactflow.embodiments.control.kinematics import Kinematics
 from contactflow.embodiments.control.planning import (
+    ArmPlanner,
     CoalChecker,
     Obstacle,
     fixtures_from_world,
@@ -70,6 +71,31 @@ def test_planner_finds_a_path_around_a_given_box(scene, planner, checker):
         if plan is not None and plan.success:
             break
     _check_detour(robot, arm, plan, b, [WALL, *fixtures_from_world(robot.world)], f"{planner}/{checker}")
+
+
+def test_a_failed_plan_says_which_end_is_invalid_or_that_time_ran_out():
+    from contactflow.embodiments import registry
+
+    spec = registry.get("melfa")
+    kin = Kinematics(spec.urdf(), xyz_rpy_to_matrix(spec.base_xyz, spec.base_rpy))
+    joints = spec.arm("arm").joints
+    idx = kin.q_index(joints)
+    start, goal = kin.q[idx].copy(), kin.q[idx] + 0.5
+    blocked = {"start": start, "goal": goal}
+
+    def planner(invalid: str) -> ArmPlanner:
+        return ArmPlanner(kin, joints, lambda q: not np.allclose(q[idx], blocked.get(invalid, np.inf)), kin.q)
+
+    for end in ("start", "goal"):
+        plan = planner(end).plan(start, goal, planner="RRTConnect", timeout=1.0)
+        assert not plan.success and not plan.timed_out and plan.why_not == f"the {end} state is in collision"
+    over = planner("").upper + 0.1
+    plan = planner("").plan(start, over, planner="RRTConnect", timeout=1.0)
+    assert plan.why_not == "the goal state is outside the joint limits" and not plan.timed_out
+    islands = ArmPlanner(kin, joints, lambda q: bool(abs(q[idx][0] - 0.25) > 0.05), kin.q)  # joint 1 never crosses 0.25
+    plan = islands.plan(start, goal, planner="RRTConnect", timeout=0.3)
+    assert not plan.success and plan.timed_out and plan.why_not == "RRTConnect found no path in 0.3 s"
+    assert planner("").plan(start, goal, planner="RRTConnect", timeout=5.0).success
 
 
 def test_planner_does_not_read_the_simulated_objects(scene):
