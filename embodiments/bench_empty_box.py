@@ -35,6 +35,7 @@ TABLE_Z = 0.75
 BOTTOM = TABLE_Z + WALL  # m, top of the box bottom
 TARGET_XY = (0.55, -0.02)  # where the objects are put, outside the box
 STRATEGIES = ("random", "exploration", "vision")
+SWEEP_CLEARANCE = 0.008  # m, the exploring hand's distance from the walls and above the bottom
 MAX_TIME = 1200.0  # s of simulated time per run (the thesis gives no limit; Fig. 3.27: the last object alone can take dozens of random attempts)
 MAX_ATTEMPTS = 90  # grasp attempts per run
 THESIS = {"random": {"attempts": 30.5, "time": 284.1, "success": 1.0},
@@ -89,7 +90,7 @@ def in_box(robot: SimRobot, names: list[str]) -> int:
     return n
 
 
-@functools.lru_cache(maxsize=1)
+@functools.lru_cache(maxsize=2)
 def hand_footprint(band: float = HEIGHT) -> tuple[float, ...]:
     """Box [lo x, y, z, hi x, y, z] (m), in the controlled frame, of the closed exploring hand's lowest ``band`` m.
 
@@ -115,23 +116,43 @@ def _world_extent(footprint: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]
     return w.min(axis=0), w.max(axis=0)
 
 
-def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float = 0.008) -> list[float]:
-    """Serpentine exploration trajectory over the box bottom (Fig. 3.26a), flat [x, y, z, ...] of the controlled frame.
-
-    The whole hand (``footprint``) stays ``clearance`` inside the walls and above the bottom:
-    a wall it bumped into would read as an object, and a hand dragged on the bottom would push.
-    """
+def _inside(footprint: tuple[float, ...], clearance: float) -> tuple[float, float, float, float, float]:
+    """(x0, x1, y0, y1, z): the controlled frame's range that keeps ``footprint`` ``clearance`` inside the box."""
     cx, cy = BOX_CENTER
     lo, hi = _world_extent(footprint)
     x0, x1 = cx - INNER[0] / 2 - lo[0] + clearance, cx + INNER[0] / 2 - hi[0] - clearance
     y0, y1 = cy - INNER[1] / 2 - lo[1] + clearance, cy + INNER[1] / 2 - hi[1] - clearance
     if x1 < x0 or y1 < y0:
         raise ValueError(f"sweep_points: a hand of footprint {footprint} does not fit in the box ({INNER} m inside)")
-    z = BOTTOM - lo[2] + clearance
+    return x0, x1, y0, y1, BOTTOM - lo[2] + clearance
+
+
+def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float = SWEEP_CLEARANCE,
+                 edge: tuple[float, ...] = (), reverse: bool = False) -> list[float]:
+    """Serpentine exploration trajectory over the box bottom (Fig. 3.26a), flat [x, y, z, ...] of the controlled frame.
+
+    The whole hand (``footprint``) stays ``clearance`` inside the walls and above the bottom:
+    a wall it bumped into would read as an object, and a hand dragged on the bottom would push.
+    With ``edge``, the footprint of the part of the hand below the walls' top, a last loop runs
+    along the walls as close as that part allows: parts above it (the allegro's thumb) pass
+    over the walls, and the serpentine alone left a 2.7 cm strip along the +y wall unswept
+    (a cube in a corner there ended 3 runs with "the box is empty"). ``reverse`` runs the
+    serpentine from its other end (the loop stays last).
+    """
+    x0, x1, y0, y1, z = _inside(footprint, clearance)
     pts: list[float] = []
     for k, x in enumerate(np.linspace(x0, x1, lines)):
         ya, yb = (y0, y1) if k % 2 == 0 else (y1, y0)
         pts += [float(x), float(ya), float(z), float(x), float(yb), float(z)]
+    if reverse:
+        pts = [v for k in range(len(pts) - 3, -1, -3) for v in pts[k:k + 3]]
+    if edge:
+        ex0, ex1, ey0, ey1, _ = _inside(edge, clearance)
+        loop = [(ex0, ey0), (ex1, ey0), (ex1, ey1), (ex0, ey1)]
+        end = np.array(pts[-3:-1])
+        first = int(np.argmin([np.linalg.norm(end - c) for c in loop]))
+        for x, y in loop[first:] + loop[:first]:
+            pts += [float(x), float(y), float(z)]
     return pts
 
 
@@ -148,9 +169,10 @@ def task_params(strategy: str, seed: int) -> dict:
         area = [cx - INNER[0] / 2 + 0.02, cy - INNER[1] / 2 + 0.02, cx + INNER[0] / 2 - 0.02, cy + INNER[1] / 2 - 0.02]
         return {"arm": ARM, "area": area, "bottom": BOTTOM, "height": approach_z - BOTTOM, "target": tvec, "seed": seed}
     start = pose6(top_grasp_pose((cx, cy, approach_z)))
-    footprint = hand_footprint()
+    footprint, edge = hand_footprint(), hand_footprint(HEIGHT - SWEEP_CLEARANCE)
     return {"arm": ARM, "start": [start[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")], "bottom": BOTTOM,
-            "sweep": sweep_points(footprint), "footprint": list(footprint), "approach_z": approach_z, "target": tvec}
+            "sweep": sweep_points(footprint, edge=edge), "alternate": sweep_points(footprint, edge=edge, reverse=True),
+            "footprint": list(footprint), "approach_z": approach_z, "target": tvec, "seed": seed}
 
 
 def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:

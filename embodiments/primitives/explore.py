@@ -40,12 +40,16 @@ class Explore(Primitive):
         footprint: tuple[float, ...] = ()  # m, [lo x, y, z, hi x, y, z] box of the hand in the controlled frame
         locate_force: float = 1.0  # N, weaker wrenches do not locate the contact (the pads do)
         preshape: str = ""  # hand preshape while exploring ("" = keep; Fig. 3.26a uses a compact one)
+        alternate: tuple[float, ...] = ()  # flat [x, y, z, ...] (world): a second sweep, run instead of ``sweep`` on a coin flip
+        seed: int = 0  # the coin flip's seed (with the start time): a repeated search does not always meet the same contact first
 
     def begin(self) -> None:
         p = self.params
-        pts = np.asarray(p.sweep, dtype=np.float64)
-        if pts.size % 3:
-            raise ValueError(f"{self.name}.params.sweep: expected a multiple of 3 values, got {pts.size}")
+        for field in ("sweep", "alternate"):
+            if len(getattr(p, field)) % 3:
+                raise ValueError(f"{self.name}.params.{field}: expected a multiple of 3 values, got {len(getattr(p, field))}")
+        self.flipped = bool(p.alternate) and np.random.default_rng((p.seed, round(self.r.time * 1000))).random() < 0.5
+        pts = np.asarray(p.alternate if self.flipped else p.sweep, dtype=np.float64)
         self.points = list(pts.reshape(-1, 3))
         if p.footprint and len(p.footprint) != 6:
             raise ValueError(f"{self.name}.params.footprint: expected [lo x, y, z, hi x, y, z], got {list(p.footprint)}")
@@ -86,7 +90,7 @@ class Explore(Primitive):
                 there[:3, 3] += ahead / np.linalg.norm(ahead) * p.lead
             vals = pose6(hand_pose_for(self.r.spec.name, there))
             vals.update(contact_x=float(at[0]), contact_y=float(at[1]), contact_z=float(at[2]),
-                        on_floor=float(on_floor), waypoint=float(self.k))
+                        on_floor=float(on_floor), waypoint=float(self.k), alternate=float(self.flipped))
             if on_floor:
                 self.fail("touched the support, no object here", event=Event.OBJECT_NOT_FOUND, **vals)
             else:
@@ -99,7 +103,8 @@ class Explore(Primitive):
             if np.linalg.norm(err) < 0.005:
                 self.k += 1
                 if self.k >= len(self.points):
-                    self.fail("sweep finished without a contact", event=Event.OBJECT_NOT_FOUND, waypoint=float(self.k))
+                    self.fail("sweep finished without a contact", event=Event.OBJECT_NOT_FOUND, waypoint=float(self.k),
+                              alternate=float(self.flipped))
                     return
                 goal = self.points[self.k]
                 err = goal - pos

@@ -39,6 +39,16 @@ def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:
     assert np.all(gap > 0.005) and np.all(gap < 0.02)  # clear of the bottom, below every object's top
     assert len({round(x, 4) for x in pts[:, 0]}) == 3
     assert pts[:, 1].max() - pts[:, 1].min() > 0.08  # serpentine legs along the box
+    # the closing loop along the walls: the hand below the walls' top (not its thumb above) keeps its distance
+    edge = bench_empty_box.hand_footprint(bench_empty_box.HEIGHT - bench_empty_box.SWEEP_CLEARANCE)
+    looped = np.asarray(bench_empty_box.sweep_points(fp, edge=edge)).reshape(-1, 3)
+    assert np.array_equal(looped[: len(pts)], pts) and len(looped) == len(pts) + 4
+    elo, ehi = bench_empty_box._world_extent(edge)
+    loop = looped[len(pts):]
+    assert np.all(loop[:, 1] + ehi[1] < cy + iy / 2) and np.all(loop[:, 1] + elo[1] > cy - iy / 2)
+    assert ehi[1] < hi[1] - 0.02 and loop[:, 1].max() + ehi[1] > cy + iy / 2 - 0.01  # it sweeps the +y strip
+    back = np.asarray(bench_empty_box.sweep_points(fp, edge=edge, reverse=True)).reshape(-1, 3)
+    assert np.array_equal(back[: len(pts)], pts[::-1]) and len(back) == len(looped)  # the serpentine from its other end
     with pytest.raises(ValueError, match="does not fit in the box"):
         bench_empty_box.sweep_points((-0.2, -0.2, -0.1, 0.2, 0.2, 0.03))
 
