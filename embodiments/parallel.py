@@ -3,9 +3,27 @@
 from __future__ import annotations
 
 import multiprocessing
+import os
+import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
+
+
+def _exit_with(parent: int, period: float = 1.0) -> None:
+    """Worker initializer: the worker exits once ``parent`` is gone.
+
+    A pool's workers outlive a parent that was killed (SIGTERM, SIGKILL) rather than
+    interrupted: they would go on simulating, unseen, and take the cores of the next run.
+    """
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(period)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="parent-watch").start()
 
 
 def run_all(fn: Callable[..., dict], plan: Sequence[tuple[Any, ...]], jobs: int = 1,
@@ -25,7 +43,8 @@ def run_all(fn: Callable[..., dict], plan: Sequence[tuple[Any, ...]], jobs: int 
             if on_done is not None:
                 on_done(i, results[i])
     else:
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_exit_with, initargs=(os.getpid(),)) as pool:
             futures = {pool.submit(fn, *args): i for i, args in enumerate(plan)}
             for fut in as_completed(futures):
                 i = futures[fut]

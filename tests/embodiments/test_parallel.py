@@ -1,6 +1,13 @@
-"""Benchmark runs on worker processes: results in plan order, progress per run, bad job counts refused."""
+"""Benchmark runs on worker processes: results in plan order, progress per run, bad job counts refused, no orphans."""
 
 from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -21,3 +28,49 @@ def test_results_come_back_in_plan_order_with_one_callback_per_run(jobs: int) ->
 def test_a_job_count_below_one_is_refused() -> None:
     with pytest.raises(ValueError, match="jobs must be >= 1, got 0"):
         run_all(dict, PLAN, jobs=0)
+
+
+def _children(pid: int) -> set[int]:
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_workers_exit_when_the_parent_is_killed() -> None:
+    code = "from contactflow.embodiments.parallel import run_all; import time; run_all(time.sleep, [(120,), (120,)], jobs=2)"
+    parent = subprocess.Popen([sys.executable, "-c", code])
+    workers: set[int] = set()
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            workers = {w for w in _children(parent.pid) if "spawn_main" in Path(f"/proc/{w}/cmdline").read_text()}
+            if len(workers) == 2:
+                break
+            time.sleep(0.2)
+        assert len(workers) == 2, "the pool did not start its two workers"
+        time.sleep(1.0)  # the workers are sleeping in their runs
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 15
+        while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not any(_alive(w) for w in workers), "a worker outlived its killed parent"
+    finally:
+        for pid in [parent.pid, *workers]:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+        parent.wait()
