@@ -127,24 +127,6 @@ def test_explore_tells_objects_from_the_support(tomba) -> None:
     run_primitive(runner, "transport", {"arm": "right", "target": [0, 0, 0.15, 0, 0, 0], "relative": True})
 
 
-def test_explore_runs_its_alternate_sweep_on_a_coin_flip(tomba) -> None:
-    robot, runner = tomba
-    here = robot.frame_pose("right_grasp")[:3, 3].copy()
-    there = here + [0.0, 0.02, 0.0]
-    params = {"arm": "right", "sweep": list(here), "alternate": list(there), "velocity": 0.04}
-    ends = []
-    for seed in range(10):  # a sweep of one waypoint ends there without a contact (in the air)
-        last = outcome(run_primitive(runner, "explore", {**params, "seed": seed}, max_time=5.0))
-        assert last.event is Event.FAILURE
-        at = robot.frame_pose("right_grasp")[:3, 3]
-        took = last.values["alternate"]
-        assert np.linalg.norm(at - (there if took else here)) < 0.006, "the hand went where the chosen sweep leads"
-        ends.append(took)
-    assert 0.0 in ends and 1.0 in ends
-    bad = outcome(run_primitive(runner, "explore", {**params, "alternate": [0.1, 0.2]}))
-    assert bad.event is Event.ERROR and "params.alternate: expected a multiple of 3 values, got 2" in bad.detail
-
-
 def test_push_pull_and_wait_event(tomba) -> None:
     robot, runner = tomba
     p0 = robot.frame_pose("right_grasp")[:3, 3].copy()
@@ -257,3 +239,21 @@ def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for
                                                            "walls": walls}))
     hand = matrix6(tuple(spot.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "random spot")
     assert hand[:3, :3] @ side == pytest.approx([0.0, -1.0, 0.0], abs=1e-6)  # 2-3 cm from the -y wall
+
+
+def test_explore_runs_its_alternate_sweep_on_a_coin_flip(tomba) -> None:
+    robot, runner = tomba
+    here = robot.frame_pose("right_grasp")[:3, 3].copy()
+    there = here + [0.0, 0.02, 0.0]
+    params = {"arm": "right", "sweep": list(here), "alternate": list(there), "velocity": 0.04}
+    ends = []
+    for seed in range(10):  # a sweep of one waypoint ends there without a contact (in the air)
+        last = outcome(run_primitive(runner, "explore", {**params, "seed": seed}, max_time=5.0))
+        assert last.event is Event.FAILURE
+        at = robot.frame_pose("right_grasp")[:3, 3]
+        took = last.values["alternate"]
+        assert np.linalg.norm(at - (there if took else here)) < 0.006, "the hand went where the chosen sweep leads"
+        ends.append(took)
+    assert 0.0 in ends and 1.0 in ends
+    bad = outcome(run_primitive(runner, "explore", {**params, "alternate": [0.1, 0.2]}))
+    assert bad.event is Event.ERROR and "params.alternate: expected a multiple of 3 values, got 2" in bad.detail
