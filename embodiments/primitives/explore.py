@@ -14,6 +14,10 @@ from contactflow.nodes.status import Event
 class Explore(Primitive):
     """Guarded sweep: straight along ``direction`` (world) or through ``sweep`` points until a contact.
 
+    With ``alternate`` points, a coin flip (``seed`` and the start time) picks which of the two
+    sweeps this pass runs, so a task that sweeps again after a failed grasp does not always meet
+    the same object first.
+
     A contact above ``floor_z`` (a known support such as a box bottom, told apart by
     proprioception, §3.4.3) is an object: SUCCESS with the approach pose that puts the hand's
     grasp centre over the contact, moved ``lead`` m further along the horizontal motion (where
