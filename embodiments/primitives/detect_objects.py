@@ -60,7 +60,7 @@ def observed_fraction(points: np.ndarray, region: np.ndarray, cell: float = 0.01
     return len(np.unique(ij[:, 0] * shape[1] + ij[:, 1])) / float(shape[0] * shape[1])
 
 
-def is_top_grasp(direction) -> bool:
+def is_top_grasp(direction: np.ndarray) -> bool:
     """An approach within ``VERTICAL_TOL_DEG`` of straight down: a fitted normal's noise is no reason to tilt the hand."""
     return bool(direction[2] <= -np.cos(np.radians(VERTICAL_TOL_DEG)))
 

@@ -251,7 +251,7 @@ modules:
   - {name: station, type: sim_interface, params: {robot: melfa, model_hz: 0, ground_truth_hz: 0}}
   - name: planner
     type: planner_arm
-    params: {planner: RRTConnect, timeout: 10.0, speed: 1.0}
+    params: {planner: RRTConnect, timeout: 5.0, speed: 1.0}
     inputs: {joint_state: station.joint_state, goal: commander.target, cloud: commander.cloud, wrench: station.wrench}
 """
 

@@ -30,15 +30,16 @@ def test_a_job_count_below_one_is_refused() -> None:
         run_all(dict, PLAN, jobs=0)
 
 
-def _children(pid: int) -> set[int]:
+def _pool_workers(pid: int) -> set[int]:
+    """The spawned pool workers among ``pid``'s children (not its resource tracker)."""
     out = set()
-    for stat in Path("/proc").glob("[0-9]*/stat"):
+    for proc in Path("/proc").glob("[0-9]*"):
         try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
+            parent = int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            if parent == pid and "spawn_main" in (proc / "cmdline").read_text():
+                out.add(int(proc.name))
+        except OSError:  # the process ended while we looked
             continue
-        if int(fields[1]) == pid:
-            out.add(int(stat.parent.name))
     return out
 
 
@@ -57,7 +58,7 @@ def test_workers_exit_when_the_parent_is_killed() -> None:
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
-            workers = {w for w in _children(parent.pid) if "spawn_main" in Path(f"/proc/{w}/cmdline").read_text()}
+            workers = _pool_workers(parent.pid)
             if len(workers) == 2:
                 break
             time.sleep(0.2)

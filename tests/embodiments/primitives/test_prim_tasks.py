@@ -53,7 +53,8 @@ def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -
     robot.hand(robot.spec.arm("right").hand).preshape(pregrasp)
     robot.step(1.5)
     reach = hand_points(robot, "right")[:, 2].max() - GRASP_CENTER["tombatossals"][2]  # the hand's z points down
-    assert 0.0 < reach < standoff
+    assert reach > 0.005, "the pregrasp's fingertips were not measured below the grasp centre"
+    assert reach + 0.02 < standoff  # at least 2 cm of room between the fingertips and the object's top
 
 
 def test_pick_and_place_runs_end_to_end() -> None:
