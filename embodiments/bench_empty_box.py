@@ -38,6 +38,7 @@ STRATEGIES = ("random", "exploration", "vision")
 SWEEP_CLEARANCE = 0.008  # m, the exploring hand's distance from the walls and above the bottom
 MAX_TIME = 1200.0  # s of simulated time per run (the thesis gives no limit; Fig. 3.27: the last object alone can take dozens of random attempts)
 MAX_ATTEMPTS = 90  # grasp attempts per run
+YAW = 0.0  # rad, top-grasp yaw away from the walls: an object at the box centre was held after the lift 4/4 (0) vs 1/4 (pi/2)
 THESIS = {"random": {"attempts": 30.5, "time": 284.1, "success": 1.0},
           "exploration": {"attempts": 32.8, "time": 334.8, "success": 1.0},
           "vision": {"attempts": 7.1, "time": 101.4, "success": 1.0}}
@@ -107,19 +108,19 @@ def hand_footprint(band: float = HEIGHT) -> tuple[float, ...]:
     return tuple(float(v) for v in np.concatenate([low.min(axis=0), low.max(axis=0)]))
 
 
-def _world_extent(footprint: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets (lo, hi) from the controlled frame, world axes, of the footprint under the top-grasp orientation."""
-    R = top_grasp_pose((0.0, 0.0, 0.0))[:3, :3]
+def _world_extent(footprint: tuple[float, ...], yaw: float = np.pi / 2) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets (lo, hi) from the controlled frame, world axes, of the footprint under the top grasp of ``yaw``."""
+    R = top_grasp_pose((0.0, 0.0, 0.0), yaw)[:3, :3]
     lo, hi = np.asarray(footprint[:3]), np.asarray(footprint[3:])
     corners = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     w = corners @ R.T
     return w.min(axis=0), w.max(axis=0)
 
 
-def _inside(footprint: tuple[float, ...], clearance: float) -> tuple[float, float, float, float, float]:
+def _inside(footprint: tuple[float, ...], clearance: float, yaw: float) -> tuple[float, float, float, float, float]:
     """(x0, x1, y0, y1, z): the controlled frame's range that keeps ``footprint`` ``clearance`` inside the box."""
     cx, cy = BOX_CENTER
-    lo, hi = _world_extent(footprint)
+    lo, hi = _world_extent(footprint, yaw)
     x0, x1 = cx - INNER[0] / 2 - lo[0] + clearance, cx + INNER[0] / 2 - hi[0] - clearance
     y0, y1 = cy - INNER[1] / 2 - lo[1] + clearance, cy + INNER[1] / 2 - hi[1] - clearance
     if x1 < x0 or y1 < y0:
@@ -128,7 +129,7 @@ def _inside(footprint: tuple[float, ...], clearance: float) -> tuple[float, floa
 
 
 def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float = SWEEP_CLEARANCE,
-                 edge: tuple[float, ...] = (), reverse: bool = False) -> list[float]:
+                 edge: tuple[float, ...] = (), reverse: bool = False, yaw: float = np.pi / 2) -> list[float]:
     """Serpentine exploration trajectory over the box bottom (Fig. 3.26a), flat [x, y, z, ...] of the controlled frame.
 
     The whole hand (``footprint``) stays ``clearance`` inside the walls and above the bottom:
@@ -137,9 +138,9 @@ def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float 
     along the walls as close as that part allows: parts above it (the allegro's thumb) pass
     over the walls, and the serpentine alone left a 2.7 cm strip along the +y wall unswept
     (a cube in a corner there ended 3 runs with "the box is empty"). ``reverse`` runs the
-    serpentine from its other end (the loop stays last).
+    serpentine from its other end (the loop stays last). ``yaw`` is the exploring hand's (top grasp).
     """
-    x0, x1, y0, y1, z = _inside(footprint, clearance)
+    x0, x1, y0, y1, z = _inside(footprint, clearance, yaw)
     pts: list[float] = []
     for k, x in enumerate(np.linspace(x0, x1, lines)):
         ya, yb = (y0, y1) if k % 2 == 0 else (y1, y0)
@@ -147,7 +148,7 @@ def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float 
     if reverse:
         pts = [v for k in range(len(pts) - 3, -1, -3) for v in pts[k:k + 3]]
     if edge:
-        ex0, ex1, ey0, ey1, _ = _inside(edge, clearance)
+        ex0, ex1, ey0, ey1, _ = _inside(edge, clearance, yaw)
         loop = [(ex0, ey0), (ex1, ey0), (ex1, ey1), (ex0, ey1)]
         end = np.array(pts[-3:-1])
         first = int(np.argmin([np.linalg.norm(end - c) for c in loop]))
@@ -158,21 +159,26 @@ def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float 
 
 def task_params(strategy: str, seed: int) -> dict:
     cx, cy = BOX_CENTER
-    target = pose6(top_grasp_pose((TARGET_XY[0], TARGET_XY[1], TABLE_Z + 0.2)))
+    target = pose6(top_grasp_pose((TARGET_XY[0], TARGET_XY[1], TABLE_Z + 0.2), YAW))  # no wrist turn to and from the box
     tvec = [target[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
     approach_z = BOTTOM + 0.16
+    walls = [cx - INNER[0] / 2, cy - INNER[1] / 2, cx + INNER[0] / 2, cy + INNER[1] / 2]
     if strategy == "vision":
         region = [cx - INNER[0] / 2 + 0.005, cy - INNER[1] / 2 + 0.005, BOTTOM - 0.005,
                   cx + INNER[0] / 2 - 0.005, cy + INNER[1] / 2 - 0.005, BOTTOM + 0.2]
-        return {"arm": ARM, "region": region, "bottom": BOTTOM, "target": tvec, "seed": seed}
+        return {"arm": ARM, "region": region, "bottom": BOTTOM, "target": tvec, "seed": seed, "walls": walls, "yaw": YAW}
     if strategy == "random":
         area = [cx - INNER[0] / 2 + 0.02, cy - INNER[1] / 2 + 0.02, cx + INNER[0] / 2 - 0.02, cy + INNER[1] / 2 - 0.02]
-        return {"arm": ARM, "area": area, "bottom": BOTTOM, "height": approach_z - BOTTOM, "target": tvec, "seed": seed}
-    start = pose6(top_grasp_pose((cx, cy, approach_z)))
+        return {"arm": ARM, "area": area, "bottom": BOTTOM, "height": approach_z - BOTTOM, "target": tvec, "seed": seed,
+                "walls": walls, "yaw": YAW}
+    # the hand explores with the grasps' yaw: no wrist turn between touching an object and grasping it
+    start = pose6(top_grasp_pose((cx, cy, approach_z), YAW))
     footprint, edge = hand_footprint(), hand_footprint(HEIGHT - SWEEP_CLEARANCE)
     return {"arm": ARM, "start": [start[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")], "bottom": BOTTOM,
-            "sweep": sweep_points(footprint, edge=edge), "alternate": sweep_points(footprint, edge=edge, reverse=True),
-            "footprint": list(footprint), "approach_z": approach_z, "target": tvec, "seed": seed}
+            "sweep": sweep_points(footprint, edge=edge, yaw=YAW),
+            "alternate": sweep_points(footprint, edge=edge, reverse=True, yaw=YAW),
+            "footprint": list(footprint), "height": approach_z - BOTTOM, "target": tvec, "seed": seed,
+            "walls": walls, "yaw": YAW}
 
 
 def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:

@@ -94,6 +94,7 @@ class Explore(Primitive):
                 there[:3, 3] += ahead / np.linalg.norm(ahead) * p.lead
             vals = pose6(hand_pose_for(self.r.spec.name, there))
             vals.update(contact_x=float(at[0]), contact_y=float(at[1]), contact_z=float(at[2]),
+                        object_x=float(there[0, 3]), object_y=float(there[1, 3]),  # the grasp centre's spot
                         on_floor=float(on_floor), waypoint=float(self.k), alternate=float(self.flipped))
             if on_floor:
                 self.fail("touched the support, no object here", event=Event.OBJECT_NOT_FOUND, **vals)

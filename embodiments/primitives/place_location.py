@@ -25,7 +25,8 @@ def free_spot(occupied: np.ndarray, region: np.ndarray, clearance: float, step: 
 
 class PlaceLocation(Primitive):
     """A location on a support: ``free`` = the spot farthest from what the camera sees above it;
-    ``random`` = uniform in the region without sensing (the blind random strategy of §3.4.3)."""
+    ``random`` = uniform in the region without sensing (the blind random strategy of §3.4.3);
+    ``at`` = the given ``spot`` (e.g. where an exploring hand touched something), with the hand turned for the walls."""
 
     commands_arm = False
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR)
@@ -38,9 +39,10 @@ class PlaceLocation(Primitive):
         height: float = 0.1  # m, approach height of the hand above the support
         yaw: float = 1.5707963267948966  # rad
         camera: str = "kinect"
-        mode: str = "free"  # free | random
+        mode: str = "free"  # free | random | at
         seed: int = 0  # random mode
-        walls: tuple[float, ...] = ()  # m, random mode: [xmin, ymin, xmax, ymax] inner sides of the container grasped in (none: no walls)
+        spot: tuple[float, ...] = ()  # m, at mode: [x, y] of the location
+        walls: tuple[float, ...] = ()  # m, random and at modes: [xmin, ymin, xmax, ymax] inner sides of the container grasped in (none: no walls)
         wall_margin: float = 0.055  # m, a spot this close to a wall gets the hand's ``wall_side`` toward it
         wall_side: tuple[float, ...] = (1.0, 0.0)  # hand-frame (x, y) direction put toward a nearby wall (per hand, measured)
 
@@ -54,8 +56,14 @@ class PlaceLocation(Primitive):
             x, y = rng.uniform(region[:2], region[2:])
             self._spot(x, y, wall_yaws([p.yaw], (x, y), p.walls, p.wall_margin, p.wall_side)[0])  # a blind grasp guess
             return
+        if p.mode == "at":
+            if len(p.spot) != 2:
+                raise ValueError(f"{self.name}: params.spot must be [x, y], got {p.spot}")
+            x, y = (float(v) for v in p.spot)
+            self._spot(x, y, wall_yaws([p.yaw], (x, y), p.walls, p.wall_margin, p.wall_side)[0])
+            return
         if p.mode != "free":
-            raise ValueError(f"{self.name}: params.mode must be free or random, got {p.mode!r}")
+            raise ValueError(f"{self.name}: params.mode must be free, random or at, got {p.mode!r}")
         if not self.r.spec.cameras:
             raise ValueError(f"{self.name}: mode free needs a camera on {self.r.spec.name}")
         pts = np.asarray(self.r.camera(p.camera).points)

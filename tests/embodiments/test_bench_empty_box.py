@@ -53,6 +53,38 @@ def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:
         bench_empty_box.sweep_points((-0.2, -0.2, -0.1, 0.2, 0.2, 0.03))
 
 
+def test_the_hand_explores_with_the_grasps_yaw_inside_the_box() -> None:
+    fp = bench_empty_box.hand_footprint()
+    edge = bench_empty_box.hand_footprint(bench_empty_box.HEIGHT - bench_empty_box.SWEEP_CLEARANCE)
+    yaw = bench_empty_box.YAW
+    params = bench_empty_box.task_params("exploration", 100)
+    start = matrix6(tuple(params["start"]), "start")
+    assert start[:3, 0] == pytest.approx([np.cos(yaw), np.sin(yaw), 0.0], abs=1e-9)  # the grasps' yaw
+    pts = np.asarray(params["sweep"]).reshape(-1, 3)
+    assert np.allclose(pts, np.reshape(bench_empty_box.sweep_points(fp, edge=edge, yaw=yaw), (-1, 3)))
+    (cx, cy), (ix, iy) = bench_empty_box.BOX_CENTER, bench_empty_box.INNER
+    n = len(pts) - 4  # the serpentine, then the loop along the walls
+    for part, extent in ((pts[:n], fp), (pts[n:], edge)):
+        lo, hi = bench_empty_box._world_extent(extent, yaw)
+        assert np.all(part[:, 0] + lo[0] > cx - ix / 2) and np.all(part[:, 0] + hi[0] < cx + ix / 2)
+        assert np.all(part[:, 1] + lo[1] > cy - iy / 2) and np.all(part[:, 1] + hi[1] < cy + iy / 2)
+    turned = bench_empty_box._world_extent(fp, yaw)[1] - bench_empty_box._world_extent(fp, yaw)[0]
+    upright = bench_empty_box._world_extent(fp)[1] - bench_empty_box._world_extent(fp)[0]
+    assert turned[:2] == pytest.approx(upright[1::-1])  # a quarter turn swaps the hand's x and y extents
+
+
+def test_every_strategy_turns_the_hand_for_the_box_walls() -> None:
+    from contactflow.embodiments.tasks import load
+
+    tasks, _ = load()
+    (cx, cy), (ix, iy) = bench_empty_box.BOX_CENTER, bench_empty_box.INNER
+    for strategy in bench_empty_box.STRATEGIES:
+        params = bench_empty_box.task_params(strategy, 100)
+        assert params["walls"] == pytest.approx([cx - ix / 2, cy - iy / 2, cx + ix / 2, cy + iy / 2])
+        assert params["yaw"] == bench_empty_box.YAW
+        assert set(params) <= set(tasks[f"empty_box_{strategy}"].params), strategy  # every one is a task parameter
+
+
 def test_vision_approach_is_a_filtered_grasp_synthesis_axis_of_the_box() -> None:
     """detect_objects (the vision strategy's and the pick tasks' detector) approaches along a box axis."""
     world = World(WorldParams())

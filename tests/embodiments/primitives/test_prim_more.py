@@ -224,6 +224,7 @@ def test_explore_locates_an_off_centre_contact_and_approaches_over_it() -> None:
     approach = matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")
     centre = approach @ np.r_[GRASP_CENTER["tombatossals"], 1.0]
     assert np.hypot(*(centre[:2] - contact)) < 1e-6  # the hand's grasp centre is put over the contact
+    assert [ev.values["object_x"], ev.values["object_y"]] == pytest.approx(list(centre[:2]))  # no lead going down
     assert not robot.failed
 
 
@@ -239,6 +240,26 @@ def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for
                                                            "walls": walls}))
     hand = matrix6(tuple(spot.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "random spot")
     assert hand[:3, :3] @ side == pytest.approx([0.0, -1.0, 0.0], abs=1e-6)  # 2-3 cm from the -y wall
+
+
+def test_a_given_spot_gets_the_grasp_centre_over_it_turned_for_a_near_wall(tomba) -> None:
+    robot, runner = tomba
+    side = np.array([*WALL_SIDE["tombatossals"], 0.0])
+    params = {"mode": "at", "spot": [0.5, -0.3], "support_z": 0.75, "height": 0.1, "yaw": 0.0}
+
+    def hand(extra: dict) -> np.ndarray:
+        ev = outcome(run_primitive(runner, "place_location", {**params, **extra}))
+        assert ev.event is Event.SUCCESS, ev.detail
+        return matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "spot")
+
+    free = hand({})
+    assert free @ np.r_[GRASP_CENTER["tombatossals"], 1.0] == pytest.approx([0.5, -0.3, 0.85, 1.0], abs=1e-6)
+    assert free[:3, 0] == pytest.approx([1.0, 0.0, 0.0], abs=1e-6)  # the given yaw, far from every wall
+    walled = hand({"walls": [0.3, -0.32, 0.7, 0.0]})  # 2 cm from the -y wall
+    assert walled @ np.r_[GRASP_CENTER["tombatossals"], 1.0] == pytest.approx([0.5, -0.3, 0.85, 1.0], abs=1e-6)
+    assert walled[:3, :3] @ side == pytest.approx([0.0, -1.0, 0.0], abs=1e-6)
+    bad = outcome(run_primitive(runner, "place_location", {**params, "spot": [0.5]}))
+    assert bad.event is Event.ERROR and "params.spot must be [x, y]" in bad.detail
 
 
 def test_explore_runs_its_alternate_sweep_on_a_coin_flip(tomba) -> None:
