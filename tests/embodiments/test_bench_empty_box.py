@@ -73,16 +73,19 @@ def test_the_hand_explores_with_the_grasps_yaw_inside_the_box() -> None:
     assert turned[:2] == pytest.approx(upright[1::-1])  # a quarter turn swaps the hand's x and y extents
 
 
-def test_every_strategy_turns_the_hand_for_the_box_walls() -> None:
+def test_the_seeing_and_exploring_strategies_turn_the_hand_for_the_box_walls() -> None:
     from contactflow.embodiments.tasks import load
 
     tasks, _ = load()
     (cx, cy), (ix, iy) = bench_empty_box.BOX_CENTER, bench_empty_box.INNER
     for strategy in bench_empty_box.STRATEGIES:
         params = bench_empty_box.task_params(strategy, 100)
+        assert set(params) <= set(tasks[f"empty_box_{strategy}"].params), strategy  # every one is a task parameter
+        if strategy == "random":  # blind spots: no turn (it cost more attempts than it saved)
+            assert "walls" not in params and "yaw" not in params
+            continue
         assert params["walls"] == pytest.approx([cx - ix / 2, cy - iy / 2, cx + ix / 2, cy + iy / 2])
         assert params["yaw"] == bench_empty_box.YAW
-        assert set(params) <= set(tasks[f"empty_box_{strategy}"].params), strategy  # every one is a task parameter
 
 
 def test_vision_approach_is_a_filtered_grasp_synthesis_axis_of_the_box() -> None:
