@@ -60,6 +60,8 @@ def test_the_hand_explores_with_the_grasps_yaw_inside_the_box() -> None:
     params = bench_empty_box.task_params("exploration", 100)
     start = matrix6(tuple(params["start"]), "start")
     assert start[:3, 0] == pytest.approx([np.cos(yaw), np.sin(yaw), 0.0], abs=1e-9)  # the grasps' yaw
+    place = matrix6(tuple(params["target"]), "target")
+    assert place[:3, 0] == pytest.approx([np.cos(yaw), np.sin(yaw), 0.0], abs=1e-9)  # and the place's
     pts = np.asarray(params["sweep"]).reshape(-1, 3)
     assert np.allclose(pts, np.reshape(bench_empty_box.sweep_points(fp, edge=edge, yaw=yaw), (-1, 3)))
     (cx, cy), (ix, iy) = bench_empty_box.BOX_CENTER, bench_empty_box.INNER
