@@ -51,15 +51,13 @@ class PlaceLocation(Primitive):
         region = np.asarray(p.region, dtype=np.float64)
         if region.shape != (4,) or region[0] > region[2] or region[1] > region[3]:
             raise ValueError(f"{self.name}: params.region must be [xmin, ymin, xmax, ymax], got {p.region}")
-        if p.mode == "random":
-            rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
-            x, y = rng.uniform(region[:2], region[2:])
-            self._spot(x, y, wall_yaws([p.yaw], (x, y), p.walls, p.wall_margin, p.wall_side)[0])  # a blind grasp guess
-            return
-        if p.mode == "at":
-            if len(p.spot) != 2:
+        if p.mode in ("random", "at"):
+            if p.mode == "random":  # a blind grasp guess
+                x, y = np.random.default_rng([p.seed, int(self.r.time * 1000)]).uniform(region[:2], region[2:])
+            elif len(p.spot) != 2:
                 raise ValueError(f"{self.name}: params.spot must be [x, y], got {p.spot}")
-            x, y = (float(v) for v in p.spot)
+            else:
+                x, y = (float(v) for v in p.spot)
             self._spot(x, y, wall_yaws([p.yaw], (x, y), p.walls, p.wall_margin, p.wall_side)[0])
             return
         if p.mode != "free":

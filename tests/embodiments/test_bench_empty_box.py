@@ -70,8 +70,7 @@ def test_the_hand_explores_with_the_grasps_yaw_inside_the_box() -> None:
         lo, hi = bench_empty_box._world_extent(extent, yaw)
         assert np.all(part[:, 0] + lo[0] > cx - ix / 2) and np.all(part[:, 0] + hi[0] < cx + ix / 2)
         assert np.all(part[:, 1] + lo[1] > cy - iy / 2) and np.all(part[:, 1] + hi[1] < cy + iy / 2)
-    turned = bench_empty_box._world_extent(fp, yaw)[1] - bench_empty_box._world_extent(fp, yaw)[0]
-    upright = bench_empty_box._world_extent(fp)[1] - bench_empty_box._world_extent(fp)[0]
+    turned, upright = (np.subtract(*bench_empty_box._world_extent(fp, a)[::-1]) for a in (yaw, np.pi / 2))
     assert turned[:2] == pytest.approx(upright[1::-1])  # a quarter turn swaps the hand's x and y extents
 
 
