@@ -53,6 +53,20 @@ def test_release_backs_off_when_fingers_hit_the_table() -> None:
     assert Event.CONTACT in labels(ev) and end.values["backoff_steps"] > 0 and end.values["backoff"] > 0.001
 
 
+def test_release_opens_at_its_opening_velocity() -> None:
+    robot, runner = scene(with_object=False)
+    hand = robot.hand("right_hand")
+    took = {}
+    for speed in (0.5, 1.5):  # rad/s: the default smooth opening, and empty_box's reset after a missed grasp
+        hand.close()
+        hand.wait(1.5)
+        t0 = robot.time
+        assert outcome(run_primitive(runner, "release", {"arm": ARM, "opening_velocity": speed})).event is Event.SUCCESS
+        took[speed] = robot.time - t0
+    # the allegro opens by 1.3 rad at most: 2.5 s and 0.9 s measured
+    assert 2.2 < took[0.5] < 3.2 and took[1.5] < 1.2
+
+
 def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
     robot, runner = scene()
     # 3 cm along the hand x axis (world y for this yaw): the approach touches the object off-centre
