@@ -57,7 +57,7 @@ def test_release_opens_at_its_opening_velocity() -> None:
     robot, runner = scene(with_object=False)
     hand = robot.hand("right_hand")
     took = {}
-    for speed in (0.5, 1.5):  # rad/s: the default smooth opening, and empty_box's reset after a missed grasp
+    for speed in (0.5, 1.5):  # rad/s: the default smooth opening, and a fast one
         hand.close()
         hand.wait(1.5)
         t0 = robot.time
