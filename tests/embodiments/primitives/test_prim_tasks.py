@@ -39,6 +39,18 @@ def test_empty_box_strategies_go_on_after_an_attempt_that_ends_in_an_error() -> 
                            for e in g.edges), (name, node, event)
 
 
+def test_exploration_rises_off_the_object_it_came_down_on_before_approaching_it() -> None:
+    # straight from where the downward exploration stopped, 4 of 7 approaches hit an object and aborted the attempt
+    g = load()[0]["empty_box_exploration"]
+    after_down = [e.dest for e in g.edges if e.origin == "down" and Event.SUCCESS in e.events]
+    assert len(after_down) == 1
+    rise = g.nodes[after_down[0]]
+    assert rise.type == "transport" and rise.params["relative"]
+    assert rise.params["target"][2] >= 0.1 and not any(rise.params["target"][k] for k in (0, 1, 3, 4, 5))
+    for event in (Event.SUCCESS, Event.FAILURE):
+        assert [e.dest for e in g.edges if e.origin == rise.id and event in e.events] == ["aim_down"]
+
+
 def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -> None:
     # the fingers take the pregrasp at the approach start: the cylindrical one reaches 6.6 cm below the grasp
     # centre, and 5 cm above an object's top it came down on it and its neighbours (first attempts in the
