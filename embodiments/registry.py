@@ -38,6 +38,7 @@ class ArmSpec:
     kd: float = 100.0  # N m s/rad, drive damping
     force_limit: float = 500.0  # N m, drive force limit
     max_velocity: float = 1.0  # rad/s, joint speed used by trajectories
+    max_acceleration: float = 2.0  # rad/s^2, speed-up and slow-down of planned trajectories
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
-"""Joint trajectory following: waypoints timed by a speed bound, with an F/T contact watchdog."""
+"""Joint trajectory following: waypoints timed by speed and acceleration bounds, with an F/T contact watchdog."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,40 +43,101 @@ class ForceWatch:
 @dataclass(frozen=True)
 class TrajectoryParams:
     max_velocity: float = 1.0  # rad/s, per joint
-    min_segment: float = 0.05  # s, shortest segment duration
+    max_acceleration: float = math.inf  # rad/s^2, of the path length (largest joint change) (inf: each segment timed alone)
+    corner_jump: float = 0.1  # rad/s, largest change of a joint's velocity where the path turns at a waypoint
+    min_segment: float = 0.05  # s, shortest segment duration when each segment is timed alone
     abort_force: float = 8.0  # N, F/T force change that counts as an unexpected contact
     settle: float = 0.2  # s after the last waypoint before SUCCESS
 
 
 class TrajectoryFollower:
-    """Samples a piecewise-linear joint path; aborts when the wrist force deviates from its start value."""
+    """Samples a piecewise-linear joint path; aborts when the wrist force deviates from its start value.
+
+    With a finite ``max_acceleration`` the path is timed along its length (the largest joint
+    change per segment): the arm speeds up and slows down at that bound over the whole path,
+    whatever the planner's waypoint spacing, and slows at a waypoint where the path turns so
+    that no joint's velocity jumps by more than ``corner_jump``. Otherwise each segment runs at
+    ``max_velocity`` for at least ``min_segment`` s (a joint target reached in one step).
+    """
 
     def __init__(self, waypoints: np.ndarray, params: TrajectoryParams | None = None) -> None:
         self.params = params or TrajectoryParams()
         w = np.asarray(waypoints, dtype=np.float64)
         if w.ndim != 2 or len(w) < 1 or not np.all(np.isfinite(w)):
             raise ValueError(f"waypoints must be a finite (K, n) array, got shape {w.shape}")
+        p = self.params
+        if not (p.max_velocity > 0 and p.max_acceleration > 0 and p.corner_jump > 0):
+            raise ValueError("max_velocity, max_acceleration and corner_jump must be > 0, got "
+                             f"{p.max_velocity}, {p.max_acceleration}, {p.corner_jump}")
+        self.profiled = math.isfinite(p.max_acceleration)
+        if self.profiled and len(w) > 1:  # a repeated waypoint has no direction to time
+            moved = np.abs(np.diff(w, axis=0)).max(axis=1) > 1e-12
+            w = w[np.concatenate([[True], moved])]
         self.waypoints = w
-        seg = np.abs(np.diff(w, axis=0)).max(axis=1) / self.params.max_velocity if len(w) > 1 else np.zeros(0)
-        self.durations = np.maximum(seg, self.params.min_segment)
+        self.lengths = np.abs(np.diff(w, axis=0)).max(axis=1) if len(w) > 1 else np.zeros(0)
+        if self.profiled:
+            self._time_profile()
+        else:
+            self.durations = np.maximum(self.lengths / p.max_velocity, p.min_segment)
         self.times = np.concatenate([[0.0], np.cumsum(self.durations)])
         self.t = 0.0
         self.status = Status.RUNNING
         self.abort_reason = ""
-        self.watch = ForceWatch(self.params.abort_force) if np.isfinite(self.params.abort_force) else None
+        self.watch = ForceWatch(p.abort_force) if np.isfinite(p.abort_force) else None
+
+    def _time_profile(self) -> None:
+        """Speeds at the waypoints (forward and backward acceleration passes), then per segment a
+        speed-up, cruise and slow-down between them."""
+        p, L = self.params, self.lengths
+        a, vmax = p.max_acceleration, p.max_velocity
+        v = np.full(len(L) + 1, vmax)
+        v[0] = v[-1] = 0.0
+        if len(L) > 1:
+            u = np.diff(self.waypoints, axis=0) / L[:, None]
+            turn = np.abs(np.diff(u, axis=0)).max(axis=1)
+            v[1:-1] = np.minimum(vmax, p.corner_jump / np.maximum(turn, 1e-12))
+        for k in range(len(L)):
+            v[k + 1] = min(v[k + 1], math.sqrt(v[k] ** 2 + 2 * a * L[k]))
+        for k in reversed(range(len(L))):
+            v[k] = min(v[k], math.sqrt(v[k + 1] ** 2 + 2 * a * L[k]))
+        self.v_start, self.v_end = v[:-1], v[1:]
+        self.v_peak = np.minimum(vmax, np.sqrt(a * L + 0.5 * (self.v_start ** 2 + self.v_end ** 2)))
+        self.v_peak = np.maximum(self.v_peak, np.maximum(self.v_start, self.v_end))
+        self.t_up = (self.v_peak - self.v_start) / a
+        self.t_down = (self.v_peak - self.v_end) / a
+        ramps = (2 * self.v_peak ** 2 - self.v_start ** 2 - self.v_end ** 2) / (2 * a)
+        self.t_cruise = np.maximum(L - ramps, 0.0) / np.maximum(self.v_peak, 1e-12)
+        self.durations = self.t_up + self.t_cruise + self.t_down
 
     @property
     def duration(self) -> float:
         return float(self.times[-1])
 
+    def _progress(self, k: int, tau: float) -> tuple[float, float]:
+        """Length covered along segment ``k`` and its rate, ``tau`` s into the segment."""
+        a, v0, vp = self.params.max_acceleration, self.v_start[k], self.v_peak[k]
+        tu, tc = self.t_up[k], self.t_cruise[k]
+        if tau < tu:
+            return v0 * tau + 0.5 * a * tau * tau, v0 + a * tau
+        up = v0 * tu + 0.5 * a * tu * tu
+        if tau < tu + tc:
+            return up + vp * (tau - tu), vp
+        td = min(tau - tu - tc, self.t_down[k])
+        return up + vp * tc + vp * td - 0.5 * a * td * td, vp - a * td
+
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity at time ``t`` since the start."""
+        n = self.waypoints.shape[1]
         if len(self.waypoints) == 1 or t >= self.duration:
-            return self.waypoints[-1].copy(), np.zeros(self.waypoints.shape[1])
-        k = int(np.searchsorted(self.times, t, side="right") - 1)
-        s = (t - self.times[k]) / self.durations[k]
+            return self.waypoints[-1].copy(), np.zeros(n)
+        k = int(np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.lengths) - 1))
         a, b = self.waypoints[k], self.waypoints[k + 1]
-        return a + s * (b - a), (b - a) / self.durations[k]
+        if self.profiled:
+            s, rate = self._progress(k, max(t - self.times[k], 0.0))
+            u = min(1.0, s / self.lengths[k])
+            return a + u * (b - a), (b - a) / self.lengths[k] * rate
+        u = (t - self.times[k]) / self.durations[k]
+        return a + u * (b - a), (b - a) / self.durations[k]
 
     def step(self, dt: float, force: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Advance by ``dt``; ``force`` is the wrist force (world axes) used by the watchdog."""

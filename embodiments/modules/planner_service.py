@@ -165,8 +165,9 @@ class PlannerService(Module):
         if plan is None or not plan.success:
             self.io.emit(Event.FAILURE, why)
             return
-        self.follower = TrajectoryFollower(plan.waypoints, TrajectoryParams(max_velocity=self.params.speed,
-                                                                             abort_force=self.params.abort_force))
+        self.follower = TrajectoryFollower(plan.waypoints, TrajectoryParams(
+            max_velocity=self.params.speed, max_acceleration=self.arm_spec.max_acceleration,
+            abort_force=self.params.abort_force))
 
     def _follow(self) -> None:
         f = self.follower

@@ -184,3 +184,50 @@ def test_ik_keeps_joint_limits_and_pushes_off_them_in_the_null_space():
     J = kin.jacobian(free.frame)[:, free.idx]
     assert qd[6] < -0.01
     assert np.linalg.norm(J @ qd) < 1e-3
+
+
+def test_a_densely_sampled_path_runs_at_its_speed_bound_with_one_speed_up_and_slow_down():
+    from contactflow.embodiments.control.trajectory import TrajectoryFollower, TrajectoryParams
+
+    # a planner's path: 2 rad of one joint in 0.02 rad steps, plus a small second joint
+    s = np.linspace(0.0, 1.0, 101)
+    path = np.stack([2.0 * s, 0.2 * s], axis=1)
+    per_segment = TrajectoryFollower(path, TrajectoryParams(max_velocity=1.0))
+    # each 0.02 rad step lasts the shortest segment time: the 1 rad/s bound never shows
+    assert per_segment.duration == pytest.approx(100 * 0.05)
+    f = TrajectoryFollower(path, TrajectoryParams(max_velocity=1.0, max_acceleration=2.0))
+    # 0.5 s up to 1 rad/s (0.25 rad), 1.5 rad at 1 rad/s, 0.5 s down
+    assert f.duration == pytest.approx(2.5)
+    ts = np.arange(0.0, f.duration + 0.01, 0.005)
+    samples = [f.sample(t) for t in ts]
+    q = np.array([x for x, _ in samples])
+    qd = np.array([v for _, v in samples])
+    assert np.allclose(q[0], path[0]) and np.allclose(q[-1], path[-1])
+    assert np.abs(qd).max() <= 1.0 + 1e-9
+    assert np.abs(qd[:, 0]).max() == pytest.approx(1.0)
+    acc = np.diff(qd[:, 0]) / 0.005
+    assert np.abs(acc).max() <= 2.0 + 1e-6
+    # the sampled velocity is the derivative of the sampled position
+    assert np.allclose(np.diff(q[:, 0]) / 0.005, 0.5 * (qd[1:, 0] + qd[:-1, 0]), atol=0.02)
+    # a short path never reaches the speed bound: a triangle of 2 x sqrt(d / a)
+    short = TrajectoryFollower(path[:6], TrajectoryParams(max_velocity=1.0, max_acceleration=2.0))
+    assert short.duration == pytest.approx(2 * np.sqrt(0.1 / 2.0))
+
+
+def test_a_profiled_trajectory_keeps_a_repeated_waypoint_and_rejects_bad_bounds():
+    from contactflow.embodiments.control.trajectory import TrajectoryFollower, TrajectoryParams
+
+    path = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.0], [0.5, 1.0]])
+    f = TrajectoryFollower(path, TrajectoryParams(max_velocity=1.0, max_acceleration=4.0, corner_jump=0.1))
+    samples = [f.sample(t) for t in np.arange(0.0, f.duration + 0.01, 0.001)]
+    q = np.array([x for x, _ in samples])
+    # the corner is visited: joint 1 does not move before joint 0 has arrived
+    turning = q[:, 1] > 1e-9
+    assert turning.sum() > 10 and np.allclose(q[turning, 0], 0.5)
+    # and taken slowly: the velocity jumps there by 0.1 rad/s at most, elsewhere it changes at 4 rad/s^2
+    jumps = np.abs(np.diff(np.array([v for _, v in samples]), axis=0)).max(axis=1)
+    assert 0.09 < jumps.max() <= 0.1 + 4.0 * 0.001
+    assert np.sort(jumps)[-2] <= 4.0 * 0.001 + 1e-9
+    assert np.allclose(f.sample(f.duration)[0], path[-1])
+    with pytest.raises(ValueError, match="max_acceleration"):
+        TrajectoryFollower(path, TrajectoryParams(max_acceleration=0.0))

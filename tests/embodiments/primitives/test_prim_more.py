@@ -24,13 +24,17 @@ def labels(events) -> list[Event]:
     return [e.event for e in events]
 
 
-@pytest.fixture(scope="module")
-def tomba() -> tuple[SimRobot, LocalPrimitiveRunner]:
+def _cylinder_scene() -> tuple[SimRobot, LocalPrimitiveRunner]:
     world = World(WorldParams())
     world.add_table()
     world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
     robot = SimRobot(world, "tombatossals")
     return robot, LocalPrimitiveRunner(robot)
+
+
+@pytest.fixture(scope="module")
+def tomba() -> tuple[SimRobot, LocalPrimitiveRunner]:
+    return _cylinder_scene()
 
 
 def test_random_detection_varies_the_hand_yaw_so_a_retry_differs(tomba) -> None:
@@ -228,8 +232,8 @@ def test_explore_locates_an_off_centre_contact_and_approaches_over_it() -> None:
     assert not robot.failed
 
 
-def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for_walls(tomba) -> None:
-    robot, runner = tomba
+def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for_walls() -> None:
+    robot, runner = _cylinder_scene()  # the cylinder where it was put (the shared scene's sweep may knock it over)
     walls = [0.4, -0.5, 0.58, -0.1]  # the cylinder at x 0.55 is 3 cm from the +x wall
     side = np.array([*WALL_SIDE["tombatossals"], 0.0])
     ev = outcome(run_primitive(runner, "detect_objects", {"standoff": 0.04, "walls": walls}, max_time=2.0))
