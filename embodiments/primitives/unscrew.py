@@ -69,6 +69,7 @@ class Unscrew(Primitive):
         self.home = self.r.frame_pose(self.ee_frame).copy()
         self.cycles = 0
         self.corrections = 0
+        self.slips = 0  # pulls that ended without the cap in the fingers
         self.twists = 0
         self.contacts: list[np.ndarray] = []
         self.nominal: np.ndarray | None = np.asarray(p.pinch_center, dtype=np.float64) if p.pinch_center else None
@@ -176,7 +177,13 @@ class Unscrew(Primitive):
             f = float(np.linalg.norm(self.wrench_in(self.ee_frame)[:3]))
             self._keep_closing(forces)
             if pulled >= p.cap_removed_distance:
-                self.succeed(cycles=self.cycles + 1, twists=self.twists, corrections=self.corrections, pulled=pulled)
+                # "pulls the cap further than": a hand that slipped off a cap still screwed on moves as freely
+                if all(forces.get(f, 0.0) > TACTILE_CONTACT for f in self.fingers):
+                    self.succeed(cycles=self.cycles + 1, twists=self.twists, corrections=self.corrections, pulled=pulled)
+                else:
+                    self.halt()
+                    self.slips += 1
+                    self._regrasp(f"pulled {pulled * 100:.0f} cm without the cap in the fingers")
             elif f > p.pull_force_limit or self._tip_gap() < p.finger_min_distance:
                 self.halt()
                 self._regrasp(f"pull resisted ({f:.1f} N, finger gap {self._tip_gap() * 1000:.0f} mm)")
@@ -186,7 +193,7 @@ class Unscrew(Primitive):
                 self.cycles += 1
                 if self.cycles >= p.max_cycles:
                     self.fail(f"cap not removed after {p.max_cycles} cycles", cycles=self.cycles, twists=self.twists,
-                              corrections=self.corrections)
+                              corrections=self.corrections, slips=self.slips)
                     return
                 goal = self.home.copy()
                 if p.recenter and self.contacts and self.nominal is not None:

@@ -51,6 +51,28 @@ def test_exploration_rises_off_the_object_it_came_down_on_before_approaching_it(
         assert [e.dest for e in g.edges if e.origin == rise.id and event in e.events] == ["aim_down"]
 
 
+def test_exploration_pulls_a_blocked_hand_free_and_starts_over() -> None:
+    from contactflow.nodes.taskengine import TaskEngine
+    from contactflow.nodes.testing_tasks import FakeClock, FakeRunner, Step, run_until_done
+
+    # a run ended with 5 objects left when the sweep's arm was blocked: no edge took that failure
+    tasks = load()[0]
+    clock = FakeClock()
+    runner = FakeRunner(clock)
+    runner.script("move_to", [Step(0.1, Event.SUCCESS)]).script("transport", [Step(0.1, Event.SUCCESS)])
+    runner.script("down", [Step(0.1, Event.FAILURE)], [Step(0.1, Event.OBJECT_NOT_FOUND)])
+    runner.script("sweep", [Step(0.1, Event.FAILURE)], [Step(0.1, Event.OBJECT_NOT_FOUND)])
+    log: list = []
+    engine = TaskEngine(runner, clock, library=tasks, on_progress=log.append)
+    params = {"start": [0.55, -0.32, 0.9, np.pi, 0.0, 0.0], "bottom": 0.76, "sweep": [0.5, -0.4, 0.8], "target": [0.55, 0.0, 0.8]}
+    run = engine.launch(tasks["empty_box_exploration"], params)
+    res = run_until_done(engine, clock, run)
+    assert res.status is Status.SUCCESS and res.terminal == "done"
+    entered = [p.node for p in log if p.kind is ProgressKind.ENTERED]
+    assert entered == ["above", "down", "free", "above", "down", "rise", "sweep", "free",
+                       "above", "down", "rise", "sweep", "done"]
+
+
 def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -> None:
     # the fingers take the pregrasp at the approach start: the cylindrical one reaches 6.6 cm below the grasp
     # centre, and 5 cm above an object's top it came down on it and its neighbours (first attempts in the

@@ -92,27 +92,31 @@ def test_unscrew_turns_the_cap_until_it_comes_off() -> None:
 
 
 def test_screwed_cap_is_regrasped_and_recentred_when_pinched_1cm_off() -> None:
-    gaps = []
-    # the turn a slipping pinch loses varies with the hand's start (corrected minus uncorrected: 14-50 degrees over
-    # these settling times), so the claim is checked over three starts
-    for settle in (0.0, 0.1, 0.3):
-        turned, offsets = {}, {}
-        for recenter in (True, False):
-            # 1 cm along the pinch line: the first pinch closes around a cap off the fingers' centre
-            robot, runner, bottle, centred = over_cap(thread_turns=5.0, offset=(0.0, -0.01, 0.0))
-            robot.step(settle)
-            a0 = bottle.cap_angle()
-            events, pinches = unscrew(robot, runner, {"max_cycles": 3, "pinch_center": PINCH_CENTER, "recenter": recenter})
-            end = outcome(events)
-            assert end.event is Event.FAILURE and "not removed" in end.detail  # still screwed: every pull was resisted
-            assert (end.values["corrections"] >= 1) == recenter
-            # a pinch 1 cm off may not hold well enough to twist (2 twists in 3 cycles at some starts)
-            assert end.values["twists"] == 3 if recenter else end.values["twists"] >= 2
-            turned[recenter] = np.rad2deg(bottle.cap_angle() - a0)
-            offsets[recenter] = [float(np.linalg.norm(T[:2, 3] - centred[:2, 3])) for T in pinches]
-            assert len(offsets[recenter]) == 3 and 0.008 < offsets[recenter][0] < 0.012  # a pinch per cycle
-        assert max(offsets[False]) > 0.009  # without the correction every pinch stays 1 cm off
-        assert offsets[True][-1] < 0.0075  # the corrected pinches sit nearer the cap axis
-        gaps.append(turned[True] - turned[False])
+    turned, offsets = {}, {}
+    for recenter in (True, False):
+        # 1 cm along the pinch line: the first pinch closes around a cap off the fingers' centre
+        robot, runner, bottle, centred = over_cap(thread_turns=5.0, offset=(0.0, -0.01, 0.0))
+        a0 = bottle.cap_angle()
+        events, pinches = unscrew(robot, runner, {"max_cycles": 3, "pinch_center": PINCH_CENTER, "recenter": recenter})
+        end = outcome(events)
+        assert end.event is Event.FAILURE and "not removed" in end.detail  # still screwed: every pull was resisted
+        assert end.values["twists"] == 3 and (end.values["corrections"] >= 1) == recenter
+        turned[recenter] = np.rad2deg(bottle.cap_angle() - a0)
+        offsets[recenter] = [float(np.linalg.norm(T[:2, 3] - centred[:2, 3])) for T in pinches]
+        assert len(offsets[recenter]) == 3 and 0.008 < offsets[recenter][0] < 0.012
+    assert max(offsets[False]) > 0.009  # without the correction every pinch stays 1 cm off
+    assert offsets[True][-1] < 0.0075  # the corrected pinches sit nearer the cap axis
     # twisting about an axis off the cap's loses turn to the fingers' slip (thesis Fig. 3.13)
-    assert min(gaps) > 0.0 and np.mean(gaps) > 10.0, gaps
+    assert turned[True] > turned[False] + 10.0 and turned[False] > 20.0
+
+
+def test_a_pinch_that_slips_off_a_screwed_cap_is_not_a_removed_cap() -> None:
+    # pinched 1 cm off without re-centring, after 0.1 s of settling: the fingers slip off the cap while
+    # twisting and the hand pulls 4 cm away with nothing in it (this was reported as the cap removed)
+    robot, runner, bottle, _ = over_cap(thread_turns=5.0, offset=(0.0, -0.01, 0.0))
+    robot.step(0.1)
+    events, _ = unscrew(robot, runner, {"max_cycles": 3, "pinch_center": PINCH_CENTER, "recenter": False})
+    end = outcome(events)
+    assert end.event is Event.FAILURE and "not removed" in end.detail
+    assert end.values["slips"] >= 1  # the empty pull was told apart and led to a regrasp
+    assert bottle.cap_lift() < 1e-3
