@@ -178,7 +178,7 @@ class Unscrew(Primitive):
             self._keep_closing(forces)
             if pulled >= p.cap_removed_distance:
                 # "pulls the cap further than": a hand that slipped off a cap still screwed on moves as freely
-                if all(forces.get(f, 0.0) > TACTILE_CONTACT for f in self.fingers):
+                if all(forces.get(finger, 0.0) > TACTILE_CONTACT for finger in self.fingers):
                     self.succeed(cycles=self.cycles + 1, twists=self.twists, corrections=self.corrections, pulled=pulled)
                 else:
                     self.halt()
