@@ -214,7 +214,7 @@ def test_a_densely_sampled_path_runs_at_its_speed_bound_with_one_speed_up_and_sl
     assert short.duration == pytest.approx(2 * np.sqrt(0.1 / 2.0))
 
 
-def test_a_profiled_trajectory_keeps_a_repeated_waypoint_and_rejects_bad_bounds():
+def test_a_profiled_trajectory_passes_a_repeated_waypoint_takes_its_corner_slowly_and_rejects_bad_bounds():
     from contactflow.embodiments.control.trajectory import TrajectoryFollower, TrajectoryParams
 
     path = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.0], [0.5, 1.0]])
