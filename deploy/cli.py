@@ -217,7 +217,10 @@ def new(kind: Annotated[str, typer.Argument(help="service | primitive | task")],
 @app.command()
 def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMARKS)}")],
           out: Path = Path("bench-results"), quick: bool = False,
-          jobs: Annotated[int, typer.Option(min=1, help="worker processes, for benchmarks made of independent runs")] = 1) -> None:
+          jobs: Annotated[int, typer.Option(min=1, help="worker processes, for benchmarks made of independent runs")] = 1,
+          runs: Annotated[int | None, typer.Option(min=1, help="runs per strategy (empty-box; default 10)")] = None,
+          max_time: Annotated[float | None, typer.Option(min=1.0, help="simulated s per run before the supervisor stops it (empty-box)")] = None,
+          max_attempts: Annotated[int | None, typer.Option(min=1, help="grasp attempts per run (empty-box)")] = None) -> None:
     """Run a benchmark: prints a table and writes JSON (and plots) under OUT."""
     path = BENCHMARKS.get(name)
     if path is None:
@@ -228,12 +231,14 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
     except ModuleNotFoundError as exc:
         console.print(f"[red]benchmark {name!r} is not available: {exc}[/]")
         raise typer.Exit(1) from None
-    extra = {}
-    if jobs != 1:
-        if "jobs" not in inspect.signature(mod.run).parameters:
-            console.print(f"[red]benchmark {name!r} does not take --jobs[/] (it measures one process or pairs them itself)")
+    given = {"jobs": jobs if jobs != 1 else None, "runs": runs, "max_time": max_time, "max_attempts": max_attempts}
+    extra = {k: v for k, v in given.items() if v is not None}
+    accepted = inspect.signature(mod.run).parameters
+    for key in extra:
+        if key not in accepted:
+            why = " (it measures one process or pairs them itself)" if key == "jobs" else ""
+            console.print(f"[red]benchmark {name!r} does not take --{key.replace('_', '-')}[/]{why}")
             raise typer.Exit(2)
-        extra["jobs"] = jobs
     out.mkdir(parents=True, exist_ok=True)
     mod.run(out, quick=quick, **extra)
     console.print(f"results in {out}")

@@ -155,6 +155,18 @@ def test_bench_jobs_is_refused_by_a_benchmark_that_measures_processes_itself(tmp
     assert not (tmp_path / "messaging.json").exists()
 
 
+def test_bench_caps_reach_the_empty_box_runs_and_are_refused_where_they_mean_nothing(tmp_path):
+    refused = invoke("bench", "messaging", "--quick", "--max-time", 5, "--out", tmp_path)
+    assert refused.exit_code == 2 and "does not take --max-time" in refused.output, refused.output
+    result = invoke("bench", "empty-box", "--quick", "--runs", 2, "--max-time", 4, "--max-attempts", 1, "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    saved = json.loads((tmp_path / "empty_box.json").read_text())
+    assert saved["max_time"] == 4.0 and saved["max_attempts"] == 1 and len(saved["runs"]) == 6
+    assert sorted({r["seed"] for r in saved["runs"]}) == [100, 101]
+    assert all(r["time"] <= 4.0 + 0.5 and r["attempts"] <= 2 for r in saved["runs"]), saved["runs"]
+    assert "4 s of simulated time or 1 grasp attempt " in (tmp_path / "empty_box.md").read_text()
+
+
 def test_bench_messaging_quick_writes_its_json(tmp_path):
     result = invoke("bench", "messaging", "--quick", "--out", tmp_path)
     assert result.exit_code == 0, result.output
