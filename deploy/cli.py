@@ -32,6 +32,7 @@ BENCHMARKS = {
     "sim": "contactflow.embodiments.bench_sim",
     "grasp": "contactflow.embodiments.bench_grasp",
     "empty-box": "contactflow.embodiments.bench_empty_box",
+    "catch-zone": "contactflow.embodiments.bench_catch_zone",
     "contacts": "contactflow.fusion.bench_contacts",
     "fusion": "contactflow.fusion.bench_fusion",
     "vision": "contactflow.recognition.bench_vision",

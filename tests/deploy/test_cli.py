@@ -167,6 +167,14 @@ def test_bench_caps_reach_the_empty_box_runs_and_are_refused_where_they_mean_not
     assert "4 s of simulated time or 1 grasp attempt " in (tmp_path / "empty_box.md").read_text()
 
 
+def test_bench_catch_zone_is_listed_and_refuses_the_empty_box_caps(tmp_path):
+    listed = invoke("bench", "nonesuch", "--out", tmp_path)
+    assert listed.exit_code == 2 and "catch-zone" in listed.output, listed.output
+    refused = invoke("bench", "catch-zone", "--quick", "--runs", 3, "--out", tmp_path)
+    assert refused.exit_code == 2 and "does not take --runs" in refused.output, refused.output
+    assert not (tmp_path / "catch_zone.json").exists()
+
+
 def test_bench_messaging_quick_writes_its_json(tmp_path):
     result = invoke("bench", "messaging", "--quick", "--out", tmp_path)
     assert result.exit_code == 0, result.output

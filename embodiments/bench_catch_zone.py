@@ -1,0 +1,195 @@
+"""Benchmark of the box grasp's catch zone: where a top grasp can start and still lift an object out of the empty-box scene."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import time
+from enum import StrEnum
+
+import numpy as np
+
+from contactflow.embodiments import bench_empty_box as box
+from contactflow.embodiments.parallel import run_all
+from contactflow.nodes.status import Event
+from contactflow.nodes.taskengine import Progress, ProgressKind
+
+OFFSETS = (-0.06, -0.04, -0.02, 0.0, 0.02, 0.04, 0.06)  # m, grasp-centre offsets from the object, per world axis
+QUICK_OFFSETS = (-0.06, 0.0)
+OBJECTS = ("can", "cube", "ball", "brick", "mug")  # the empty-box contents, in their maker order
+# rad, top-grasp yaws: the exploration and vision strategies' (bench_empty_box.YAW) and the random strategy's
+YAWS = (box.YAW, float(np.pi / 2))
+LIFTED = 0.08  # m, the object's rise above its start that counts as lifted out of the box
+TRIAL_TIME = 40.0  # s of simulated time per trial
+
+
+class Outcome(StrEnum):
+    """How one trial ended (the first of these that happened)."""
+
+    HELD = "held"  # the lift finished with the object out of the box: a grasp the strategies count as caught
+    APPROACH_FAILED = "approach_failed"  # the hand never reached the start above the box
+    GRASP_FAILED = "grasp_failed"  # the grasp ended without a hold (closed on nothing, arm blocked by a wall)
+    LOST = "lost"  # the grasp reported a hold, but the object was not in the hand at the end of the lift
+    LIFT_BLOCKED = "lift_blocked"  # the grasped thing did not come up (pinned under the fingers, or a wall)
+    TIMEOUT = "timeout"  # nothing ended within TRIAL_TIME
+
+
+def trial(name: str, dx: float, dy: float, yaw: float = box.YAW) -> dict:
+    """One top grasp of ``yaw`` rad of the empty-box attempt (approach, grasp, lift) with its grasp centre at
+    ``(dx, dy)`` m (world) from ``name`` alone at the box centre."""
+    from contactflow.embodiments.primitives.base import top_grasp_pose
+    from contactflow.embodiments.primitives.profiles import hand_pose_for
+    from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
+    from contactflow.embodiments.sim_robot import SimRobot
+    from contactflow.embodiments.tasks import load
+    from contactflow.embodiments.world import World, WorldParams
+    from contactflow.nodes.taskengine import TaskEngine
+
+    specs = {o.name: o for o in box.contents(np.random.default_rng(0), len(OBJECTS))}
+    if name not in specs:
+        raise ValueError(f"catch zone: unknown object {name!r}; one of {', '.join(specs)}")
+    cx, cy = box.BOX_CENTER
+    obj = dataclasses.replace(specs[name], xyz=(cx, cy, specs[name].xyz[2]))
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(box.container())
+    world.add_object(obj)
+    robot = SimRobot(world, box.ROBOT)
+    robot.step(0.3)
+    z0 = float(robot.ground_truth().object_poses[name][2, 3])
+    tasks, _ = load()
+    runner = LocalPrimitiveRunner(robot)
+    ended: dict[str, object] = {}
+
+    def watch(p: Progress) -> None:
+        if ended or p.kind is not ProgressKind.EVENT or p.node not in ("approach", "grasp", "lift"):
+            return
+        if p.event is Event.SUCCESS and p.node != "lift":
+            return
+        if p.event in (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.TIMEOUT, Event.GRASP_LOST):
+            ended.update(node=p.node, event=p.event, detail=p.detail)
+
+    engine = TaskEngine(runner, lambda: robot.time, library=tasks, on_progress=watch)
+    start = hand_pose_for(box.ROBOT, top_grasp_pose((cx + dx, cy + dy, box.BOTTOM + 0.16), yaw))
+    target = box.task_params("random", 0)["target"]
+    run = engine.launch(tasks["box_attempt"], {"arm": box.ARM, "approach": box._vec6(start), "target": target})
+    t0 = robot.time
+    while not engine.done(run) and not ended and robot.time - t0 < TRIAL_TIME:
+        runner.advance()
+        robot.step(0.005)
+        engine.tick()
+    for inst in list(runner.active):
+        runner.stop(inst)
+    rise = float(robot.ground_truth().object_poses[name][2, 3]) - z0
+    return {"object": name, "yaw": yaw, "dx": dx, "dy": dy, "outcome": _outcome(ended, rise), "rise": rise,
+            "node": ended.get("node", ""), "detail": ended.get("detail", ""), "time": robot.time - t0}
+
+
+def _outcome(ended: dict, rise: float) -> Outcome:
+    if not ended:
+        return Outcome.TIMEOUT
+    node, event = ended["node"], ended["event"]
+    if node == "approach":
+        return Outcome.APPROACH_FAILED
+    if node == "grasp":
+        return Outcome.GRASP_FAILED
+    if event is Event.SUCCESS:
+        return Outcome.HELD if rise >= LIFTED else Outcome.LOST
+    return Outcome.LOST if event is Event.GRASP_LOST else Outcome.LIFT_BLOCKED
+
+
+def summarize(trials: list[dict], offsets: tuple[float, ...]) -> list[dict]:
+    """Per object and yaw: held trials, the catch area (held cells x cell area, cm²) and the held cells' mean offset."""
+    step = float(np.min(np.diff(sorted(offsets)))) if len(offsets) > 1 else 0.0
+    rows = []
+    for name, yaw in dict.fromkeys((t["object"], t.get("yaw", box.YAW)) for t in trials):
+        ts = [t for t in trials if t["object"] == name and t.get("yaw", box.YAW) == yaw]
+        held = [t for t in ts if t["outcome"] == Outcome.HELD]
+        counts = {o.value: sum(t["outcome"] == o for t in ts) for o in Outcome}
+        centre = [float(np.mean([t[k] for t in held])) for k in ("dx", "dy")] if held else None
+        rows.append({"object": name, "yaw": yaw, "trials": len(ts), "held": len(held),
+                     "area_cm2": len(held) * (100 * step) ** 2, "held_centre": centre, "outcomes": counts})
+    return rows
+
+
+def _centre(row: dict) -> str:
+    c = row["held_centre"]
+    return "-" if c is None else f"{100 * c[0]:+.1f}, {100 * c[1]:+.1f}"
+
+
+def run(out_dir: pathlib.Path, quick: bool = False, jobs: int = 1) -> dict:
+    """Every object alone at the box centre, a top grasp of each strategy yaw from each grid offset; ``jobs`` processes."""
+    from rich.console import Console
+    from rich.progress import Progress as Bar
+    from rich.table import Table
+
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    objects, offsets, yaws = (OBJECTS[:1], QUICK_OFFSETS, YAWS[:1]) if quick else (OBJECTS, OFFSETS, YAWS)
+    plan = [(name, dx, dy, yaw) for yaw in yaws for name in objects for dx in offsets for dy in offsets]
+    t_start = time.perf_counter()
+    with Bar(transient=True) as bar:
+        job = bar.add_task(f"catch zone ({len(plan)} grasps)", total=len(plan))
+        trials = run_all(trial, plan, jobs, lambda _, r: bar.update(
+            job, advance=1, description=f"{r['object']} at {r['dx']:+.2f}, {r['dy']:+.2f}: {r['outcome']}"))
+    rows = summarize(trials, offsets)
+    summary = {"benchmark": "catch_zone", "robot": box.ROBOT, "yaws": list(yaws), "offsets": list(offsets),
+               "lifted": LIFTED, "rows": rows, "wall_time": time.perf_counter() - t_start,
+               "trials": [{**t, "outcome": str(t["outcome"])} for t in trials]}
+    (out_dir / "catch_zone.json").write_text(json.dumps(summary, indent=1))
+    kinds = [o.value for o in Outcome if o is not Outcome.HELD]
+    md = ["| object | yaw (rad) | held | catch area (cm²) | held cells' mean offset (cm) | " + " | ".join(kinds) + " |",
+          "|---|---|---|---|---|" + "---|" * len(kinds)]
+    for r in rows:
+        md.append(f"| {r['object']} | {r['yaw']:.2f} | {r['held']}/{r['trials']} | {r['area_cm2']:.0f} | {_centre(r)} | "
+                  + " | ".join(str(r["outcomes"][k]) for k in kinds) + " |")
+    ix, iy = box.INNER
+    md.append(f"\nGrasp centre offsets {', '.join(f'{100 * o:+.0f}' for o in offsets)} cm per world axis from the "
+              f"object; the random strategy draws its grasp centres over {1e4 * (ix - 0.04) * (iy - 0.04):.0f} cm² of "
+              "the box.")
+    (out_dir / "catch_zone.md").write_text("\n".join(md) + "\n")
+    table = Table(title=f"Catch zone of the box grasp ({box.ROBOT}), {len(offsets)}x{len(offsets)} offsets")
+    for col in ("object", "yaw", "held", "area (cm²)", "mean offset (cm)", "grasp failed", "lost", "lift blocked"):
+        table.add_column(col)
+    for r in rows:
+        o = r["outcomes"]
+        table.add_row(r["object"], f"{r['yaw']:.2f}", f"{r['held']}/{r['trials']}", f"{r['area_cm2']:.0f}", _centre(r),
+                      str(o["grasp_failed"]), str(o["lost"]), str(o["lift_blocked"]))
+    Console().print(table)
+    _plot(trials, rows, offsets, yaws, out_dir / "catch_zone.png")
+    return summary
+
+
+def _plot(trials: list[dict], rows: list[dict], offsets: tuple[float, ...], yaws: tuple[float, ...],
+          path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    kinds = list(Outcome)
+    colors = ["#2ca02c", "#7f7f7f", "#d62728", "#ff7f0e", "#9467bd", "#000000"]
+    index = {round(o, 4): k for k, o in enumerate(offsets)}
+    names = list(dict.fromkeys(r["object"] for r in rows))
+    fig, axes = plt.subplots(len(yaws), len(names), figsize=(2.6 * len(names) + 1.2, 2.9 * len(yaws)), squeeze=False)
+    cm = [100 * o for o in offsets]
+    half = (cm[1] - cm[0]) / 2 if len(cm) > 1 else 1.0
+    for r in rows:
+        ax = axes[yaws.index(r["yaw"])][names.index(r["object"])]
+        grid = np.full((len(offsets), len(offsets)), np.nan)
+        for t in trials:
+            if t["object"] == r["object"] and t["yaw"] == r["yaw"]:
+                grid[index[round(t["dy"], 4)], index[round(t["dx"], 4)]] = kinds.index(Outcome(t["outcome"]))
+        ax.imshow(grid, origin="lower", cmap=ListedColormap(colors), vmin=-0.5, vmax=len(kinds) - 0.5,
+                  extent=(cm[0] - half, cm[-1] + half, cm[0] - half, cm[-1] + half))
+        ax.set_title(f"{r['object']}, yaw {r['yaw']:.2f}: {r['held']}/{r['trials']} held", fontsize=8)
+        ax.set_xlabel("grasp centre dx (cm)")
+    for row in axes:
+        row[0].set_ylabel("dy (cm)")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in colors]
+    fig.legend(handles, [k.value for k in kinds], loc="center right", fontsize=7)
+    fig.tight_layout(rect=(0, 0, 1 - 1.1 / fig.get_figwidth(), 1))
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
