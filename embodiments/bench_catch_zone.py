@@ -20,6 +20,9 @@ QUICK_OFFSETS = (-0.06, 0.0)
 OBJECTS = ("can", "cube", "ball", "brick", "mug")  # the empty-box contents, in their maker order
 # rad, top-grasp yaws: the exploration and vision strategies' (bench_empty_box.YAW) and the random strategy's
 YAWS = (box.YAW, float(np.pi / 2))
+# m from the box centre: beside each wall, where missed grasps leave objects (a can there is 0.5-1.5 cm off the wall)
+WALL_SPOTS = ((-0.08, 0.0), (0.08, 0.0), (0.0, -0.10), (0.0, 0.10))
+WALL_OBJECT = "can"
 LIFTED = 0.08  # m, the object's rise above its start that counts as lifted out of the box
 TRIAL_TIME = 40.0  # s of simulated time per trial
 
@@ -35,9 +38,9 @@ class Outcome(StrEnum):
     TIMEOUT = "timeout"  # nothing ended within TRIAL_TIME
 
 
-def trial(name: str, dx: float, dy: float, yaw: float = box.YAW) -> dict:
+def trial(name: str, dx: float, dy: float, yaw: float = box.YAW, at: tuple[float, float] = (0.0, 0.0)) -> dict:
     """One top grasp of ``yaw`` rad of the empty-box attempt (approach, grasp, lift) with its grasp centre at
-    ``(dx, dy)`` m (world) from ``name`` alone at the box centre."""
+    ``(dx, dy)`` m (world) from ``name``, alone in the box ``at`` m (world x, y) from its centre."""
     from contactflow.embodiments.primitives.base import top_grasp_pose
     from contactflow.embodiments.primitives.profiles import hand_pose_for
     from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
@@ -49,7 +52,7 @@ def trial(name: str, dx: float, dy: float, yaw: float = box.YAW) -> dict:
     specs = {o.name: o for o in box.contents(np.random.default_rng(0), len(OBJECTS))}
     if name not in specs:
         raise ValueError(f"catch zone: unknown object {name!r}; one of {', '.join(specs)}")
-    cx, cy = box.BOX_CENTER
+    cx, cy = box.BOX_CENTER[0] + at[0], box.BOX_CENTER[1] + at[1]
     obj = dataclasses.replace(specs[name], xyz=(cx, cy, specs[name].xyz[2]))
     world = World(WorldParams())
     world.add_table()
@@ -82,7 +85,7 @@ def trial(name: str, dx: float, dy: float, yaw: float = box.YAW) -> dict:
     for inst in list(runner.active):
         runner.stop(inst)
     rise = float(robot.ground_truth().object_poses[name][2, 3]) - z0
-    return {"object": name, "yaw": yaw, "dx": dx, "dy": dy, "outcome": _outcome(ended, rise), "rise": rise,
+    return {"object": name, "yaw": yaw, "at": list(at), "dx": dx, "dy": dy, "outcome": _outcome(ended, rise), "rise": rise,
             "node": ended.get("node", ""), "detail": ended.get("detail", ""), "time": robot.time - t0}
 
 
@@ -100,17 +103,28 @@ def _outcome(ended: dict, rise: float) -> Outcome:
 
 
 def summarize(trials: list[dict], offsets: tuple[float, ...]) -> list[dict]:
-    """Per object and yaw: held trials, the catch area (held cells x cell area, cm²) and the held cells' mean offset."""
+    """Per object, place in the box and yaw: held trials, the catch area (held cells x cell area, cm²) and the
+    held cells' mean offset."""
     step = float(np.min(np.diff(sorted(offsets)))) if len(offsets) > 1 else 0.0
     rows = []
-    for name, yaw in dict.fromkeys((t["object"], t.get("yaw", box.YAW)) for t in trials):
-        ts = [t for t in trials if t["object"] == name and t.get("yaw", box.YAW) == yaw]
+    for key in dict.fromkeys(_case(t) for t in trials):
+        name, at, yaw = key
+        ts = [t for t in trials if _case(t) == key]
         held = [t for t in ts if t["outcome"] == Outcome.HELD]
         counts = {o.value: sum(t["outcome"] == o for t in ts) for o in Outcome}
         centre = [float(np.mean([t[k] for t in held])) for k in ("dx", "dy")] if held else None
-        rows.append({"object": name, "yaw": yaw, "trials": len(ts), "held": len(held),
+        rows.append({"object": name, "at": list(at), "yaw": yaw, "trials": len(ts), "held": len(held),
                      "area_cm2": len(held) * (100 * step) ** 2, "held_centre": centre, "outcomes": counts})
     return rows
+
+
+def _case(t: dict) -> tuple[str, tuple[float, ...], float]:
+    return t["object"], tuple(t.get("at", (0.0, 0.0))), t.get("yaw", box.YAW)
+
+
+def _where(row: dict) -> str:
+    x, y = row["at"]
+    return "centre" if x == 0.0 and y == 0.0 else f"{100 * x:+.0f}, {100 * y:+.0f} cm"
 
 
 def _centre(row: dict) -> str:
@@ -119,15 +133,18 @@ def _centre(row: dict) -> str:
 
 
 def run(out_dir: pathlib.Path, quick: bool = False, jobs: int = 1) -> dict:
-    """Every object alone at the box centre, a top grasp of each strategy yaw from each grid offset; ``jobs`` processes."""
+    """Every object alone at the box centre and the can beside each wall, a top grasp of each strategy yaw from
+    each grid offset; ``jobs`` worker processes."""
     from rich.console import Console
     from rich.progress import Progress as Bar
     from rich.table import Table
 
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    objects, offsets, yaws = (OBJECTS[:1], QUICK_OFFSETS, YAWS[:1]) if quick else (OBJECTS, OFFSETS, YAWS)
-    plan = [(name, dx, dy, yaw) for yaw in yaws for name in objects for dx in offsets for dy in offsets]
+    offsets, yaws = (QUICK_OFFSETS, YAWS[:1]) if quick else (OFFSETS, YAWS)
+    cases = [(OBJECTS[0], (0.0, 0.0))] if quick else \
+        [(name, (0.0, 0.0)) for name in OBJECTS] + [(WALL_OBJECT, at) for at in WALL_SPOTS]
+    plan = [(name, dx, dy, yaw, at) for yaw in yaws for name, at in cases for dx in offsets for dy in offsets]
     t_start = time.perf_counter()
     with Bar(transient=True) as bar:
         job = bar.add_task(f"catch zone ({len(plan)} grasps)", total=len(plan))
@@ -139,23 +156,23 @@ def run(out_dir: pathlib.Path, quick: bool = False, jobs: int = 1) -> dict:
                "trials": [{**t, "outcome": str(t["outcome"])} for t in trials]}
     (out_dir / "catch_zone.json").write_text(json.dumps(summary, indent=1))
     kinds = [o.value for o in Outcome if o is not Outcome.HELD]
-    md = ["| object | yaw (rad) | held | catch area (cm²) | held cells' mean offset (cm) | " + " | ".join(kinds) + " |",
-          "|---|---|---|---|---|" + "---|" * len(kinds)]
+    md = ["| object | in the box at | yaw (rad) | held | catch area (cm²) | held cells' mean offset (cm) | "
+          + " | ".join(kinds) + " |", "|---|---|---|---|---|---|" + "---|" * len(kinds)]
     for r in rows:
-        md.append(f"| {r['object']} | {r['yaw']:.2f} | {r['held']}/{r['trials']} | {r['area_cm2']:.0f} | {_centre(r)} | "
-                  + " | ".join(str(r["outcomes"][k]) for k in kinds) + " |")
+        md.append(f"| {r['object']} | {_where(r)} | {r['yaw']:.2f} | {r['held']}/{r['trials']} | {r['area_cm2']:.0f} | "
+                  f"{_centre(r)} | " + " | ".join(str(r["outcomes"][k]) for k in kinds) + " |")
     ix, iy = box.INNER
     md.append(f"\nGrasp centre offsets {', '.join(f'{100 * o:+.0f}' for o in offsets)} cm per world axis from the "
               f"object; the random strategy draws its grasp centres over {1e4 * (ix - 0.04) * (iy - 0.04):.0f} cm² of "
               "the box.")
     (out_dir / "catch_zone.md").write_text("\n".join(md) + "\n")
     table = Table(title=f"Catch zone of the box grasp ({box.ROBOT}), {len(offsets)}x{len(offsets)} offsets")
-    for col in ("object", "yaw", "held", "area (cm²)", "mean offset (cm)", "grasp failed", "lost", "lift blocked"):
+    for col in ("object", "at", "yaw", "held", "area (cm²)", "mean offset (cm)", "grasp failed", "lost", "lift blocked"):
         table.add_column(col)
     for r in rows:
         o = r["outcomes"]
-        table.add_row(r["object"], f"{r['yaw']:.2f}", f"{r['held']}/{r['trials']}", f"{r['area_cm2']:.0f}", _centre(r),
-                      str(o["grasp_failed"]), str(o["lost"]), str(o["lift_blocked"]))
+        table.add_row(r["object"], _where(r), f"{r['yaw']:.2f}", f"{r['held']}/{r['trials']}", f"{r['area_cm2']:.0f}",
+                      _centre(r), str(o["grasp_failed"]), str(o["lost"]), str(o["lift_blocked"]))
     Console().print(table)
     _plot(trials, rows, offsets, yaws, out_dir / "catch_zone.png")
     return summary
@@ -172,19 +189,19 @@ def _plot(trials: list[dict], rows: list[dict], offsets: tuple[float, ...], yaws
     kinds = list(Outcome)
     colors = ["#2ca02c", "#7f7f7f", "#d62728", "#ff7f0e", "#9467bd", "#000000"]
     index = {round(o, 4): k for k, o in enumerate(offsets)}
-    names = list(dict.fromkeys(r["object"] for r in rows))
-    fig, axes = plt.subplots(len(yaws), len(names), figsize=(2.6 * len(names) + 1.2, 2.9 * len(yaws)), squeeze=False)
+    places = list(dict.fromkeys((r["object"], tuple(r["at"])) for r in rows))
+    fig, axes = plt.subplots(len(yaws), len(places), figsize=(2.6 * len(places) + 1.2, 2.9 * len(yaws)), squeeze=False)
     cm = [100 * o for o in offsets]
     half = (cm[1] - cm[0]) / 2 if len(cm) > 1 else 1.0
     for r in rows:
-        ax = axes[yaws.index(r["yaw"])][names.index(r["object"])]
+        ax = axes[yaws.index(r["yaw"])][places.index((r["object"], tuple(r["at"])))]
         grid = np.full((len(offsets), len(offsets)), np.nan)
         for t in trials:
-            if t["object"] == r["object"] and t["yaw"] == r["yaw"]:
+            if _case(t) == (r["object"], tuple(r["at"]), r["yaw"]):
                 grid[index[round(t["dy"], 4)], index[round(t["dx"], 4)]] = kinds.index(Outcome(t["outcome"]))
         ax.imshow(grid, origin="lower", cmap=ListedColormap(colors), vmin=-0.5, vmax=len(kinds) - 0.5,
                   extent=(cm[0] - half, cm[-1] + half, cm[0] - half, cm[-1] + half))
-        ax.set_title(f"{r['object']}, yaw {r['yaw']:.2f}: {r['held']}/{r['trials']} held", fontsize=8)
+        ax.set_title(f"{r['object']} ({_where(r)}), yaw {r['yaw']:.2f}:\n{r['held']}/{r['trials']} held", fontsize=8)
         ax.set_xlabel("grasp centre dx (cm)")
     for row in axes:
         row[0].set_ylabel("dy (cm)")

@@ -24,7 +24,7 @@ def test_quick_catch_zone_holds_the_centred_can_and_not_the_one_under_the_wall_s
     assert row["area_cm2"] == pytest.approx(36.0)  # one 6 x 6 cm cell
     saved = json.loads((tmp_path / "catch_zone.json").read_text())
     assert saved["benchmark"] == "catch_zone" and len(saved["trials"]) == 4
-    assert "| can | 0.00 | 1/4 | 36 |" in (tmp_path / "catch_zone.md").read_text()
+    assert "| can | centre | 0.00 | 1/4 | 36 |" in (tmp_path / "catch_zone.md").read_text()
     assert (tmp_path / "catch_zone.png").stat().st_size > 0
 
 
@@ -45,7 +45,12 @@ def test_summary_counts_the_held_area_and_where_the_held_cells_are() -> None:
     (row,) = cz.summarize(trials, (-0.02, 0.0, 0.02))
     assert row["held"] == 4 and row["area_cm2"] == pytest.approx(16.0)
     assert row["held_centre"] == pytest.approx([0.01, 0.01])
-    assert row["outcomes"]["lost"] == 2 and row["outcomes"]["grasp_failed"] == 0
+    assert row["outcomes"]["lost"] == 2 and row["outcomes"]["grasp_failed"] == 0 and row["at"] == [0.0, 0.0]
+    # the same object beside a wall is a case of its own
+    wall = [{**t, "at": [0.08, 0.0], "outcome": cz.Outcome.GRASP_FAILED} for t in trials]
+    centre, beside = cz.summarize(trials + wall, (-0.02, 0.0, 0.02))
+    assert (centre["held"], beside["held"], beside["at"]) == (4, 0, [0.08, 0.0])
+    assert beside["held_centre"] is None and cz._where(beside) == "+8, +0 cm" and cz._where(centre) == "centre"
 
 
 def test_unknown_object_is_named() -> None:
