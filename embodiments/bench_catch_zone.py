@@ -76,7 +76,7 @@ def trial(name: str, dx: float, dy: float, yaw: float = box.YAW, at: tuple[float
     engine = TaskEngine(runner, lambda: robot.time, library=tasks, on_progress=watch)
     start = hand_pose_for(box.ROBOT, top_grasp_pose((cx + dx, cy + dy, box.BOTTOM + 0.16), yaw))
     target = box.task_params("random", 0)["target"]
-    run = engine.launch(tasks["box_attempt"], {"arm": box.ARM, "approach": box._vec6(start), "target": target})
+    run = engine.launch(tasks["box_attempt"], {"arm": box.ARM, "approach": box.vec6(start), "target": target})
     t0 = robot.time
     while not engine.done(run) and not ended and robot.time - t0 < TRIAL_TIME:
         runner.advance()

@@ -160,7 +160,7 @@ def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float 
     return pts
 
 
-def _vec6(T: np.ndarray) -> list[float]:
+def vec6(T: np.ndarray) -> list[float]:
     """[x, y, z, roll, pitch, yaw] of a pose, as the tasks take poses."""
     v = pose6(T)
     return [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
@@ -173,21 +173,21 @@ def task_params(strategy: str, seed: int) -> dict:
     approach_z = BOTTOM + 0.16
     if strategy == "vision":
         region = [walls[0] + 0.005, walls[1] + 0.005, BOTTOM - 0.005, walls[2] - 0.005, walls[3] - 0.005, BOTTOM + 0.2]
-        return {"arm": ARM, "region": region, "bottom": BOTTOM, "target": _vec6(top_grasp_pose(target_at)), "seed": seed,
+        return {"arm": ARM, "region": region, "bottom": BOTTOM, "target": vec6(top_grasp_pose(target_at)), "seed": seed,
                 "walls": walls, "yaw": YAW}
     if strategy == "random":
         area = [walls[0] + 0.02, walls[1] + 0.02, walls[2] - 0.02, walls[3] - 0.02]
         # blind spots keep the default yaw and no wall turn: the turns cost the random strategy more attempts than
         # they save (4-5 s of wrist motion per approach instead of 1.2 s; 2 of the first 6 runs emptied vs 9/10)
         return {"arm": ARM, "area": area, "bottom": BOTTOM, "height": approach_z - BOTTOM,
-                "target": _vec6(top_grasp_pose(target_at)), "seed": seed}
+                "target": vec6(top_grasp_pose(target_at)), "seed": seed}
     # the hand explores and places with the grasps' yaw: no wrist turn between touching an object and grasping
     # it, nor on the way to the place and back (place at pi/2: 7/10 emptied, 16.5 attempts; at YAW: 8/10, 17.5)
     footprint, edge = hand_footprint(), hand_footprint(HEIGHT - SWEEP_CLEARANCE)
-    return {"arm": ARM, "start": _vec6(top_grasp_pose((cx, cy, approach_z), YAW)), "bottom": BOTTOM,
+    return {"arm": ARM, "start": vec6(top_grasp_pose((cx, cy, approach_z), YAW)), "bottom": BOTTOM,
             "sweep": sweep_points(footprint, edge=edge, yaw=YAW),
             "alternate": sweep_points(footprint, edge=edge, reverse=True, yaw=YAW),
-            "footprint": list(footprint), "height": approach_z - BOTTOM, "target": _vec6(top_grasp_pose(target_at, YAW)),
+            "footprint": list(footprint), "height": approach_z - BOTTOM, "target": vec6(top_grasp_pose(target_at, YAW)),
             "seed": seed, "walls": walls, "yaw": YAW}
 
 
