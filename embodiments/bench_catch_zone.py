@@ -44,9 +44,7 @@ def trial(name: str, dx: float, dy: float, yaw: float = box.YAW, at: tuple[float
     from contactflow.embodiments.primitives.base import top_grasp_pose
     from contactflow.embodiments.primitives.profiles import hand_pose_for
     from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
-    from contactflow.embodiments.sim_robot import SimRobot
     from contactflow.embodiments.tasks import load
-    from contactflow.embodiments.world import World, WorldParams
     from contactflow.nodes.taskengine import TaskEngine
 
     specs = {o.name: o for o in box.contents(np.random.default_rng(0), len(OBJECTS))}
@@ -54,12 +52,7 @@ def trial(name: str, dx: float, dy: float, yaw: float = box.YAW, at: tuple[float
         raise ValueError(f"catch zone: unknown object {name!r}; one of {', '.join(specs)}")
     cx, cy = box.BOX_CENTER[0] + at[0], box.BOX_CENTER[1] + at[1]
     obj = dataclasses.replace(specs[name], xyz=(cx, cy, specs[name].xyz[2]))
-    world = World(WorldParams())
-    world.add_table()
-    world.add_object(box.container())
-    world.add_object(obj)
-    robot = SimRobot(world, box.ROBOT)
-    robot.step(0.3)
+    robot = box.box_scene([obj])
     z0 = float(robot.ground_truth().object_poses[name][2, 3])
     tasks, _ = load()
     runner = LocalPrimitiveRunner(robot)
@@ -161,9 +154,9 @@ def run(out_dir: pathlib.Path, quick: bool = False, jobs: int = 1) -> dict:
     for r in rows:
         md.append(f"| {r['object']} | {_where(r)} | {r['yaw']:.2f} | {r['held']}/{r['trials']} | {r['area_cm2']:.0f} | "
                   f"{_centre(r)} | " + " | ".join(str(r["outcomes"][k]) for k in kinds) + " |")
-    ix, iy = box.INNER
+    x0, y0, x1, y1 = box.task_params("random", 0)["area"]
     md.append(f"\nGrasp centre offsets {', '.join(f'{100 * o:+.0f}' for o in offsets)} cm per world axis from the "
-              f"object; the random strategy draws its grasp centres over {1e4 * (ix - 0.04) * (iy - 0.04):.0f} cm² of "
+              f"object; the random strategy draws its grasp centres over {1e4 * (x1 - x0) * (y1 - y0):.0f} cm² of "
               "the box.")
     (out_dir / "catch_zone.md").write_text("\n".join(md) + "\n")
     table = Table(title=f"Catch zone of the box grasp ({box.ROBOT}), {len(offsets)}x{len(offsets)} offsets")

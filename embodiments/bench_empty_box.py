@@ -191,18 +191,23 @@ def task_params(strategy: str, seed: int) -> dict:
             "seed": seed, "walls": walls, "yaw": YAW}
 
 
-def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
-    from contactflow.embodiments.tasks import load
-
-    rng = np.random.default_rng(seed)
+def box_scene(objects: list[ObjectSpec]) -> SimRobot:
+    """The robot in front of the table, with the box holding ``objects``, settled."""
     world = World(WorldParams())
     world.add_table()
     world.add_object(container())
-    objs = contents(rng, n_objects)
-    for o in objs:
+    for o in objects:
         world.add_object(o)
     robot = SimRobot(world, ROBOT)
     robot.step(0.3)
+    return robot
+
+
+def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
+    from contactflow.embodiments.tasks import load
+
+    objs = contents(np.random.default_rng(seed), n_objects)
+    robot = box_scene(objs)
     names = [o.name for o in objs]
     tasks, _ = load()
     attempts = 0
