@@ -27,24 +27,27 @@ def _exit_with(parent: int, period: float = 1.0) -> None:
 
 
 def run_all(fn: Callable[..., dict], plan: Sequence[tuple[Any, ...]], jobs: int = 1,
-            on_done: Callable[[int, dict], None] | None = None) -> list[dict]:
+            on_done: Callable[[int, dict], None] | None = None, fresh: bool = False) -> list[dict]:
     """``[fn(*args) for args in plan]``, on ``jobs`` processes; ``on_done(index, result)`` as each finishes.
 
     Every run builds its own simulated world, so runs share nothing; workers are spawned
     (not forked) because a forked PhysX or Vulkan context is not safe to reuse. ``fn`` must be
-    a module-level function.
+    a module-level function. With ``fresh`` every run gets a new process, with one job too:
+    process-wide state such as OMPL's random generator (seeded once, before its first sample)
+    then starts the same for a run wherever it lands, so a seeded run repeats exactly.
     """
     if jobs < 1:
         raise ValueError(f"jobs must be >= 1, got {jobs}")
     results: list[dict | None] = [None] * len(plan)
-    if jobs == 1:
+    if jobs == 1 and not fresh:
         for i, args in enumerate(plan):
             results[i] = fn(*args)
             if on_done is not None:
                 on_done(i, results[i])
     else:
         with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_exit_with, initargs=(os.getpid(),)) as pool:
+                                 initializer=_exit_with, initargs=(os.getpid(),),
+                                 max_tasks_per_child=1 if fresh else None) as pool:
             futures = {pool.submit(fn, *args): i for i, args in enumerate(plan)}
             for fut in as_completed(futures):
                 i = futures[fut]

@@ -24,7 +24,11 @@ def test_bench_empty_box_quick(tmp_path) -> None:
     assert saved["benchmark"] == "empty_box" and len(saved["runs"]) == 3
     assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [(s, 100) for s in bench_empty_box.STRATEGIES]
     assert all(r["time"] <= saved["max_time"] + 1.0 for r in saved["runs"])
-    assert (tmp_path / "empty_box.png").stat().st_size > 0 and (tmp_path / "empty_box.md").exists()
+    # one run per strategy: its worst case is that run
+    for row, one in zip(saved["rows"], saved["runs"], strict=True):
+        assert (row["attempts_max"], row["time_max"]) == (one["attempts"], one["time"])
+    assert (tmp_path / "empty_box.png").stat().st_size > 0
+    assert "| most attempts | longest (sim s) |" in (tmp_path / "empty_box.md").read_text()
 
 
 def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:

@@ -25,6 +25,13 @@ def test_results_come_back_in_plan_order_with_one_callback_per_run(jobs: int) ->
     assert sorted(seen) == list(range(5))
 
 
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_fresh_runs_each_get_a_process_of_their_own(jobs: int) -> None:
+    pids = run_all(os.getpid, [()] * 3, jobs=jobs, fresh=True)
+    assert len(set(pids)) == 3 and os.getpid() not in pids
+    assert run_all(os.getpid, [()] * 2, jobs=1) == [os.getpid()] * 2  # without fresh, one job runs in this process
+
+
 def test_a_job_count_below_one_is_refused() -> None:
     with pytest.raises(ValueError, match="jobs must be >= 1, got 0"):
         run_all(dict, PLAN, jobs=0)
