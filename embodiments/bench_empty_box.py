@@ -39,8 +39,8 @@ SWEEP_CLEARANCE = 0.008  # m, the exploring hand's distance from the walls and a
 # Safety caps per run, not part of the protocol: the thesis runs until the box is empty ("instead of using a large
 # timeout ... the end of the whole process is determined by a human supervisor", §3.4.3), and its random strategy's
 # last object alone took 39 attempts of standard deviation (Fig. 3.27). Caps of 1200 s and 90 attempts stopped 3 of
-# the 30 runs of the 2026-11-24 bench; given 3600 s each emptied the box, at 1281 s (exploration seed 109,
-# 37 attempts), 1351 s (exploration 108, 33) and 1278 s (random 100, 92 attempts)
+# the 30 runs of the 2026-11-24 bench that went on to empty the box by 1351 s. In the seeded bench of 2026-11-25 the
+# longest run took 1351 s (exploration seed 108); exploration seeds 111, 118 and 119 still held an object at 3600 s
 MAX_TIME = 3600.0  # s of simulated time per run
 MAX_ATTEMPTS = 300  # grasp attempts per run
 YAW = 0.0  # rad, top-grasp yaw away from the walls: an object at the box centre was held after the lift 4/4 (0) vs 1/4 (pi/2)
