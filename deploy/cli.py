@@ -221,7 +221,9 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
           jobs: Annotated[int, typer.Option(min=1, help="worker processes, for benchmarks made of independent runs")] = 1,
           runs: Annotated[int | None, typer.Option(min=1, help="runs per strategy (empty-box; default 10)")] = None,
           max_time: Annotated[float | None, typer.Option(min=1.0, help="simulated s per run before the supervisor stops it (empty-box)")] = None,
-          max_attempts: Annotated[int | None, typer.Option(min=1, help="grasp attempts per run (empty-box)")] = None) -> None:
+          max_attempts: Annotated[int | None, typer.Option(min=1, help="grasp attempts per run (empty-box)")] = None,
+          strategy: Annotated[list[str] | None, typer.Option(help="only this strategy, repeatable (empty-box; default all)")] = None,
+          first_seed: Annotated[int | None, typer.Option(help="seed of the first run, the next runs count up (empty-box; default 100)")] = None) -> None:
     """Run a benchmark: prints a table and writes JSON (and plots) under OUT."""
     path = BENCHMARKS.get(name)
     if path is None:
@@ -232,7 +234,8 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
     except ModuleNotFoundError as exc:
         console.print(f"[red]benchmark {name!r} is not available: {exc}[/]")
         raise typer.Exit(1) from None
-    given = {"jobs": jobs if jobs != 1 else None, "runs": runs, "max_time": max_time, "max_attempts": max_attempts}
+    given = {"jobs": jobs if jobs != 1 else None, "runs": runs, "max_time": max_time, "max_attempts": max_attempts,
+             "strategy": strategy or None, "first_seed": first_seed}
     extra = {k: v for k, v in given.items() if v is not None}
     accepted = inspect.signature(mod.run).parameters
     for key in extra:
@@ -241,7 +244,11 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
             console.print(f"[red]benchmark {name!r} does not take --{key.replace('_', '-')}[/]{why}")
             raise typer.Exit(2)
     out.mkdir(parents=True, exist_ok=True)
-    mod.run(out, quick=quick, **extra)
+    try:
+        mod.run(out, quick=quick, **extra)
+    except ValueError as exc:
+        console.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
     console.print(f"results in {out}")
 
 

@@ -36,6 +36,14 @@ BOTTOM = TABLE_Z + WALL  # m, top of the box bottom
 TARGET_XY = (0.55, -0.02)  # where the objects are put, outside the box
 STRATEGIES = ("random", "exploration", "vision")
 SWEEP_CLEARANCE = 0.008  # m, the exploring hand's distance from the walls and above the bottom
+# The sweep's closing loop along the walls runs EDGE_LIFT (m) above the serpentine, and every part of the hand up to
+# WALL_TOP_CLEARANCE (m) above the walls' top, measured at rest on the collision shapes' faces, stays inside them.
+# The allegro thumb slopes down toward the fingertips: measured on vertices alone it seemed to pass over the walls,
+# and it caught the +x wall's top edge on every loop past it, an "object" there and a missed grasp on the wall each
+# time (exploration seeds 111, 118 and 119 still held an object after an hour)
+EDGE_LIFT = 0.01
+WALL_TOP_CLEARANCE = 0.008
+CORNER_DRAG = 0.06  # m, how far the hand drags an object it found in a corner toward the box centre
 # Safety caps per run, not part of the protocol: the thesis runs until the box is empty ("instead of using a large
 # timeout ... the end of the whole process is determined by a human supervisor", §3.4.3), and its random strategy's
 # last object alone took 39 attempts of standard deviation (Fig. 3.27). Caps of 1200 s and 90 attempts stopped 3 of
@@ -96,6 +104,17 @@ def in_box(robot: SimRobot, names: list[str]) -> int:
     return n
 
 
+@functools.lru_cache(maxsize=1)
+def _closed_hand() -> np.ndarray:
+    """Surface points (N, 3) of the closed exploring hand in its controlled frame, faces sliced every 2 mm."""
+    from contactflow.embodiments.hand_geometry import hand_points
+
+    robot = SimRobot(World(WorldParams()), ROBOT)
+    robot.hand(robot.spec.arm(ARM).hand).preshape("closed")
+    robot.step(1.5)
+    return hand_points(robot, ARM, edge_step=0.002)  # the sloped faces crossing a band's top too
+
+
 @functools.lru_cache(maxsize=2)
 def hand_footprint(band: float = HEIGHT) -> tuple[float, ...]:
     """Box [lo x, y, z, hi x, y, z] (m), in the controlled frame, of the closed exploring hand's lowest ``band`` m.
@@ -103,14 +122,42 @@ def hand_footprint(band: float = HEIGHT) -> tuple[float, ...]:
     Measured on the collision shapes. Only that part of a top-down hand goes below the walls'
     top and meets the objects: the wider palm and wrist above it pass over the walls.
     """
-    from contactflow.embodiments.hand_geometry import hand_points
-
-    robot = SimRobot(World(WorldParams()), ROBOT)
-    robot.hand(robot.spec.arm(ARM).hand).preshape("closed")
-    robot.step(1.5)
-    pts = hand_points(robot, ARM)
+    pts = _closed_hand()
     low = pts[pts[:, 2] >= pts[:, 2].max() - band]  # the approach axis (z) points down
     return tuple(float(v) for v in np.concatenate([low.min(axis=0), low.max(axis=0)]))
+
+
+@functools.lru_cache(maxsize=1)
+def corner_probes(clearance: float = 0.005) -> tuple[tuple[list[float], list[float]], ...]:
+    """Per corner of the box: the pose (controlled frame, at the approach height) from which the closed hand comes
+    down deepest into it, and where it drags an object it meets there (CORNER_DRAG along the diagonal, inward).
+
+    Every part of the hand within HEIGHT - SWEEP_CLEARANCE of its fingertips stays ``clearance`` inside the walls:
+    in an empty corner the walls' top stops the hand with its fingertips at most SWEEP_CLEARANCE above the bottom.
+    The allegro's fingertips sit mid-hand, its thumb and fingers reaching 6-7 cm to either side, so no sweep at
+    their height gets into a corner (a cube there was never touched: the box read empty in 2 of 3 runs); turned
+    along a corner's diagonal they come 1.2 cm into the square a 4.5 cm cube fills.
+    """
+    pts = _closed_hand()
+    (cx, cy), hx, hy = BOX_CENTER, INNER[0] / 2, INNER[1] / 2
+    out = []
+    for sx, sy in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
+        best: tuple[float, float, float, float] | None = None
+        for yaw in np.radians(np.arange(0.0, 360.0, 15.0)):
+            w = pts @ top_grasp_pose((0.0, 0.0, 0.0), yaw)[:3, :3].T
+            h = w[:, 2] - w[:, 2].min()
+            low, tips = w[h < HEIGHT - SWEEP_CLEARANCE, :2], w[h <= 0.005, :2]
+            ex = sx * (hx - clearance) - (low[:, 0].max() if sx > 0 else low[:, 0].min())
+            ey = sy * (hy - clearance) - (low[:, 1].max() if sy > 0 else low[:, 1].min())
+            depth = float(np.max(np.minimum(sx * (tips[:, 0] + ex) - hx, sy * (tips[:, 1] + ey) - hy)))
+            if best is None or depth > best[0]:
+                best = (depth, float(yaw), float(ex), float(ey))
+        _, yaw, ex, ey = best
+        z = BOTTOM + 0.16
+        inward = np.array([-sx, -sy]) / np.sqrt(2.0)
+        out.append((vec6(top_grasp_pose((cx + ex, cy + ey, z), yaw)),
+                    [cx + ex + CORNER_DRAG * inward[0], cy + ey + CORNER_DRAG * inward[1], z]))
+    return tuple(out)
 
 
 def _world_extent(footprint: tuple[float, ...], yaw: float = np.pi / 2) -> tuple[np.ndarray, np.ndarray]:
@@ -134,15 +181,16 @@ def _inside(footprint: tuple[float, ...], clearance: float, yaw: float) -> tuple
 
 
 def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float = SWEEP_CLEARANCE,
-                 edge: tuple[float, ...] = (), reverse: bool = False, yaw: float = np.pi / 2) -> list[float]:
+                 edge: tuple[float, ...] = (), edge_lift: float = 0.0, reverse: bool = False,
+                 yaw: float = np.pi / 2) -> list[float]:
     """Serpentine exploration trajectory over the box bottom (Fig. 3.26a), flat [x, y, z, ...] of the controlled frame.
 
     The whole hand (``footprint``) stays ``clearance`` inside the walls and above the bottom:
     a wall it bumped into would read as an object, and a hand dragged on the bottom would push.
     With ``edge``, the footprint of the part of the hand below the walls' top, a last loop runs
-    along the walls as close as that part allows: parts above it (the allegro's thumb) pass
-    over the walls, and the serpentine alone left a 2.7 cm strip along the +y wall unswept
-    (a cube in a corner there ended 3 runs with "the box is empty"). ``reverse`` runs the
+    ``edge_lift`` higher along the walls as close as that part allows: parts above it pass over
+    the walls, and the serpentine alone leaves the segments of the box's sides between its legs
+    unswept. ``reverse`` runs the
     serpentine from its other end (the loop stays last). ``yaw`` is the exploring hand's (top grasp).
     """
     x0, x1, y0, y1, z = _inside(footprint, clearance, yaw)
@@ -158,7 +206,7 @@ def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float 
         end = np.array(pts[-3:-1])
         first = int(np.argmin([np.linalg.norm(end - c) for c in loop]))
         for x, y in loop[first:] + loop[:first]:
-            pts += [float(x), float(y), float(z)]
+            pts += [float(x), float(y), float(z + edge_lift)]
     return pts
 
 
@@ -185,10 +233,15 @@ def task_params(strategy: str, seed: int) -> dict:
                 "target": vec6(top_grasp_pose(target_at)), "seed": seed}
     # the hand explores and places with the grasps' yaw: no wrist turn between touching an object and grasping
     # it, nor on the way to the place and back (place at pi/2: 7/10 emptied, 16.5 attempts; at YAW: 8/10, 17.5)
-    footprint, edge = hand_footprint(), hand_footprint(HEIGHT - SWEEP_CLEARANCE)
-    return {"arm": ARM, "start": vec6(top_grasp_pose((cx, cy, approach_z), YAW)), "bottom": BOTTOM,
-            "sweep": sweep_points(footprint, edge=edge, yaw=YAW),
-            "alternate": sweep_points(footprint, edge=edge, reverse=True, yaw=YAW),
+    footprint, edge = hand_footprint(), hand_footprint(HEIGHT - SWEEP_CLEARANCE - EDGE_LIFT + WALL_TOP_CLEARANCE)
+    # the last look into the corners before "the box is empty": a contact with the fingertips up to 1 cm above the
+    # height at which the walls stop the hand in an empty corner is the walls' (the objects stand 3.5 cm or more)
+    corners = {f"{k}_{i + 1}": v for i, probe in enumerate(corner_probes()) for k, v in zip(("corner", "drag"), probe, strict=True)}
+    corner_margin = _closed_hand()[:, 2].max() + SWEEP_CLEARANCE + 0.01
+    return {"arm": ARM, "start": vec6(top_grasp_pose((cx, cy, approach_z), YAW)), "bottom": BOTTOM, **corners,
+            "corner_margin": float(corner_margin),
+            "sweep": sweep_points(footprint, edge=edge, edge_lift=EDGE_LIFT, yaw=YAW),
+            "alternate": sweep_points(footprint, edge=edge, edge_lift=EDGE_LIFT, reverse=True, yaw=YAW),
             "footprint": list(footprint), "height": approach_z - BOTTOM, "target": vec6(top_grasp_pose(target_at, YAW)),
             "seed": seed, "walls": walls, "yaw": YAW}
 
@@ -272,12 +325,18 @@ def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, 
 
 
 def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, jobs: int = 1,
-        max_time: float | None = None, max_attempts: int | None = None) -> dict:
-    """Every strategy ``runs`` times (seeds 100, 101, ...) on ``jobs`` processes; caps per run in simulated s and attempts."""
+        max_time: float | None = None, max_attempts: int | None = None, strategy: list[str] | None = None,
+        first_seed: int = 100) -> dict:
+    """Each of ``strategy`` (default: all) ``runs`` times (seeds ``first_seed``, +1, ...) on ``jobs`` processes;
+    caps per run in simulated s and attempts."""
     from rich.console import Console
     from rich.progress import Progress as Bar
     from rich.table import Table
 
+    chosen = tuple(strategy) if strategy else STRATEGIES
+    for s in chosen:
+        if s not in STRATEGIES:
+            raise ValueError(f"bench empty-box: unknown strategy {s!r} (one of {', '.join(STRATEGIES)})")
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     n_runs = runs if runs is not None else (1 if quick else 10)
@@ -285,7 +344,7 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     max_attempts = max_attempts if max_attempts is not None else (2 if quick else MAX_ATTEMPTS)
     max_time = max_time if max_time is not None else (30.0 if quick else MAX_TIME)
     t_start = time.perf_counter()
-    plan = [(s, 100 + k, n_objects, max_attempts, max_time) for s in STRATEGIES for k in range(n_runs)]
+    plan = [(s, first_seed + k, n_objects, max_attempts, max_time) for s in chosen for k in range(n_runs)]
     partial = out_dir / "empty_box_runs.jsonl"  # one line per finished run, for long benchmarks
     partial.write_text("")
     with Bar(transient=True) as bar:
@@ -298,13 +357,13 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
 
         results = run_all(run_once, plan, jobs, done, fresh=True)
     rows = []
-    for s in STRATEGIES:
+    for s in chosen:
         rs = [r for r in results if r["strategy"] == s]
         rows.append({"method": s, "attempts": float(np.mean([r["attempts"] for r in rs])),
                      "time": float(np.mean([r["time"] for r in rs])),
                      "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs),
                      "attempts_max": int(max(r["attempts"] for r in rs)), "time_max": float(max(r["time"] for r in rs))})
-    summary = {"benchmark": "empty_box", "robot": ROBOT, "objects": n_objects, "runs_per_strategy": n_runs,
+    summary = {"benchmark": "empty_box", "robot": ROBOT, "objects": n_objects, "runs_per_strategy": n_runs, "first_seed": first_seed,
                "quick": quick, "max_time": max_time, "max_attempts": max_attempts, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
                "runs": results}
     (out_dir / "empty_box.json").write_text(json.dumps(summary, indent=1))
@@ -315,7 +374,8 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
         md.append(f"| {r['method']} | {r['attempts']:.1f} | {r['time']:.1f} | {100 * r['success']:.0f}% | "
                   f"{r['attempts_max']} | {r['time_max']:.0f} | {t['attempts']} | {t['time']} s | {100 * t['success']:.0f}% |")
     caps = f"a run ends after {max_time:g} s of simulated time or {max_attempts} grasp attempt{'s' if max_attempts != 1 else ''}"
-    md.append(f"\n{n_objects} objects, {n_runs} runs per strategy; {caps} (the thesis had no limit).")
+    md.append(f"\n{n_objects} objects, {n_runs} runs per strategy (seeds {first_seed}-{first_seed + n_runs - 1}); {caps}"
+              " (the thesis had no limit).")
     (out_dir / "empty_box.md").write_text("\n".join(md) + "\n")
     table = Table(title=f"Empty a box (Table 3.6), {n_objects} objects x {n_runs} runs", caption=caps)
     for col in ("method", "attempts", "time (s)", "success", "most attempts", "longest (s)", "thesis"):

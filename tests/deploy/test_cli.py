@@ -167,6 +167,19 @@ def test_bench_caps_reach_the_empty_box_runs_and_are_refused_where_they_mean_not
     assert "4 s of simulated time or 1 grasp attempt " in (tmp_path / "empty_box.md").read_text()
 
 
+def test_bench_empty_box_runs_chosen_strategies_from_a_chosen_seed(tmp_path):
+    result = invoke("bench", "empty-box", "--quick", "--strategy", "vision", "--strategy", "random", "--first-seed", 7,
+                    "--max-time", 2, "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    saved = json.loads((tmp_path / "empty_box.json").read_text())
+    assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [("vision", 7), ("random", 7)]
+    assert [r["method"] for r in saved["rows"]] == ["vision", "random"] and saved["first_seed"] == 7
+    assert "(seeds 7-7)" in (tmp_path / "empty_box.md").read_text()
+    bad = invoke("bench", "empty-box", "--quick", "--strategy", "telepathy", "--out", tmp_path / "bad")
+    assert bad.exit_code == 2 and "unknown strategy 'telepathy'" in bad.output, bad.output
+    assert not (tmp_path / "bad" / "empty_box.json").exists()
+
+
 def test_bench_catch_zone_is_listed_and_refuses_the_empty_box_caps(tmp_path):
     listed = invoke("bench", "nonesuch", "--out", tmp_path)
     assert listed.exit_code == 2 and "catch-zone" in listed.output, listed.output

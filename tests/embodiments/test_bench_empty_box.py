@@ -43,15 +43,19 @@ def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:
     assert np.all(gap > 0.005) and np.all(gap < 0.02)  # clear of the bottom, below every object's top
     assert len({round(x, 4) for x in pts[:, 0]}) == 3
     assert pts[:, 1].max() - pts[:, 1].min() > 0.08  # serpentine legs along the box
-    # the closing loop along the walls: the hand below the walls' top (not its thumb above) keeps its distance
-    edge = bench_empty_box.hand_footprint(bench_empty_box.HEIGHT - bench_empty_box.SWEEP_CLEARANCE)
-    looped = np.asarray(bench_empty_box.sweep_points(fp, edge=edge)).reshape(-1, 3)
+    # the closing loop along the walls, lifted: the hand up to the clearance above the walls' top keeps its distance
+    b = bench_empty_box
+    edge = b.hand_footprint(b.HEIGHT - b.SWEEP_CLEARANCE - b.EDGE_LIFT + b.WALL_TOP_CLEARANCE)
+    looped = np.asarray(b.sweep_points(fp, edge=edge, edge_lift=b.EDGE_LIFT)).reshape(-1, 3)
     assert np.array_equal(looped[: len(pts)], pts) and len(looped) == len(pts) + 4
-    elo, ehi = bench_empty_box._world_extent(edge)
+    elo, ehi = b._world_extent(edge)
     loop = looped[len(pts):]
     assert np.all(loop[:, 1] + ehi[1] < cy + iy / 2) and np.all(loop[:, 1] + elo[1] > cy - iy / 2)
-    assert ehi[1] < hi[1] - 0.02 and loop[:, 1].max() + ehi[1] > cy + iy / 2 - 0.01  # it sweeps the +y strip
-    back = np.asarray(bench_empty_box.sweep_points(fp, edge=edge, reverse=True)).reshape(-1, 3)
+    assert np.all(loop[:, 0] + ehi[0] < cx + ix / 2) and np.all(loop[:, 0] + elo[0] > cx - ix / 2)
+    assert loop[:, 2] == pytest.approx(pts[0, 2] + b.EDGE_LIFT)
+    assert loop[:, 1].max() > pts[:, 1].max() and loop[:, 1].min() < pts[:, 1].min()  # closer to the walls
+    assert loop[:, 0].min() <= pts[:, 0].min() and loop[:, 0].max() >= pts[:, 0].max()
+    back = np.asarray(bench_empty_box.sweep_points(fp, edge=edge, edge_lift=b.EDGE_LIFT, reverse=True)).reshape(-1, 3)
     assert np.array_equal(back[: len(pts)], pts[::-1]) and len(back) == len(looped)  # the serpentine from its other end
     with pytest.raises(ValueError, match="does not fit in the box"):
         bench_empty_box.sweep_points((-0.2, -0.2, -0.1, 0.2, 0.2, 0.03))
@@ -59,7 +63,8 @@ def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:
 
 def test_the_hand_explores_with_the_grasps_yaw_inside_the_box() -> None:
     fp = bench_empty_box.hand_footprint()
-    edge = bench_empty_box.hand_footprint(bench_empty_box.HEIGHT - bench_empty_box.SWEEP_CLEARANCE)
+    b = bench_empty_box
+    edge = b.hand_footprint(b.HEIGHT - b.SWEEP_CLEARANCE - b.EDGE_LIFT + b.WALL_TOP_CLEARANCE)
     yaw = bench_empty_box.YAW
     params = bench_empty_box.task_params("exploration", 100)
     start = matrix6(tuple(params["start"]), "start")
@@ -67,7 +72,7 @@ def test_the_hand_explores_with_the_grasps_yaw_inside_the_box() -> None:
     place = matrix6(tuple(params["target"]), "target")
     assert place[:3, 0] == pytest.approx([np.cos(yaw), np.sin(yaw), 0.0], abs=1e-9)  # and the place's
     pts = np.asarray(params["sweep"]).reshape(-1, 3)
-    assert np.allclose(pts, np.reshape(bench_empty_box.sweep_points(fp, edge=edge, yaw=yaw), (-1, 3)))
+    assert np.allclose(pts, np.reshape(b.sweep_points(fp, edge=edge, edge_lift=b.EDGE_LIFT, yaw=yaw), (-1, 3)))
     (cx, cy), (ix, iy) = bench_empty_box.BOX_CENTER, bench_empty_box.INNER
     n = len(pts) - 4  # the serpentine, then the loop along the walls
     for part, extent in ((pts[:n], fp), (pts[n:], edge)):
@@ -76,6 +81,46 @@ def test_the_hand_explores_with_the_grasps_yaw_inside_the_box() -> None:
         assert np.all(part[:, 1] + lo[1] > cy - iy / 2) and np.all(part[:, 1] + hi[1] < cy + iy / 2)
     turned, upright = (np.subtract(*bench_empty_box._world_extent(fp, a)[::-1]) for a in (yaw, np.pi / 2))
     assert turned[:2] == pytest.approx(upright[1::-1])  # a quarter turn swaps the hand's x and y extents
+
+
+def test_corner_probes_come_down_into_every_corner_with_the_low_hand_inside_the_walls() -> None:
+    b = bench_empty_box
+    pts = b._closed_hand()
+    (cx, cy), (hx, hy) = b.BOX_CENTER, (b.INNER[0] / 2, b.INNER[1] / 2)
+    probes = b.corner_probes()
+    assert len(probes) == 4
+    for (sx, sy), (pose, to) in zip(((1, 1), (1, -1), (-1, -1), (-1, 1)), probes, strict=True):
+        T = matrix6(tuple(pose), "corner")
+        w = pts @ T[:3, :3].T + T[:3, 3]
+        h = w[:, 2] - w[:, 2].min()
+        low = w[h < b.HEIGHT - b.SWEEP_CLEARANCE]
+        assert np.all(np.abs(low[:, 0] - cx) < hx - 0.004) and np.all(np.abs(low[:, 1] - cy) < hy - 0.004)
+        tips = w[h <= 0.005]
+        depth = np.max(np.minimum(sx * (tips[:, 0] - cx) - (hx - 0.045), sy * (tips[:, 1] - cy) - (hy - 0.045)))
+        assert depth > 0.01, (sx, sy, depth)  # a fingertip over a 4.5 cm cube pushed into the corner
+        shift = np.array(to[:2]) - T[:2, 3]
+        assert shift == pytest.approx(-b.CORNER_DRAG * np.array([sx, sy]) / np.sqrt(2.0))  # dragged toward the middle
+
+
+def test_the_exploring_sweeps_pass_an_empty_box_without_a_contact() -> None:
+    """Both sweeps, with their loops along the walls, and the corner probes find nothing in an empty box: it is "done".
+
+    Regression: the allegro thumb's sloped face caught the +x wall's top on the loop and read as
+    an object there, a missed grasp on the wall on every sweep past it.
+    """
+    from contactflow.embodiments.primitives.runner import run_task
+    from contactflow.embodiments.tasks import load
+
+    robot = bench_empty_box.box_scene([])
+    tasks, _ = load()
+    params = bench_empty_box.task_params("exploration", 100)
+    for sweep in (params["sweep"], params["alternate"]):
+        seen: list[tuple[str, Event]] = []
+        res, _ = run_task(tasks["empty_box_exploration"], robot, {**params, "sweep": sweep, "alternate": []},
+                          library=tasks, max_time=120.0, on_progress=lambda p, seen=seen: seen.append((p.node, p.event)))
+        assert res.event is Event.SUCCESS and res.label == "done", (res, seen)
+        assert ("sweep", Event.OBJECT_NOT_FOUND) in seen and ("sweep", Event.CONTACT) not in seen, seen
+        assert all((f"probe_{k}", Event.OBJECT_NOT_FOUND) in seen for k in range(1, 5)), seen  # nothing in the corners
 
 
 def test_the_seeing_and_exploring_strategies_turn_the_hand_for_the_box_walls() -> None:

@@ -62,15 +62,18 @@ def test_exploration_pulls_a_blocked_hand_free_and_starts_over() -> None:
     runner.script("move_to", [Step(0.1, Event.SUCCESS)]).script("transport", [Step(0.1, Event.SUCCESS)])
     runner.script("down", [Step(0.1, Event.FAILURE)], [Step(0.1, Event.OBJECT_NOT_FOUND)])
     runner.script("sweep", [Step(0.1, Event.FAILURE)], [Step(0.1, Event.OBJECT_NOT_FOUND)])
+    runner.script("explore", [Step(0.1, Event.OBJECT_NOT_FOUND)])  # the corner probes' descents
     log: list = []
     engine = TaskEngine(runner, clock, library=tasks, on_progress=log.append)
     params = {"start": [0.55, -0.32, 0.9, np.pi, 0.0, 0.0], "bottom": 0.76, "sweep": [0.5, -0.4, 0.8], "target": [0.55, 0.0, 0.8]}
+    params |= {f"{k}_{i}": [0.5, -0.3, 0.9, np.pi, 0.0, 0.0][: 6 if k == "corner" else 3] for k in ("corner", "drag") for i in range(1, 5)}
     run = engine.launch(tasks["empty_box_exploration"], params)
     res = run_until_done(engine, clock, run)
     assert res.status is Status.SUCCESS and res.terminal == "done"
     entered = [p.node for p in log if p.kind is ProgressKind.ENTERED]
+    probes = [n for k in range(1, 5) for n in (f"probe_{k}", "over", "down", "rise", "nothing")]
     assert entered == ["above", "down", "free", "above", "down", "rise", "sweep", "free",
-                       "above", "down", "rise", "sweep", "done"]
+                       "above", "down", "rise", "sweep", "leave", *probes, "done"]
 
 
 def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -> None:
@@ -129,3 +132,25 @@ def test_clear_the_table_cycles_until_no_object_is_left() -> None:
     assert len(picks) == 2  # one grasp per object, then detect found nothing (Fig. 3.1c)
     poses = robot.ground_truth().object_poses
     assert all(poses[n][1, 3] > -0.02 for n in ("cyl", "cube"))  # both in the drop region
+
+
+
+def test_a_cube_in_a_corner_no_sweep_reaches_is_found_and_dragged_out() -> None:
+    from contactflow.embodiments import bench_empty_box as b
+
+    (cx, cy), (ix, iy) = b.BOX_CENTER, b.INNER
+    at = (cx + ix / 2 - 0.0245, cy + iy / 2 - 0.0245)  # 2 mm from the +x and the +y wall
+    robot = b.box_scene([box("cube", (0.045, 0.045, 0.045), xyz=(*at, b.BOTTOM + 0.0225), mass=0.1, friction=0.8)])
+    tasks, _ = load()
+    p = b.task_params("exploration", 100)
+    probe = {"arm": p["arm"], "bottom": p["bottom"], "floor_margin": p["corner_margin"]}
+    empty, _ = run_task(tasks["probe_corner"], robot, {**probe, "pose": p["corner_3"], "to": p["drag_3"]},
+                        library=tasks, max_time=60.0)
+    assert empty.event is Event.OBJECT_NOT_FOUND, empty  # the -x/-y corner: the walls' top stopped the hand
+    res, _ = run_task(tasks["probe_corner"], robot, {**probe, "pose": p["corner_1"], "to": p["drag_1"]},
+                      library=tasks, max_time=90.0)
+    assert res.label == "dragged", res
+    T = robot.ground_truth().object_poses["cube"]
+    gaps = np.array([cx + ix / 2 - T[0, 3], cy + iy / 2 - T[1, 3]]) - 0.0225
+    assert np.all(gaps > 0.015), gaps  # out of the corner, within reach of the sweep (maybe tipped on a side)
+    assert T[2, 3] == pytest.approx(b.BOTTOM + 0.0225, abs=0.004)  # on the bottom, not on the hand or a wall
