@@ -48,7 +48,8 @@ CORNER_DRAG = 0.06  # m, how far the hand drags an object it found in a corner t
 # timeout ... the end of the whole process is determined by a human supervisor", §3.4.3), and its random strategy's
 # last object alone took 39 attempts of standard deviation (Fig. 3.27). Caps of 1200 s and 90 attempts stopped 3 of
 # the 30 runs of the 2026-11-24 bench that went on to empty the box by 1351 s. In the seeded bench of 2026-11-25 the
-# longest run took 1351 s (exploration seed 108); exploration seeds 111, 118 and 119 still held an object at 3600 s
+# longest run took 1351 s (exploration seed 108); of exploration seeds 110-119, which all empty since the corner
+# probes, seed 111 took 3435 s
 MAX_TIME = 3600.0  # s of simulated time per run
 MAX_ATTEMPTS = 300  # grasp attempts per run
 YAW = 0.0  # rad, top-grasp yaw away from the walls: an object at the box centre was held after the lift 4/4 (0) vs 1/4 (pi/2)
