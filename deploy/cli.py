@@ -20,6 +20,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.params import ParamError
 from contactflow.nodes.session import default_site, open_tool_session
 from contactflow.nodes.wire import WireError, decode, decode_any, to_builtins
 
@@ -246,7 +247,7 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
     out.mkdir(parents=True, exist_ok=True)
     try:
         mod.run(out, quick=quick, **extra)
-    except ValueError as exc:
+    except ParamError as exc:  # a refused option value; other errors keep their traceback
         console.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
     console.print(f"results in {out}")

@@ -334,10 +334,12 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     from rich.progress import Progress as Bar
     from rich.table import Table
 
+    from contactflow.nodes.params import ParamError
+
     chosen = tuple(strategy) if strategy else STRATEGIES
     for s in chosen:
         if s not in STRATEGIES:
-            raise ValueError(f"bench empty-box: unknown strategy {s!r} (one of {', '.join(STRATEGIES)})")
+            raise ParamError(f"bench empty-box: unknown strategy {s!r} (one of {', '.join(STRATEGIES)})")
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     n_runs = runs if runs is not None else (1 if quick else 10)
