@@ -41,6 +41,7 @@ SWEEP_CLEARANCE = 0.008  # m, the exploring hand's distance from the walls and a
 # The allegro thumb slopes down toward the fingertips: measured on vertices alone it seemed to pass over the walls,
 # and it caught the +x wall's top edge on every loop past it, an "object" there and a missed grasp on the wall each
 # time (exploration seeds 111, 118 and 119 still held an object after an hour)
+APPROACH_HEIGHT = 0.16  # m above the bottom: where grasp approaches and corner probes start
 EDGE_LIFT = 0.01
 WALL_TOP_CLEARANCE = 0.008
 CORNER_DRAG = 0.06  # m, how far the hand drags an object it found in a corner toward the box centre
@@ -154,7 +155,7 @@ def corner_probes(clearance: float = 0.005) -> tuple[tuple[list[float], list[flo
             if best is None or depth > best[0]:
                 best = (depth, float(yaw), float(ex), float(ey))
         _, yaw, ex, ey = best
-        z = BOTTOM + 0.16
+        z = BOTTOM + APPROACH_HEIGHT
         inward = np.array([-sx, -sy]) / np.sqrt(2.0)
         out.append((vec6(top_grasp_pose((cx + ex, cy + ey, z), yaw)),
                     [cx + ex + CORNER_DRAG * inward[0], cy + ey + CORNER_DRAG * inward[1], z]))
@@ -221,7 +222,7 @@ def task_params(strategy: str, seed: int) -> dict:
     cx, cy = BOX_CENTER
     walls = [cx - INNER[0] / 2, cy - INNER[1] / 2, cx + INNER[0] / 2, cy + INNER[1] / 2]
     target_at = (TARGET_XY[0], TARGET_XY[1], TABLE_Z + 0.2)
-    approach_z = BOTTOM + 0.16
+    approach_z = BOTTOM + APPROACH_HEIGHT
     if strategy == "vision":
         region = [walls[0] + 0.005, walls[1] + 0.005, BOTTOM - 0.005, walls[2] - 0.005, walls[3] - 0.005, BOTTOM + 0.2]
         return {"arm": ARM, "region": region, "bottom": BOTTOM, "target": vec6(top_grasp_pose(target_at)), "seed": seed,
