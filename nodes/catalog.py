@@ -5,4 +5,5 @@ CATALOG = {
     "lowpass": "contactflow.nodes.builtin.lowpass:LowPass",
     "scale": "contactflow.nodes.builtin.scale:Scale",
     "threshold_watch": "contactflow.nodes.builtin.threshold_watch:ThresholdWatch",
+    "task": "contactflow.nodes.task_module:TaskModule",
 }

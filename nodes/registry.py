@@ -8,12 +8,13 @@ looked up next to the configuration file (``contactflow new`` writes the module 
 
 from __future__ import annotations
 
+import functools
 import importlib
 import sys
 import threading
 from pathlib import Path
 
-from contactflow.nodes.module import Module
+from contactflow.nodes.module import Layer, Module
 
 AREAS = ("nodes", "embodiments", "embodiments.primitives", "fusion", "recognition", "abstraction", "deploy")
 
@@ -37,6 +38,12 @@ def catalog() -> dict[str, str]:
                 raise UnknownModuleType(f"module type {name!r} registered twice: {out[name]} and {path}")
             out[name] = path
     return out
+
+
+@functools.cache
+def layer_types(layer: Layer) -> frozenset[str]:
+    """Short names of the registered module types of ``layer`` (imports every registered type, once)."""
+    return frozenset(name for name in catalog() if resolve(name).layer is layer)
 
 
 _PATH_LOCK = threading.Lock()

@@ -17,7 +17,7 @@ import yaml
 
 from contactflow.nodes.messages import Command, EventMsg, ParamValue
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
-from contactflow.nodes.status import Event, Status
+from contactflow.nodes.status import STATUS_EVENT, Event, Status
 from contactflow.nodes.taskengine import Progress, RunnerEvent, TaskEngine
 from contactflow.nodes.taskfile import load_tasks
 from contactflow.nodes.taskgraph import TaskError
@@ -156,7 +156,7 @@ class TaskModule(Module):
         self.io.publish("progress", progress_msg(p))
 
     def start(self) -> None:
-        tasks, main = load_tasks(self.params.task_file, primitives=None)
+        tasks, main = load_tasks(self.params.task_file)
         name = self.params.task or main
         if name not in tasks:
             raise TaskError([f"{self.params.task_file}: no task {name!r} (tasks: {sorted(tasks)})"])
@@ -173,7 +173,8 @@ class TaskModule(Module):
         res = self.engine.result(self.run_id)
         if res is None:
             return Status.RUNNING
-        self.io.emit(res.event, detail=f"{res.label}: {res.detail}" if res.detail else res.label)
+        if res.event is not STATUS_EVENT.get(res.status):  # the host raises the status's own event
+            self.io.emit(res.event, detail=f"{res.label}: {res.detail}" if res.detail else res.label)
         return res.status
 
     def stop(self) -> None:

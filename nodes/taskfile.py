@@ -37,7 +37,7 @@ import yaml
 
 from contactflow.nodes.status import Event
 from contactflow.nodes.taskgraph import (
-    KNOWN_PRIMITIVES,
+    REGISTERED,
     REQUIRED,
     Edge,
     Helper,
@@ -291,7 +291,7 @@ def parse_tasks(text: str, file: str = "<memory>") -> tuple[dict[str, TaskGraph]
 
 
 def load_tasks(source: str | Path, text: str | None = None,
-               primitives: Collection[str] | None = KNOWN_PRIMITIVES) -> tuple[dict[str, TaskGraph], str]:
+               primitives: Collection[str] | None = REGISTERED) -> tuple[dict[str, TaskGraph], str]:
     """Load and validate a task file (``text`` given: ``source`` only names it)."""
     file = str(source)
     if text is None:

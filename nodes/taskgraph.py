@@ -23,12 +23,28 @@ from typing import Any
 
 from contactflow.nodes.status import Event
 
-KNOWN_PRIMITIVES = frozenset({
-    "robust_grasp", "naive_grasp", "close_until_force", "close_until_stall", "transport", "place", "release",
-    "slide", "explore", "unscrew", "hold", "lift", "push", "pull", "touch", "move_to",
-    "detect_objects", "place_location", "wait_event",
-})
-"""The concrete primitive vocabulary (Tables 3.1-3.2, §6.3.6) used when no registry is given."""
+
+class _Registered:
+    """The primitive types of the module registry (``contactflow.nodes.registry``), looked up when first needed."""
+
+    def __repr__(self) -> str:
+        return "REGISTERED"
+
+
+REGISTERED: Any = _Registered()
+"""Default of ``primitives``: the registered primitive types; helpers may also be registered services
+(event sources, thesis §6.1.2). None: any type."""
+
+
+def _known_types(primitives: Collection[str] | None) -> tuple[Collection[str] | None, Collection[str] | None]:
+    """(types a node may run, types a helper may run)."""
+    if primitives is REGISTERED:
+        from contactflow.nodes.module import Layer
+        from contactflow.nodes.registry import layer_types
+
+        return layer_types(Layer.PRIMITIVE), layer_types(Layer.PRIMITIVE) | layer_types(Layer.SERVICE)
+    return primitives, primitives
+
 
 FAULTS = frozenset({Event.FAILURE, Event.ERROR, Event.TIMEOUT, Event.HARDWARE_FAILURE})
 """Events that end a node through its implicit fault exit when no edge names them."""
@@ -320,7 +336,8 @@ def _check_refs(task: TaskGraph, node: Node, value: Any, issues: list[str]) -> N
 
 
 def _check_runnable(task: TaskGraph, node: Node, primitives: Collection[str] | None,
-                    tasks: Mapping[str, TaskGraph], issues: list[str]) -> None:
+                    tasks: Mapping[str, TaskGraph], issues: list[str],
+                    watchers: Collection[str] | None) -> None:
     if node.kind is NodeKind.PRIMITIVE:
         if not node.type:
             issues.append(f"{node.where}: node {node.id!r} names no primitive type")
@@ -341,10 +358,10 @@ def _check_runnable(task: TaskGraph, node: Node, primitives: Collection[str] | N
             if b.id in seen:
                 issues.append(f"{b.where}: duplicate branch name {b.id!r} in {node.id!r}")
             seen.add(b.id)
-            _check_runnable(task, b, primitives, tasks, issues)
+            _check_runnable(task, b, primitives, tasks, issues, watchers)
             _check_refs(task, b, b.params, issues)
     for h in node.helpers:
-        if primitives is not None and h.type not in primitives:
+        if watchers is not None and h.type not in watchers:
             issues.append(f"{h.where}: helper {h.name!r} of node {node.id!r}: unknown primitive "
                           f"type {h.type!r}")
         _check_refs(task, node, h.params, issues)
@@ -352,13 +369,15 @@ def _check_runnable(task: TaskGraph, node: Node, primitives: Collection[str] | N
         issues.append(f"{node.where}: node {node.id!r}: timeout must be > 0 s, got {node.timeout}")
 
 
-def validate(task: TaskGraph, primitives: Collection[str] | None = KNOWN_PRIMITIVES,
+def validate(task: TaskGraph, primitives: Collection[str] | None = REGISTERED,
              tasks: Mapping[str, TaskGraph] | None = None) -> None:
     """Raise :class:`TaskError` listing every problem of ``task`` (with file:line).
 
-    ``primitives`` is the set of registered primitive types (None: any); ``tasks`` the
+    ``primitives`` is the set of primitive types nodes and helpers may run (default: the
+    registry's, see :data:`REGISTERED`; None: any); ``tasks`` the
     tasks that nested nodes may name (nesting must not be recursive).
     """
+    primitives, watchers = _known_types(primitives)
     tasks = dict(tasks or {})
     issues: list[str] = []
     if not _NAME.match(task.name):
@@ -370,7 +389,7 @@ def validate(task: TaskGraph, primitives: Collection[str] | None = KNOWN_PRIMITI
             issues.append(f"{node.where}: node key {key!r} differs from its id {node.id!r}")
         if not _NAME.match(node.id):
             issues.append(f"{node.where}: node name {node.id!r} is not an identifier")
-        _check_runnable(task, node, primitives, tasks, issues)
+        _check_runnable(task, node, primitives, tasks, issues, watchers)
         _check_refs(task, node, node.params, issues)
         helper_names = [h.name for h in node.helpers]
         for h in node.helpers:
@@ -460,7 +479,7 @@ def _nesting_cycles(task: TaskGraph, tasks: Mapping[str, TaskGraph]) -> list[str
 
 
 def validate_library(tasks: Mapping[str, TaskGraph],
-                     primitives: Collection[str] | None = KNOWN_PRIMITIVES) -> None:
+                     primitives: Collection[str] | None = REGISTERED) -> None:
     """Validate every task of a library; nested nodes may name any task in it."""
     issues: list[str] = []
     for t in tasks.values():

@@ -263,6 +263,56 @@ def test_a_sim_clock_node_steps_its_modules_on_the_clock_of_the_key_space(tmp_pa
         assert stop_process(proc) == 0
 
 
+PARALLEL_WATCH = """
+nodes:
+  both:
+    parallel:
+      - {name: low, primitive: threshold_watch, params: {threshold: 0.3}}
+      - {name: high, primitive: threshold_watch, params: {threshold: 0.9}}
+    until: all
+  done: {terminal: success}
+  failed: {terminal: failure}
+edges:
+  - {from: both, to: done, on: success}
+  - {from: both, to: failed, on: [[failure, timeout]]}
+"""
+
+
+def test_a_task_module_runs_parallel_branches_on_the_modules_of_its_node(tmp_path):
+    # the task layer in a real node: each branch runs on its own module of the type, commanded by control
+    # queries, and the task ends on the events the modules publish
+    site = "ptask"
+    ks = KeySpace(site)
+    (tmp_path / "watch.yaml").write_text(PARALLEL_WATCH)
+    watch = {"type": "threshold_watch", "inputs": {"in": "src.signal"}, "params": {"timeout": 20.0}}
+    proc, tool = single_node(tmp_path, site, [
+        {"name": "src", "type": "signal_source", "params": {"rate_hz": 50, "frequency": 0.5}},
+        {"name": "threshold_watch", **watch},
+        {"name": "threshold_watch_2", **watch},
+        {"name": "task", "type": "task", "inputs": {"events": ks.events()},
+         "params": {"task_file": str(tmp_path / "watch.yaml")}},
+    ])
+    events: list[EventMsg] = []
+    sub = tool.subscribe(ks.events(), lambda k, p: events.append(decode(p, EventMsg, k)))
+    try:
+        reply = decode(tool.query(ks.control("*", "solo", "task"), encode(ControlRequest(cmd=Command.RUN)))[0][1],
+                       ControlReply)
+        assert reply.ok and reply.state == Status.RUNNING
+        assert wait_for(lambda: any(e.module.endswith("/task") for e in events), timeout=20)
+        by = {m: [e for e in events if e.module.endswith("/" + m)] for m in ("threshold_watch", "threshold_watch_2", "task")}
+        assert [e.event for e in by["task"]] == [Event.SUCCESS]
+        low, high = (next(e for e in by[m] if e.event is Event.CONTACT) for m in ("threshold_watch", "threshold_watch_2"))
+        assert abs(low.values["value"]) >= 0.3 and abs(high.values["value"]) >= 0.9
+        for module, threshold in (("threshold_watch", 0.3), ("threshold_watch_2", 0.9)):  # each ran its branch's params
+            desc = tool.query(ks.control("*", "solo", module), encode(ControlRequest(cmd=Command.DESCRIBE)))
+            assert decode(desc[0][1], ControlReply).params["threshold"] == threshold
+        assert low.hdr.t_wall <= high.hdr.t_wall <= by["task"][0].hdr.t_wall  # until: all
+    finally:
+        sub.close()
+        tool.close()
+        assert stop_process(proc) == 0
+
+
 ARM_MODULE = '''"""A primitive sending joint commands to the shared resource ``arm``."""
 
 import numpy as np

@@ -59,7 +59,16 @@ def test_unreachable_dead_end_and_no_terminal():
                   "bad.yaml:7:", "'orphan' is unreachable")
     assert "dead end" in msg
     refused(GOOD.replace("done: {terminal: success}", "done: {primitive: hold}"),
-            "no terminal state")
+            "bad.yaml:1: task 'bad' has no terminal state")
+
+
+def test_primitive_types_come_from_the_module_registry():
+    # a primitive registered by another area than the embodiments' is as good as theirs
+    tasks, _ = load_tasks("watch.yaml", GOOD.replace("wait_event", "threshold_watch"))
+    assert tasks["watch"].nodes["grasp"].helpers[0].type == "threshold_watch"
+    # a registered module type of another layer is no primitive
+    refused(GOOD.replace("move_to", "lowpass"), "bad.yaml:2:", "unknown primitive type 'lowpass'")
+    assert load_tasks("any.yaml", GOOD.replace("move_to", "teleport"), primitives=None)[1] == "any"
 
 
 def test_yaml_errors_and_structure_errors_have_lines():
