@@ -306,6 +306,34 @@ class HandHandle(_Commanded):
                 self._still = 0.0
 
 
+class HeadHandle:
+    """The pan-tilt head that carries the cameras: joint state, gaze Jacobians and joint targets (see API.md)."""
+
+    def __init__(self, robot: SimRobot, joints: tuple[str, ...]) -> None:
+        self.robot = robot
+        self.joints = tuple(joints)
+        self._sidx = robot.art.indices(self.joints)
+        self._kidx = robot.kin.q_index(self.joints)  # fixed base, nq == nv: also the Jacobian's columns
+        self.lower = robot.art.lower[self._sidx].copy()
+        self.upper = robot.art.upper[self._sidx].copy()
+
+    def q(self) -> np.ndarray:
+        return self.robot._q_s[self._sidx].copy()
+
+    def jacobian(self, frame: str) -> np.ndarray:
+        """6 x len(joints) Jacobian of ``frame`` (linear, then angular velocity, world axes) in the head joints."""
+        self.robot._sync_kin()
+        return self.robot.kin.jacobian(frame)[:, self._kidx]
+
+    def move_joints(self, q: np.ndarray) -> None:
+        """Joint position targets, clipped to the joint limits; held until the next one."""
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (len(self.joints),):
+            raise ValueError(f"head: move_joints needs {len(self.joints)} values, got shape {q.shape}")
+        r = self.robot
+        r.mixer.submit("head", self.joints, np.clip(q, self.lower, self.upper), None, 1.0, r.time)
+
+
 class SimRobot:
     """One robot in a :class:`World`, with controllers, sensors and fault handling."""
 
@@ -326,6 +354,7 @@ class SimRobot:
         self.mixer.hold(self._q_s)
         self._arms = {a.name: ArmHandle(self, a) for a in self.spec.arms}
         self._hands = {h.name: HandHandle(self, h) for h in self.spec.hands}
+        self.head = HeadHandle(self, self.spec.head_joints) if self.spec.head_joints else None
         self._ft_of_arm: dict[str, WristFT] = {}
         for a in self.spec.arms:
             if a.ft:

@@ -53,6 +53,7 @@ class Robot(Protocol):
 
     spec: Any
     failed: bool
+    head: Any  # HeadHandle of a robot with a pan-tilt head, else None
 
     @property
     def time(self) -> float: ...

@@ -22,4 +22,5 @@ CATALOG = {
     "detect_objects": f"{_P}.detect_objects:DetectObjects",
     "place_location": f"{_P}.place_location:PlaceLocation",
     "wait_event": f"{_P}.wait_event:WaitEvent",
+    "track": f"{_P}.track:Track",
 }

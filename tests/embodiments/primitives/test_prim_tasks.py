@@ -9,6 +9,7 @@ from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, run_task
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.tasks import load
+from contactflow.embodiments.testing import gaze_deg
 from contactflow.embodiments.world import World, WorldParams, box, cylinder
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.taskengine import ProgressKind
@@ -19,7 +20,7 @@ def test_task_file_loads_every_thesis_task() -> None:
     tasks, main = load()
     assert main == "pick_and_place"
     assert {"pick", "place", "pick_and_place", "clear_table", "box_attempt", "empty_box_vision",
-            "empty_box_random", "empty_box_exploration"} <= set(tasks)
+            "empty_box_random", "empty_box_exploration", "track_object", "look_and_pick_and_place"} <= set(tasks)
     with pytest.raises(TaskError, match="needs parameter 'approach'"):
         from contactflow.nodes.taskgraph import bind_plan
 
@@ -49,6 +50,27 @@ def test_exploration_rises_off_the_object_it_came_down_on_before_approaching_it(
     assert rise.params["target"][2] >= 0.1 and not any(rise.params["target"][k] for k in (0, 1, 3, 4, 5))
     for event in (Event.SUCCESS, Event.FAILURE):
         assert [e.dest for e in g.edges if e.origin == rise.id and event in e.events] == ["aim_down"]
+
+
+def test_track_object_localizes_the_object_again_when_it_is_lost() -> None:
+    from contactflow.nodes.taskengine import TaskEngine
+    from contactflow.nodes.testing_tasks import FakeClock, FakeRunner, Step, run_until_done
+
+    tasks = load()[0]
+    clock = FakeClock()
+    runner = FakeRunner(clock)
+    seen = {"cx": 0.6, "cy": 0.2, "cz": 0.8}
+    runner.script("detect_objects", [Step(0.1, Event.SUCCESS, seen)], [Step(0.1, Event.FAILURE)],
+                  [Step(0.1, Event.SUCCESS, seen | {"cx": 0.5})])
+    runner.script("track", [Step(2.0, Event.OBJECT_LOST)], [Step(1.0, Event.SUCCESS)])
+    runner.script("wait_event", [Step(0.5, Event.SUCCESS)])
+    log: list = []
+    engine = TaskEngine(runner, clock, library=tasks, on_progress=log.append)
+    res = run_until_done(engine, clock, engine.launch(tasks["track_object"], {"region": [0, 0, 0, 1, 1, 1]}))
+    assert res.status is Status.SUCCESS
+    entered = [p.node for p in log if p.kind is ProgressKind.ENTERED]
+    assert entered == ["localize", "follow", "localize", "pause", "localize", "follow", "done"]
+    assert [p["target"] for _, t, p in runner.starts if t == "track"] == [[0.6, 0.2, 0.8], [0.5, 0.2, 0.8]]
 
 
 def test_exploration_pulls_a_blocked_hand_free_and_starts_over() -> None:
@@ -94,7 +116,8 @@ def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -
     assert reach + 0.02 < standoff  # at least 2 cm of room between the fingertips and the object's top
 
 
-def test_pick_and_place_runs_end_to_end() -> None:
+def test_pick_and_place_runs_end_to_end_while_the_head_tracks_the_object() -> None:
+    # Fig. 6.3: the pick and place task and the tracking task (Fig. 6.2) run side by side
     world = World(WorldParams())
     world.add_table()
     world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
@@ -102,17 +125,25 @@ def test_pick_and_place_runs_end_to_end() -> None:
     tasks, main = load()
     target = pose6(top_grasp_pose((0.55, -0.12, 0.93)))
     visited: list[str] = []
-    res, engine = run_task(tasks[main], robot, {"target": [target[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
-                           library=tasks, max_time=60.0, runner=LocalPrimitiveRunner(robot),
-                           on_progress=lambda p: visited.append(p.label) if p.kind is ProgressKind.ENTERED else None)
-    assert res.status is Status.SUCCESS, (res, visited)
-    assert res.event is Event.SUCCESS
-    for node in ("detect", "approach", "grasp", "lift", "carry", "put", "open", "retreat"):
+    gaze: dict[str, float] = {"start": gaze_deg(robot, "cyl")}
+
+    def entered(p) -> None:
+        if p.kind is ProgressKind.ENTERED:
+            visited.append(p.label)
+            gaze[p.label] = gaze_deg(robot, "cyl")
+
+    res, engine = run_task(tasks["look_and_pick_and_place"], robot,
+                           {"target": [target[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
+                           library=tasks, max_time=60.0, runner=LocalPrimitiveRunner(robot), on_progress=entered)
+    assert res.status is Status.SUCCESS and res.terminal == "done", (res, visited)
+    for node in ("localize", "follow", "detect", "approach", "grasp", "lift", "carry", "put", "open", "retreat"):
         assert node in visited
+    # the head turned onto the object and stayed on it while the arm carried it 18 cm
+    assert gaze["start"] > 10.0 and max(gaze[n] for n in ("grasp", "lift", "carry", "put", "retreat")) < 6.0, gaze
+    assert not engine.runner.active, "the tracking branch is stopped with the pick and place"
     obj = robot.ground_truth().object_poses["cyl"]
     assert obj[2, 3] == pytest.approx(0.81, abs=0.015)  # standing on the table again
     assert np.hypot(obj[0, 3] - 0.55, obj[1, 3] + 0.3) > 0.1  # somewhere else
-    assert engine.results_of(res.run)["detect"]["count"] == 1
 
 
 def test_clear_the_table_cycles_until_no_object_is_left() -> None:
