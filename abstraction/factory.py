@@ -304,11 +304,8 @@ class Factory:
         return p, []
 
     def corrections(self) -> tuple[str, ...]:
-        """Robust-grasp corrections the hand allows (§3.4: eq. 3.1, 3.2, finger lost, force)."""
-        out = ["alignment", "sliding", "force_adaptation"]
-        if self.robot.hand is HandKind.MULTI_FINGER:
-            out.insert(2, "finger_lost")
-        return tuple(out)
+        """Robust-grasp corrections the hand allows (§3.4: eq. 3.1, 3.2, finger lost, force): its capabilities."""
+        return self.robot.grasp_corrections
 
     def release(self, kind: AbstractPrimitive, concrete: str, state: AtdState, atd: Atd,
                 notes: list[str]) -> tuple[dict[str, Any], list[Helper]]:

@@ -71,6 +71,7 @@ class RobotProfile:
     wrench_noise: float = 0.2  # N, standard deviation of the wrist force reading
     speed: float = 0.1  # m/s, nominal Cartesian speed of the end effector
     factory: str = ""  # name of the factory to use (default: the robot's name)
+    grasp_corrections: tuple[str, ...] = ()  # robust-grasp corrections the hand allows (registry capabilities)
     task_frame: TaskFrame = WORKCELL  # where the ATD's coordinates sit in this robot's world
 
     def has(self, *sensors: Sensor) -> bool:
@@ -132,7 +133,7 @@ def profile_of(spec: RobotSpec) -> RobotProfile:
         sensors=frozenset(sensors), capabilities=extras.capabilities,
         workspace=Workspace(caps.workspace_min, caps.workspace_max), hand_shapes=extras.hand_shapes,
         max_payload=caps.payload, max_opening=extras.max_opening, wrench_noise=extras.wrench_noise,
-        speed=extras.speed,
+        speed=extras.speed, grasp_corrections=caps.grasp_corrections,
     )
 
 

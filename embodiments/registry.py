@@ -111,6 +111,10 @@ class CameraSpec:
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
+GRASP_CORRECTIONS = ("alignment", "sliding", "finger_lost", "force_adaptation")
+"""The robust grasp's corrections (§3.3.1): eq. 3.1, eq. 3.2, finger lost (Fig. 3.2 F1/F3), force adaptation."""
+
+
 @dataclass(frozen=True)
 class Capabilities:
     """What the embodiment can do: abstract primitives and a reachable workspace box."""
@@ -119,6 +123,8 @@ class Capabilities:
     workspace_min: tuple[float, float, float]  # m, world frame
     workspace_max: tuple[float, float, float]
     payload: float = 1.0  # kg
+    grasp_corrections: tuple[str, ...] = GRASP_CORRECTIONS
+    """Robust-grasp corrections the hands allow (thesis Fig. 3.2); ``finger_lost`` needs a multi-finger hand."""
 
 
 @dataclass(frozen=True)
@@ -201,6 +207,15 @@ class RobotSpec:
                     raise RegistryError(f"{self.name}.hands[{h.name}].preshapes[{key}] has {len(vals)} values for {len(h.joints)} joints")
         if len(self.head_home) != len(self.head_joints):
             raise RegistryError(f"{self.name}.head_home does not match head_joints")
+        if self.capabilities is not None:
+            corrections = self.capabilities.grasp_corrections
+            unknown = sorted(set(corrections) - set(GRASP_CORRECTIONS))
+            if unknown:
+                raise RegistryError(f"{self.name}.capabilities.grasp_corrections: unknown {unknown} "
+                                    f"(known: {list(GRASP_CORRECTIONS)})")
+            if "finger_lost" in corrections and not any(h.kind == "multi_finger" for h in self.hands):
+                raise RegistryError(f"{self.name}.capabilities.grasp_corrections: finger_lost needs a multi-finger "
+                                    "hand (a parallel gripper has no external finger to lose)")
 
 
 _ROBOTS = {

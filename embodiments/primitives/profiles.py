@@ -42,9 +42,13 @@ PROFILES: dict[str, dict[str, dict[str, object]]] = {
         # everywhere 31/100
         **{name: {"wall_side": WALL_SIDE["tombatossals"]} for name in ("detect_objects", "place_location")},
     },
-    # parallel gripper: no finger-lost correction (two fingers, no external finger to lose)
+    # parallel grippers: no finger-lost correction (two fingers, no external finger to lose; the robust grasp
+    # refuses it on a robot whose capabilities.grasp_corrections leave it out)
     "melfa": {
         "robust_grasp": {"torque_threshold": 0.1, "finger_lost": False},
+    },
+    "baxter": {
+        "robust_grasp": {"finger_lost": False},
     },
 }
 """Robot name -> primitive type -> parameter overrides applied before the task's own parameters."""

@@ -8,8 +8,9 @@ from enum import StrEnum
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from contactflow.embodiments.primitives.base import Capability, Primitive
+from contactflow.embodiments.primitives.base import Capability, Primitive, PrimitiveError
 from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups, held_fingers
+from contactflow.embodiments.registry import GRASP_CORRECTIONS
 from contactflow.nodes.status import Event
 
 
@@ -135,6 +136,7 @@ class RobustGrasp(Primitive):
         x = np.array([1.0, 0.0, 0.0]) - self.dir[0] * self.dir
         self.xdir = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-6 else np.array([0.0, 1.0, 0.0])
         self.spec = self.r.spec.hand(self.hand_name)
+        self._check_corrections()
         self.groups = finger_groups(self.spec)
         self.closed = np.asarray(self.spec.preshapes["closed"], dtype=np.float64)
         if len(p.search_offsets) % 2:
@@ -327,11 +329,23 @@ class RobustGrasp(Primitive):
         self._probe = (self.lateral, offset)
         return False
 
+    def _check_corrections(self) -> None:
+        """Refuse a correction the embodiment does not allow (its ``capabilities.grasp_corrections``)."""
+        p = self.params
+        caps = getattr(self.r.spec, "capabilities", None)
+        allowed = set(caps.grasp_corrections if caps is not None else GRASP_CORRECTIONS)
+        if self.spec.kind != "multi_finger":
+            allowed.discard("finger_lost")
+        for name in ("alignment", "sliding", "finger_lost"):
+            if getattr(p, name) and name not in allowed:
+                raise PrimitiveError(f"{self.name}: params.{name}: {self.r.spec.name}'s {self.spec.kind} hand "
+                                     f"{self.hand_name!r} allows only {sorted(allowed)} (capabilities.grasp_corrections)")
+
     def _finger_lost(self) -> bool:
         """Fig. 3.2 F1/F3: one external finger without contact → open, shift toward the contacts, retry."""
         p = self.params
         pads = [pd.name for pd in self.spec.pads]
-        if not (p.finger_lost and self.spec.kind == "multi_finger" and len(pads) >= 3
+        if not (p.finger_lost and len(pads) >= 3
                 and self.regrasps < p.max_regrasps):
             return False
         # a finger touches when its pad senses or the object holds it open (joint configuration)

@@ -59,6 +59,7 @@ SPEC = RobotSpec(
         workspace_min=(0.4, -0.9, 0.75),
         workspace_max=(1.1, 0.9, 1.4),
         payload=2.2,
+        grasp_corrections=("alignment", "sliding", "force_adaptation"),  # parallel grippers: no finger to lose
     ),
     computers=(Computer("baxter_pc", "arm controller, virtual F/T", ("joint_state_publisher", "joint_command_subscriber", "ft")),
                Computer("workstation", "vision, fusion, tasks", ("camera", "ground_truth"))),

@@ -35,6 +35,7 @@ SPEC = RobotSpec(
         workspace_min=(0.2, -0.5, 0.75),
         workspace_max=(0.75, 0.5, 1.3),
         payload=3.0,
+        grasp_corrections=("alignment", "sliding", "force_adaptation"),  # parallel gripper: no finger to lose
     ),
     computers=(Computer("control", "arm, gripper, F/T, tactile", ("joint_state_publisher", "joint_command_subscriber", "ft", "tactile")),),
     base_xyz=(0.0, 0.0, 0.75),

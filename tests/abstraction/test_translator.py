@@ -53,6 +53,8 @@ def test_factories_choose_their_own_primitives_and_parameters():
     # Table 7.3 / 7.4 mappings
     assert tomb["grasp_object"].type == "robust_grasp"
     assert "finger_lost" in tomb["grasp_object"].params["corrections"]
+    assert factory_for(MELFA).corrections() == factory_for(BAXTER).corrections() == (
+        "alignment", "sliding", "force_adaptation")  # their capabilities: parallel grippers
     assert tomb["approach"].type == "transport" and tomb["put_down"].type == "place"
     assert melfa["grasp_object"].type == "close_until_force"
     assert melfa["approach"].type == "move_to" and melfa["put_down"].type == "transport"

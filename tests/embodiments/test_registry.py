@@ -56,6 +56,21 @@ def test_unknown_robot_and_names_raise_clearly():
         registry.get("melfa").arm("middle")
 
 
+def test_grasp_corrections_are_capabilities_and_finger_lost_needs_fingers():
+    from dataclasses import replace
+
+    assert "finger_lost" in registry.get("tombatossals").capabilities.grasp_corrections
+    for name in ("melfa", "baxter"):  # parallel grippers
+        spec = registry.get(name)
+        assert spec.capabilities.grasp_corrections == ("alignment", "sliding", "force_adaptation"), name
+        claims = replace(spec, capabilities=replace(spec.capabilities, grasp_corrections=registry.GRASP_CORRECTIONS))
+        with pytest.raises(registry.RegistryError, match=f"{name}.capabilities.grasp_corrections: finger_lost needs"):
+            claims.validate()
+    typo = replace(registry.get("tombatossals").capabilities, grasp_corrections=("alignement",))
+    with pytest.raises(registry.RegistryError, match=r"unknown \['alignement'\]"):
+        replace(registry.get("tombatossals"), capabilities=typo).validate()
+
+
 def test_composition_errors_name_the_part():
     bad = Composition("x", parts=(Part("panda_description/urdf/panda.urdf", drop_links=("no_such_link",)),))
     with pytest.raises(UrdfError, match="panda.urdf: drop_links names 'no_such_link'"):

@@ -198,7 +198,19 @@ def test_robust_grasp_finger_lost_correction_fires_and_shifts_toward_the_contact
     runner.stop("g")
 
 
-def test_parallel_gripper_profile_has_no_finger_lost() -> None:
-    from contactflow.embodiments.primitives.profiles import profile
+def test_a_parallel_gripper_refuses_the_finger_lost_correction() -> None:
+    import pytest
 
-    assert profile("melfa")["robust_grasp"]["finger_lost"] is False
+    from contactflow.embodiments.primitives.base import PrimitiveError
+
+    robot = SimRobot(World(WorldParams()), "melfa")
+    runner = LocalPrimitiveRunner(robot)
+    with pytest.raises(PrimitiveError, match=r"g: params.finger_lost: melfa's parallel hand 'gripper' allows only "
+                                             r"\['alignment', 'force_adaptation', 'sliding'\]"):
+        RobustGrasp("g", RobustGrasp.Params(finger_lost=True)).bind(robot).start()
+    # the embodiment's profile leaves it out: the same primitive through the runner starts and runs
+    runner.start("g", "robust_grasp", {"max_distance": 0.02})
+    robot.step(0.1)
+    runner.advance()
+    assert "g" in runner.active and not [e for e in runner.poll() if e.event is Event.ERROR]
+    runner.stop("g")
