@@ -24,6 +24,8 @@ def test_bench_empty_box_quick(tmp_path) -> None:
     assert saved["benchmark"] == "empty_box" and len(saved["runs"]) == 3
     assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [(s, 100) for s in bench_empty_box.STRATEGIES]
     assert all(r["time"] <= saved["max_time"] + 1.0 for r in saved["runs"])
+    vision = next(r for r in saved["runs"] if r["strategy"] == "vision")
+    assert vision["success"] and vision["left"] == 0, vision  # one object in view: seen, grasped and put out
     # one run per strategy: its worst case is that run
     for row, one in zip(saved["rows"], saved["runs"], strict=True):
         assert (row["attempts_max"], row["time_max"]) == (one["attempts"], one["time"])

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from contactflow.embodiments import bench_grasp
 
 
@@ -13,6 +15,22 @@ def test_bench_grasp_quick(tmp_path) -> None:
     assert len(summary["trials"]) == 4
     assert json.loads((tmp_path / "grasp.json").read_text())["benchmark"] == "grasp"
     assert (tmp_path / "grasp.png").stat().st_size > 0 and (tmp_path / "grasp.md").exists()
+
+
+def test_approach_error_is_uniform_up_to_5_cm_and_15_deg_per_axis_with_either_sign() -> None:
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    T0 = np.eye(4)
+    T0[:3, :3] = Rotation.from_euler("xyz", [np.pi, 0.0, 0.5]).as_matrix()
+    T0[:3, 3] = (0.5, -0.2, 0.9)
+    samples = [bench_grasp.perturb(T0, rng) for _ in range(2000)]
+    dp = np.array([T[:3, 3] - T0[:3, 3] for T in samples])
+    rot = np.degrees([Rotation.from_matrix(T0[:3, :3].T @ T[:3, :3]).as_euler("xyz") for T in samples])
+    for err, bound in ((dp, 0.05), (rot, 15.0)):
+        assert np.abs(err).max() <= bound + 1e-9 and np.all(np.abs(err).max(axis=0) > 0.97 * bound)
+        assert np.all((err > 0).mean(axis=0) > 0.45) and np.all((err < 0).mean(axis=0) > 0.45)
+        assert np.allclose(np.abs(err).mean(axis=0), bound / 2, rtol=0.08)  # uniform magnitude: mean half the bound
 
 
 def _trial(name: str, controller: str, error: bool = False, trial: int = 0, **grasp_params) -> dict:
