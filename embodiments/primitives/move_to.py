@@ -60,12 +60,19 @@ class MoveTo(Primitive):
         if self.elapsed > p.timeout:
             self.fail(f"not at the target after {p.timeout} s", event=Event.TIMEOUT)
             return
-        if p.guarded and not self.planned:
-            f = self.wrench_in("world")[:3]
-            if np.linalg.norm(f) >= p.abort_force:
+        # no trajectory follower watches the force of a Cartesian move: a straight one (planning off) that
+        # met an obstacle pushed it until the joints wound up (hundreds of N). The Cartesian fallback of a
+        # failed plan still goes on (the grasp bench's trials were measured with it)
+        if (p.guarded or not p.planning) and not self.planned:
+            f = float(np.linalg.norm(self.wrench_in("world")[:3]))
+            if f >= p.abort_force:
                 self.halt()
-                self.emit_once(Event.CONTACT, f"guarded move stopped on contact (|F| = {np.linalg.norm(f):.1f} N)")
-                self.succeed(contact=1.0, force=float(np.linalg.norm(f)), **pose6(self.r.frame_pose(self.ee_frame)))
+                if p.guarded:
+                    self.emit_once(Event.CONTACT, f"guarded move stopped on contact (|F| = {f:.1f} N)")
+                    self.succeed(contact=1.0, force=f, **pose6(self.r.frame_pose(self.ee_frame)))
+                    return
+                self.emit_once(Event.CONTACT, f"unexpected contact while moving (|F| = {f:.1f} N)")
+                self.fail(f"motion stopped by an unexpected contact (|F| = {f:.1f} N)", force=f)
                 return
         if not self.arm.done():
             return
