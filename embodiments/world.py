@@ -519,6 +519,8 @@ class World:
 
     def remove_object(self, name: str) -> None:
         obj = self.objects.pop(name)
+        # the step's cached contacts would point into the removed body (reading them crashed the process)
+        self._contacts = [c for c in self.contacts() if not any(b is obj.body for b in c.bodies)]
         self.scene.remove_entity(obj.entity)
 
     # -- running -------------------------------------------------------------------------

@@ -56,6 +56,20 @@ def test_tactile_shows_pressure_only_under_contact(grasp):
     assert held["left"].sum() == pytest.approx(held["right"].sum(), rel=0.1)
 
 
+def test_removing_a_held_object_empties_the_pads_without_crashing() -> None:
+    # the step's cached contacts pointed into the removed body: the next tactile read was a segfault
+    robot = melfa_around_plate(0.1)
+    hand = robot.hand("gripper")
+    hand.close()
+    assert hand.wait(3.0) == Status.SUCCESS
+    robot.step(0.1)
+    robot.world.step()  # a fresh physics step: its contacts are not read yet
+    robot.world.remove_object("obj")
+    assert all(np.all(v == 0) for v in robot.tactile("gripper").values())
+    robot.step(0.05)
+    assert all(np.all(v == 0) for v in robot.tactile("gripper").values())
+
+
 def test_pressure_model_on_flat_and_curved_pads():
     flat = PadSpec("p", "l", origin=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), u_axis=(1.0, 0.0, 0.0), size=(0.016, 0.01))
     img = pressure(flat, np.array([[0.0, 0.0, 0.0]]), np.array([2.0]))
