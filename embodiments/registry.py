@@ -13,6 +13,9 @@ import importlib
 import pathlib
 from dataclasses import dataclass, field
 
+import numpy as np
+
+from contactflow.embodiments.transforms import xyz_rpy_to_matrix
 from contactflow.embodiments.urdf_compose import Composition, write
 
 
@@ -109,6 +112,10 @@ class CameraSpec:
     rate_hz: float = 30.0
     xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)  # optical frame in the link frame
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def optical_in_link(self) -> np.ndarray:
+        """4x4 pose of the optical frame in the camera link's frame."""
+        return xyz_rpy_to_matrix(self.xyz, self.rpy)
 
 
 GRASP_CORRECTIONS = ("alignment", "sliding", "finger_lost", "force_adaptation")

@@ -493,6 +493,11 @@ class SimRobot:
         q[kidx] = values
         self._ctl_kin.update(q)
 
+    def camera_pose(self, name: str = "kinect") -> np.ndarray:
+        """World pose of a camera's optical frame at the measured joint state."""
+        spec = self.spec.camera(name)
+        return self.frame_pose(spec.link) @ spec.optical_in_link()
+
     def frame_pose(self, frame: str, relative_to: str = "world") -> np.ndarray:
         """Pose of any link, fixed frame or task frame at the measured joint state."""
         self._sync_kin()

@@ -11,10 +11,7 @@ from contactflow.nodes.status import Status
 
 def gaze_deg(robot: SimRobot, obj: str, camera: str = "kinect") -> float:
     """Angle (deg) between a camera's optical axis and an object's true centre (evaluation only)."""
-    from contactflow.embodiments.transforms import xyz_rpy_to_matrix
-
-    cam = robot.spec.camera(camera)
-    T = robot.frame_pose(cam.link) @ xyz_rpy_to_matrix(cam.xyz, cam.rpy)
+    T = robot.camera_pose(camera)
     d = robot.ground_truth().object_poses[obj][:3, 3] - T[:3, 3]
     return float(np.degrees(np.arccos(np.clip(T[:3, 2] @ d / np.linalg.norm(d), -1.0, 1.0))))
 

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive, PrimitiveError
-from contactflow.embodiments.transforms import xyz_rpy_to_matrix
 from contactflow.nodes.status import Event
 
 
@@ -48,8 +47,7 @@ class Track(Primitive):
             raise PrimitiveError(f"{self.name}: {self.r.spec.name} has no head to track with")
         if len(p.target) != 3 or not np.all(np.isfinite(p.target)):
             raise PrimitiveError(f"{self.name}: params.target must be [x, y, z] (m, world), got {list(p.target)}")
-        cam = self.r.spec.camera(p.camera)
-        self.cam_link, self.cam_offset = cam.link, xyz_rpy_to_matrix(cam.xyz, cam.rpy)
+        self.cam_link = self.r.spec.camera(p.camera).link
         self.where = np.asarray(p.target, dtype=np.float64)
         self.q_cmd = self.r.head.q()
         self.support = None
@@ -59,7 +57,7 @@ class Track(Primitive):
 
     def gaze_error(self) -> np.ndarray:
         """Rotation (axis x sin angle, world) that turns the optical axis onto the object."""
-        T = self.r.frame_pose(self.cam_link) @ self.cam_offset
+        T = self.r.camera_pose(self.params.camera)
         d = self.where - T[:3, 3]
         return np.cross(T[:3, 2], d / np.linalg.norm(d))
 

@@ -19,7 +19,7 @@ import sapien
 
 from contactflow.embodiments.registry import CameraSpec
 from contactflow.embodiments.sensors.render_camera import RenderDepth
-from contactflow.embodiments.transforms import pose_to_matrix, xyz_rpy_to_matrix
+from contactflow.embodiments.transforms import pose_to_matrix
 
 
 @dataclass(frozen=True)
@@ -159,7 +159,7 @@ class DepthCamera:
                  backend: str | None = None) -> None:
         self.world, self.spec, self.link = world, spec, link
         self.K = intrinsics(spec)
-        self.offset = xyz_rpy_to_matrix(spec.xyz, spec.rpy)
+        self.offset = spec.optical_in_link()
         self.fixed_pose = T_world_cam
         if link is None and T_world_cam is None:
             raise ValueError(f"camera {spec.name}: give a link or a fixed T_world_cam")
