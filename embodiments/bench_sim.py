@@ -167,11 +167,11 @@ def planning_problems(n: int, seed: int = 7):
                  Obstacle("wall", "box", (0.3, 0.04, 0.3), xyz_rpy_to_matrix((0.55, 0.3, 0.9))),
                  Obstacle("post", "box", (0.06, 0.06, 0.4), xyz_rpy_to_matrix((0.45, 0.45, 0.95))),
                  Obstacle("shelf", "box", (0.3, 0.3, 0.02), xyz_rpy_to_matrix((0.6, 0.3, 1.2)))]
-    checker = CoalChecker(kin, str(spec.urdf()), obstacles)
+    checker = CoalChecker(kin, str(spec.urdf()), obstacles, parts=spec.collision_groups)
     arm = spec.arm("left")
     q_fixed = np.clip(np.zeros(kin.nq), kin.lower, kin.upper)
     q_fixed[kin.q_index(arm.joints)] = arm.home
-    planner = ArmPlanner(kin, arm.joints, checker.valid, q_fixed)
+    planner = ArmPlanner(kin, arm.joints, checker.valid, q_fixed, fast=checker.scene_valid)
     rng = np.random.default_rng(seed)
     problems = []
     while len(problems) < n:

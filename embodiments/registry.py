@@ -143,6 +143,18 @@ class Computer:
     modules: tuple[str, ...]
 
 
+def collision_part(link: str, parts: tuple[str, ...]) -> int:
+    """Index of the part of ``parts`` (link-name prefixes) that ``link`` belongs to; ``len(parts)`` for the rest.
+
+    Links of different parts collide with each other, links of one part never: the world sets
+    its collision groups and the planners their self-collision pairs by this one rule.
+    """
+    for k, prefix in enumerate(parts):
+        if link.startswith(prefix):
+            return k
+    return len(parts)
+
+
 @dataclass(frozen=True)
 class RobotSpec:
     """Everything the system knows about one embodiment."""

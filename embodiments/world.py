@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import sapien
 
-from contactflow.embodiments.registry import RobotSpec, get
+from contactflow.embodiments.registry import RobotSpec, collision_part, get
 from contactflow.embodiments.sensors.render_camera import render_available
 from contactflow.embodiments.transforms import pose_to_matrix, xyz_rpy_to_matrix
 from contactflow.embodiments.urdf_compose import write
@@ -202,12 +202,12 @@ class SimArticulation:
             names |= {self._child_link(j) for j in h.joints} | {self._child_link(m[0]) for m in h.mimic}
             for n in names:
                 finger_links[n] = h.friction
+        parts = self.spec.collision_groups
+
         def part_bit(lname: str) -> int:
             # links of one part share an ignore bit; different parts of the robot collide
-            for k, prefix in enumerate(self.spec.collision_groups):
-                if lname.startswith(prefix):
-                    return 1 << (29 - k)
-            return 1 << 30
+            k = collision_part(lname, parts)
+            return 1 << 30 if k == len(parts) else 1 << (29 - k)
 
         for lname, link in self.links.items():
             for shape in link.get_collision_shapes():

@@ -3,8 +3,9 @@
 Two checkers: ``CoalChecker`` (pinocchio geometry model of the URDF collision meshes
 against the scene primitives and an octree of a sensed point cloud, via coal) and
 ``SphericalChecker`` (the App. B spherical model against points sampled on the obstacle
-surfaces and the sensed cloud). Self-collision is not checked (the simulated robots run
-with self-collision off). Nothing here imports SAPIEN, and the planner never sees the
+surfaces and the sensed cloud). Self-collision follows the simulated robot: links of different
+parts (``RobotSpec.collision_groups``, e.g. a torso's two arms) collide, links of one part do
+not (the world's collision groups, same rule). Nothing here imports SAPIEN, and the planner never sees the
 simulated objects' true poses: the scene is what the caller sensed or was told
 (:class:`Obstacle` records, a point cloud) plus the cell's known fixtures (the table).
 """
@@ -23,6 +24,7 @@ from ompl import geometric as og
 from ompl import util as ou
 
 from contactflow.embodiments.control.kinematics import Kinematics
+from contactflow.embodiments.registry import collision_part
 from contactflow.embodiments.transforms import inv, rotvec_error
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
@@ -78,15 +80,26 @@ def _coal_shape(o: Obstacle, padding: float):
     raise ValueError(f"obstacle {o.name!r}: kind {o.kind!r} is not box|cylinder|sphere|capsule")
 
 
+def self_pairs(links: list[str], moving: list[bool], parts: tuple[str, ...]) -> list[tuple[int, int]]:
+    """Index pairs of robot bodies that can collide: different parts, at least one moved by a joint."""
+    part = [collision_part(n, parts) for n in links]
+    return [(i, j) for i in range(len(links)) for j in range(i + 1, len(links))
+            if part[i] != part[j] and (moving[i] or moving[j])] if parts else []
+
+
 class CoalChecker:
-    """Robot collision meshes vs. obstacles with pinocchio/coal."""
+    """Robot collision meshes vs. obstacles and, across ``parts``, vs. each other, with pinocchio/coal."""
 
     def __init__(self, kin: Kinematics, urdf: str, obstacles: list[Obstacle], padding: float = 0.005,
-                 cloud: np.ndarray | None = None, resolution: float = 0.02) -> None:
+                 cloud: np.ndarray | None = None, resolution: float = 0.02, parts: tuple[str, ...] = ()) -> None:
         self.kin = kin
         self.model = kin.model
         self.geom = pin.buildGeomFromUrdf(self.model, str(urdf), pin.GeometryType.COLLISION)
         robot_geoms = list(range(len(self.geom.geometryObjects)))
+        gos = self.geom.geometryObjects
+        inner = self_pairs([self.model.frames[g.parentFrame].name for g in gos], [g.parentJoint != 0 for g in gos], parts)
+        for i, j in inner:
+            self.geom.addCollisionPair(pin.CollisionPair(i, j))
         base_inv = inv(kin.base)
         obs_ids = []
         for o in obstacles:
@@ -104,13 +117,25 @@ class CoalChecker:
                 self.geom.addCollisionPair(pin.CollisionPair(g, o))
         self.data = self.model.createData()
         self.gdata = pin.GeometryData(self.geom)
+        # the self pairs (added first) are ten times the scene's: the scene-only check has them switched off
+        self._scene = pin.GeometryData(self.geom)
+        for k in range(len(inner)):
+            self._scene.deactivateCollisionPair(k)
         self.checks = 0
 
     def valid(self, q: np.ndarray) -> bool:
+        """Free of the scene and of the robot's other parts."""
         self.checks += 1
         if not self.geom.collisionPairs:
             return True
         return not pin.computeCollisions(self.model, self.data, self.geom, self.gdata, q, True)
+
+    def scene_valid(self, q: np.ndarray) -> bool:
+        """Free of the scene only (the planner's fast search; its path is then checked with :meth:`valid`)."""
+        self.checks += 1
+        if not self.geom.collisionPairs:
+            return True
+        return not pin.computeCollisions(self.model, self.data, self.geom, self._scene, q, True)
 
 
 def _cloud(cloud: np.ndarray | None, where: str) -> np.ndarray:
@@ -158,10 +183,13 @@ def sample_surface(o: Obstacle, spacing: float = 0.01) -> np.ndarray:
 
 
 class SphericalChecker:
-    """The spherical model (App. B) vs. points sampled on the obstacles (KD-tree pre-selection per s-tope)."""
+    """The spherical model (App. B) vs. points sampled on the obstacles (KD-tree pre-selection per s-tope) and,
+    across ``parts``, s-tope vs. s-tope (points along one's axis against the other)."""
+
+    AXIS_SAMPLES = 7  # points along an s-tope's axis for the s-tope vs. s-tope distance
 
     def __init__(self, kin: Kinematics, model, obstacles: list[Obstacle], margin: float = 0.005, spacing: float = 0.015,
-                 cloud: np.ndarray | None = None) -> None:
+                 cloud: np.ndarray | None = None, parts: tuple[str, ...] = ()) -> None:
         from scipy.spatial import cKDTree
 
         self.kin, self.model, self.margin = kin, model, margin
@@ -169,14 +197,44 @@ class SphericalChecker:
                                 + [sample_surface(o, spacing) for o in obstacles])
         self.tree = cKDTree(self.points) if len(self.points) else None
         self._reach = np.linalg.norm(model._c2 - model._c1, axis=1) / 2 + np.maximum(model.r1, model.r2) + margin
+        pairs = np.array(self_pairs(list(model.links), [int(j) != 0 for j in model._joint], parts), dtype=np.int64)
+        self._pairs = pairs.reshape(-1, 2)
+        self._lam = np.linspace(0.0, 1.0, self.AXIS_SAMPLES)
         self.checks = 0
 
+    def _self_collides(self) -> bool:
+        if not len(self._pairs):
+            return False
+        m = self.model
+        a, b = self._pairs[:, 0], self._pairs[:, 1]
+        # points along s-tope a's axis with its radius there, against s-tope b (eq. B.2-B.3 per point)
+        P = m.C1[a][:, None] + self._lam[None, :, None] * (m.C2[a] - m.C1[a])[:, None]
+        ra = m.r1[a][:, None] + self._lam[None] * (m.r2[a] - m.r1[a])[:, None]
+        D = m.C2[b] - m.C1[b]
+        W = P - m.C1[b][:, None]
+        lam = np.clip(np.einsum("pkj,pj->pk", W, D) / np.maximum((D * D).sum(1), 1e-12)[:, None], 0.0, 1.0)
+        d = np.linalg.norm(W - lam[..., None] * D[:, None], axis=2) - (m.r1[b][:, None] + lam * (m.r2[b] - m.r1[b])[:, None])
+        return bool((d - ra <= self.margin).any())
+
     def valid(self, q: np.ndarray) -> bool:
+        """Free of the scene and of the robot's other parts."""
+        return self._valid(q, True)
+
+    def scene_valid(self, q: np.ndarray) -> bool:
+        """Free of the scene only (the planner's fast search; its path is then checked with :meth:`valid`)."""
+        return self._valid(q, False)
+
+    def _valid(self, q: np.ndarray, parts: bool) -> bool:
         self.checks += 1
-        if self.tree is None:
+        parts = parts and len(self._pairs) > 0
+        if self.tree is None and not parts:
             return True
         self.kin.update(q)
         self.model.update(self.kin)
+        if parts and self._self_collides():
+            return False
+        if self.tree is None:
+            return True
         mid = (self.model.C1 + self.model.C2) / 2
         # most s-topes have no obstacle point within reach: one vectorised nearest query skips them
         d_near, _ = self.tree.query(mid, k=1, distance_upper_bound=float(self._reach.max()))
@@ -205,33 +263,40 @@ class PlannerParams:
 
 
 class ArmPlanner:
-    """Plans the joints ``joints`` of ``kin``; the other joints stay at ``q_fixed``."""
+    """Plans the joints ``joints`` of ``kin``; the other joints stay at ``q_fixed``.
+
+    ``valid`` is the whole collision check. With ``fast`` (a cheaper check that misses some
+    collisions, e.g. :meth:`CoalChecker.scene_valid`), the search runs on ``fast`` and its path
+    is then checked waypoint by waypoint with ``valid`` (lazy validation): only a path that fails
+    it is searched again with ``valid`` (each search has the whole ``timeout``). Every returned
+    path is free under ``valid``.
+    """
 
     def __init__(self, kin: Kinematics, joints: tuple[str, ...], valid: Callable[[np.ndarray], bool], q_fixed: np.ndarray,
-                 params: PlannerParams | None = None) -> None:
-        self.kin, self.joints, self._valid = kin, tuple(joints), valid
+                 params: PlannerParams | None = None, fast: Callable[[np.ndarray], bool] | None = None) -> None:
+        self.kin, self.joints, self._valid, self._fast = kin, tuple(joints), valid, fast
         self.idx = kin.q_index(self.joints)
         self.q_fixed = np.asarray(q_fixed, dtype=np.float64).copy()
         self.params = params or PlannerParams()
         self.lower = np.maximum(kin.lower[self.idx], -np.pi * 2)
         self.upper = np.minimum(kin.upper[self.idx], np.pi * 2)
+        self.searches = 0  # searches run by the last plan (2: the fast search's path failed the full check)
 
     def full(self, q_arm: np.ndarray) -> np.ndarray:
         q = self.q_fixed.copy()
         q[self.idx] = q_arm
         return q
 
-    def valid(self, q_arm: np.ndarray) -> bool:
+    def valid(self, q_arm: np.ndarray, check: Callable[[np.ndarray], bool] | None = None) -> bool:
         q = np.asarray(q_arm)
         if np.any(q < self.lower) or np.any(q > self.upper):
             return False
-        return bool(self._valid(self.full(q)))
+        return bool((check or self._valid)(self.full(q)))
 
     def plan(self, start: np.ndarray, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0,
              seed: int | None = None) -> Plan:
         if planner not in PLANNERS:
             raise ValueError(f"planner {planner!r} is not one of {sorted(PLANNERS)}")
-        n = len(self.idx)
         start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
         t0 = time.perf_counter()
         fail = Plan(self.joints, np.stack([start]), planner, 0.0, False)
@@ -243,6 +308,21 @@ class ArmPlanner:
                 return fail
         if seed is not None:
             seed_ompl(seed)
+        self.searches = 1
+        dense = self._search(start, goal, planner, timeout, self._fast or self._valid)
+        if dense is not None and self._fast is not None and not all(self.valid(w) for w in dense):
+            self.searches = 2
+            dense = self._search(start, goal, planner, timeout, self._valid)
+        if dense is None:
+            fail.why_not, fail.timed_out = f"{planner} found no path in {timeout} s", True
+            fail.planning_time = time.perf_counter() - t0
+            return fail
+        return Plan(self.joints, dense, planner, time.perf_counter() - t0, True)
+
+    def _search(self, start: np.ndarray, goal: np.ndarray, planner: str, timeout: float,
+                check: Callable[[np.ndarray], bool]) -> np.ndarray | None:
+        """OMPL search under ``check``: the simplified path, densified to ``max_step``, or None."""
+        n = len(self.idx)
         space = ob.RealVectorStateSpace(n)
         bounds = ob.RealVectorBounds(n)
         for i in range(n):
@@ -252,12 +332,12 @@ class ArmPlanner:
         ss = og.SimpleSetup(space)
         buf = np.empty(n)
 
-        def check(s) -> bool:
+        def state_valid(s) -> bool:
             for i in range(n):
                 buf[i] = s[i]
-            return self.valid(buf)
+            return self.valid(buf, check)
 
-        ss.setStateValidityChecker(check)
+        ss.setStateValidityChecker(state_valid)
         si = ss.getSpaceInformation()
         si.setStateValidityCheckingResolution(min(0.5, self.params.check_step / space.getMaximumExtent()))
         s0, s1 = space.allocState(), space.allocState()
@@ -268,20 +348,18 @@ class ArmPlanner:
         if self.params.range_ > 0:
             p.setRange(self.params.range_)
         ss.setPlanner(p)
-        ok = bool(ss.solve(timeout)) and ss.haveExactSolutionPath()
-        if not ok:
-            fail.why_not, fail.timed_out = f"{planner} found no path in {timeout} s", True
-            fail.planning_time = time.perf_counter() - t0
-            return fail
+        if not (bool(ss.solve(timeout)) and ss.haveExactSolutionPath()):
+            return None
         if self.params.simplify:
             ss.simplifySolution()
         path = ss.getSolutionPath()
         W = np.array([[path.getState(k)[i] for i in range(n)] for k in range(path.getStateCount())])
+        # waypoints at most max_step apart in every joint (= the collision check step)
         dense = [W[0]]
         for a, b in zip(W[:-1], W[1:], strict=True):
             m = max(1, int(np.ceil(np.abs(b - a).max() / self.params.max_step)))
             dense += [a + (b - a) * (j / m) for j in range(1, m + 1)]
-        return Plan(self.joints, np.array(dense), planner, time.perf_counter() - t0, True)
+        return np.array(dense)
 
 
 def solve_ik(kin: Kinematics, joints: tuple[str, ...], frame: str, target: np.ndarray, q_full: np.ndarray,
@@ -375,15 +453,17 @@ def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: fl
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
     q_full = robot._kin_q_cmd()
     scene = list(obstacles) + (fixtures_from_world(robot.world) if fixtures else [])
+    parts = robot.spec.collision_groups
     if checker == "coal":
-        check = CoalChecker(kin, str(robot.spec.urdf()), scene, cloud=cloud)
+        check = CoalChecker(kin, str(robot.spec.urdf()), scene, cloud=cloud, parts=parts)
     elif checker == "spherical":
         from contactflow.embodiments.spherical import SphericalModel
 
-        check = SphericalChecker(kin, SphericalModel.from_urdf(kin, str(robot.spec.urdf())), scene, cloud=cloud)
+        check = SphericalChecker(kin, SphericalModel.from_urdf(kin, str(robot.spec.urdf())), scene, cloud=cloud,
+                                 parts=parts)
     else:
         raise ValueError(f"checker {checker!r} is not coal|spherical")
-    ap = ArmPlanner(kin, arm.joints, check.valid, q_full)
+    ap = ArmPlanner(kin, arm.joints, check.valid, q_full, fast=check.scene_valid)
     goal = np.asarray(goal, dtype=np.float64)
     if goal.shape == (4, 4):
         q_seed = q_full

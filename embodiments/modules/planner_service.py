@@ -107,11 +107,11 @@ class PlannerService(Module):
     def _solve(self, goal: np.ndarray, q_full: np.ndarray, cloud: np.ndarray | None) -> tuple[Plan | None, str]:
         p, a = self.params, self.arm_spec
         kin = Kinematics(self.spec.urdf(), self.base)  # the job's own model: the step thread uses self.kin
-        check = CoalChecker(kin, str(self.spec.urdf()), self.fixtures, cloud=cloud)
+        check = CoalChecker(kin, str(self.spec.urdf()), self.fixtures, cloud=cloud, parts=self.spec.collision_groups)
         q_goal = solve_ik(kin, a.joints, a.ee_frame, goal, q_full, check.valid, seed=p.seed)
         if q_goal is None:
             return None, "no collision-free IK solution for the goal"
-        planner = ArmPlanner(kin, a.joints, check.valid, q_full)
+        planner = ArmPlanner(kin, a.joints, check.valid, q_full, fast=check.scene_valid)
         tries = 0
         while True:
             plan = planner.plan(q_full[planner.idx], q_goal, planner=p.planner, timeout=p.timeout, seed=p.seed)

@@ -10,10 +10,12 @@ from contactflow.embodiments.control.planning import (
     ArmPlanner,
     CoalChecker,
     Obstacle,
+    SphericalChecker,
     fixtures_from_world,
     sensed_cloud,
 )
 from contactflow.embodiments.sim_robot import SimRobot
+from contactflow.embodiments.spherical import SphericalModel
 from contactflow.embodiments.testing import make_robot
 from contactflow.embodiments.transforms import xyz_rpy_to_matrix
 from contactflow.embodiments.world import World, box
@@ -98,6 +100,35 @@ def test_a_failed_plan_says_which_end_is_invalid_or_that_time_ran_out():
     assert planner("").plan(start, goal, planner="RRTConnect", timeout=5.0).success
 
 
+def test_a_path_found_on_the_fast_check_is_searched_again_when_the_full_check_refuses_it():
+    from contactflow.embodiments import registry
+
+    spec = registry.get("melfa")
+    kin = Kinematics(spec.urdf(), xyz_rpy_to_matrix(spec.base_xyz, spec.base_rpy))
+    joints = spec.arm("arm").joints
+    idx = kin.q_index(joints)
+    start, goal = kin.q[idx].copy(), kin.q[idx].copy()
+    goal[0] += 0.6
+
+    def wall(q: np.ndarray) -> bool:  # the full check: a wall across joint 1's straight way, passable over joint 2
+        return not (abs(q[idx][0] - start[0] - 0.3) < 0.05 and abs(q[idx][1] - start[1]) < 0.3)
+
+    seen = {"fast": 0}
+
+    def fast(q: np.ndarray) -> bool:
+        seen["fast"] += 1
+        return True
+
+    planner = ArmPlanner(kin, joints, wall, kin.q, fast=fast)
+    plan = planner.plan(start, goal, planner="RRTConnect", timeout=5.0)
+    assert plan.success and planner.searches == 2 and seen["fast"] > 0
+    assert all(wall(planner.full(w)) for w in plan.waypoints)
+    assert np.abs(plan.waypoints[:, 1] - start[1]).max() >= 0.3  # went round the wall
+    free = ArmPlanner(kin, joints, lambda q: True, kin.q, fast=fast)
+    clear = free.plan(start, goal, planner="RRTConnect", timeout=5.0)
+    assert clear.success and free.searches == 1 and np.allclose(clear.waypoints[[0, -1]], [start, goal])
+
+
 def test_planner_does_not_read_the_simulated_objects(scene):
     robot, a, b = scene
     arm = robot.arm("arm")
@@ -157,6 +188,34 @@ def test_checker_sees_a_box_on_the_arm():
     check = CoalChecker(kin, str(robot.spec.urdf()), [Obstacle("b", "box", (0.05, 0.05, 0.05), at_hand)])
     assert not check.valid(q)
     assert CoalChecker(kin, str(robot.spec.urdf()), []).valid(q)
+
+
+def test_the_checkers_and_the_planner_see_the_other_arm_as_the_simulation_does():
+    # a plan that ignored the left arm drove the right hand into it (empty-box vision run, seed 103)
+    robot = make_robot("tombatossals", table=False)
+    urdf, parts = str(robot.spec.urdf()), robot.spec.collision_groups
+    kin = Kinematics(robot.spec.urdf(), robot.kin.base)
+    spec = robot.spec.arm("right")
+    idx = kin.q_index(spec.joints)
+    q = robot._kin_q_cmd()
+    reach = np.asarray(spec.home) + (1.6, 0.6, 0.0, 0.8, 0.0, 0.0, 0.0)  # the right hand inside the left arm
+    q_in = q.copy()
+    q_in[idx] = reach
+    coal_check = CoalChecker(kin, urdf, [], parts=parts)
+    spherical = SphericalChecker(kin, SphericalModel.from_urdf(kin, urdf), [], parts=parts)
+    assert coal_check.valid(q) and spherical.valid(q)  # at home the parts are apart
+    assert not coal_check.valid(q_in) and not spherical.valid(q_in)
+    assert CoalChecker(kin, urdf, []).valid(q_in)  # without the parts only the scene counts
+    plan = robot.arm("right").plan(reach, timeout=0.5)
+    assert not plan.success and plan.why_not == "the goal state is in collision"
+
+    # the simulated arms collide the same way: the right arm driven there is stopped by the left one
+    arm = robot.arm("right")
+    arm.move_joints(reach, speed=1.0)
+    arm.wait(4.0)
+    touching = {(c.body_a, c.body_b) for c in robot.ground_truth().contacts}
+    assert any({a.split("/")[-1][:6], b.split("/")[-1][:6]} == {"left_p", "right_"} for a, b in touching), touching
+    assert np.abs(arm.q() - reach).max() > 0.05
 
 
 def test_execution_stops_on_unexpected_contact():
