@@ -79,15 +79,20 @@ def fit_bisphere(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, flo
     return c1, c2, r1, r2
 
 
+def stope_distance(P: np.ndarray, C1: np.ndarray, C2: np.ndarray, R1: np.ndarray, R2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. B.2-B.3, broadcast: signed distance of points ``P (..., 3)`` to s-topes ``C1, C2 (..., 3)``, ``R1, R2 (...)``,
+    and the s-tope's radius at the closest axis point."""
+    D = C2 - C1
+    L2 = np.maximum((D * D).sum(-1), 1e-12)
+    lam = np.clip(((P - C1) * D).sum(-1) / L2, 0.0, 1.0)
+    cmin = C1 + lam[..., None] * D
+    rmin = R1 + lam * (R2 - R1)
+    return np.linalg.norm(P - cmin, axis=-1) - rmin, rmin
+
+
 def _segment_distance(P: np.ndarray, C1: np.ndarray, C2: np.ndarray, R1: np.ndarray, R2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. B.2-B.3 for every point/s-tope pair: (N, M) signed distances and radii."""
-    D = C2 - C1
-    L2 = np.maximum((D * D).sum(1), 1e-12)
-    W = P[:, None, :] - C1[None]
-    lam = np.clip((W * D[None]).sum(2) / L2, 0.0, 1.0)
-    cmin = C1[None] + lam[..., None] * D[None]
-    rmin = R1[None] + lam * (R2 - R1)[None]
-    return np.linalg.norm(P[:, None, :] - cmin, axis=2) - rmin, rmin
+    return stope_distance(P[:, None, :], C1[None], C2[None], R1[None], R2[None])
 
 
 class SphericalModel:

@@ -25,6 +25,7 @@ from ompl import util as ou
 
 from contactflow.embodiments.control.kinematics import Kinematics
 from contactflow.embodiments.registry import collision_part
+from contactflow.embodiments.spherical import SphericalModel, stope_distance
 from contactflow.embodiments.transforms import inv, rotvec_error
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
@@ -125,17 +126,17 @@ class CoalChecker:
 
     def valid(self, q: np.ndarray) -> bool:
         """Free of the scene and of the robot's other parts."""
-        self.checks += 1
-        if not self.geom.collisionPairs:
-            return True
-        return not pin.computeCollisions(self.model, self.data, self.geom, self.gdata, q, True)
+        return self._free(q, self.gdata)
 
     def scene_valid(self, q: np.ndarray) -> bool:
         """Free of the scene only (the planner's fast search; its path is then checked with :meth:`valid`)."""
+        return self._free(q, self._scene)
+
+    def _free(self, q: np.ndarray, gdata: pin.GeometryData) -> bool:
         self.checks += 1
         if not self.geom.collisionPairs:
             return True
-        return not pin.computeCollisions(self.model, self.data, self.geom, self._scene, q, True)
+        return not pin.computeCollisions(self.model, self.data, self.geom, gdata, q, True)
 
 
 def _cloud(cloud: np.ndarray | None, where: str) -> np.ndarray:
@@ -207,13 +208,10 @@ class SphericalChecker:
             return False
         m = self.model
         a, b = self._pairs[:, 0], self._pairs[:, 1]
-        # points along s-tope a's axis with its radius there, against s-tope b (eq. B.2-B.3 per point)
+        # points along s-tope a's axis with its radius there, against s-tope b
         P = m.C1[a][:, None] + self._lam[None, :, None] * (m.C2[a] - m.C1[a])[:, None]
         ra = m.r1[a][:, None] + self._lam[None] * (m.r2[a] - m.r1[a])[:, None]
-        D = m.C2[b] - m.C1[b]
-        W = P - m.C1[b][:, None]
-        lam = np.clip(np.einsum("pkj,pj->pk", W, D) / np.maximum((D * D).sum(1), 1e-12)[:, None], 0.0, 1.0)
-        d = np.linalg.norm(W - lam[..., None] * D[:, None], axis=2) - (m.r1[b][:, None] + lam * (m.r2[b] - m.r1[b])[:, None])
+        d, _ = stope_distance(P, m.C1[b][:, None], m.C2[b][:, None], m.r1[b][:, None], m.r2[b][:, None])
         return bool((d - ra <= self.margin).any())
 
     def valid(self, q: np.ndarray) -> bool:
@@ -224,14 +222,14 @@ class SphericalChecker:
         """Free of the scene only (the planner's fast search; its path is then checked with :meth:`valid`)."""
         return self._valid(q, False)
 
-    def _valid(self, q: np.ndarray, parts: bool) -> bool:
+    def _valid(self, q: np.ndarray, with_parts: bool) -> bool:
         self.checks += 1
-        parts = parts and len(self._pairs) > 0
-        if self.tree is None and not parts:
+        with_parts = with_parts and len(self._pairs) > 0
+        if self.tree is None and not with_parts:
             return True
         self.kin.update(q)
         self.model.update(self.kin)
-        if parts and self._self_collides():
+        if with_parts and self._self_collides():
             return False
         if self.tree is None:
             return True
@@ -457,8 +455,6 @@ def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: fl
     if checker == "coal":
         check = CoalChecker(kin, str(robot.spec.urdf()), scene, cloud=cloud, parts=parts)
     elif checker == "spherical":
-        from contactflow.embodiments.spherical import SphericalModel
-
         check = SphericalChecker(kin, SphericalModel.from_urdf(kin, str(robot.spec.urdf())), scene, cloud=cloud,
                                  parts=parts)
     else:

@@ -14,6 +14,7 @@ from contactflow.embodiments.control.planning import (
     fixtures_from_world,
     sensed_cloud,
 )
+from contactflow.embodiments.registry import collision_part
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.spherical import SphericalModel
 from contactflow.embodiments.testing import make_robot
@@ -214,7 +215,9 @@ def test_the_checkers_and_the_planner_see_the_other_arm_as_the_simulation_does()
     arm.move_joints(reach, speed=1.0)
     arm.wait(4.0)
     touching = {(c.body_a, c.body_b) for c in robot.ground_truth().contacts}
-    assert any({a.split("/")[-1][:6], b.split("/")[-1][:6]} == {"left_p", "right_"} for a, b in touching), touching
+    left, right = (parts.index(p) for p in ("left_", "right_"))
+    assert any({collision_part(a.split("/")[-1], parts), collision_part(b.split("/")[-1], parts)} == {left, right}
+               for a, b in touching), touching
     assert np.abs(arm.q() - reach).max() > 0.05
 
 
