@@ -1,6 +1,7 @@
 """Module types of the embodiments area, by short name (see ``contactflow.nodes.registry``)."""
 
 CATALOG = {
+    "world": "contactflow.embodiments.modules.world_module:WorldModule",
     "sim_interface": "contactflow.embodiments.modules.sim_interface:SimInterface",
     "cartesian_controller_left": "contactflow.embodiments.modules.cartesian_service:LeftArmCartesianController",
     "cartesian_controller_right": "contactflow.embodiments.modules.cartesian_service:RightArmCartesianController",

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from enum import StrEnum
+
+import msgspec
+
 from contactflow.nodes.wire import Message, NDArray
 
 
@@ -122,3 +126,153 @@ class TrueContacts(Message, tag="true_contacts"):
     positions: NDArray  # (N, 3)
     normals: NDArray  # (N, 3)
     forces: NDArray  # (N,), N
+
+
+# -- a world's robot on the key space (cf/<site>/robot/<robot>/...) ----------------------------
+
+
+class ArmState(msgspec.Struct, kw_only=True):
+    """One arm's controller as the world ran it this tick."""
+
+    name: str
+    q_cmd: NDArray  # (n,) float64, rad: the joints' commanded position
+    status: str  # idle | running | success | failure (nodes.status.Status)
+    abort_reason: str = ""  # why the last command failed (no contact, not reached, hardware_failure, ...)
+    applied: int = 0  # the sender's sequence number of the last arm command the world applied
+
+
+class HandState(msgspec.Struct, kw_only=True):
+    """One hand: encoder readings and its controller's status."""
+
+    name: str
+    positions: NDArray  # (n,) float64, rad or m: finger encoders
+    status: str
+    applied: int = 0
+
+
+class WrenchSample(msgspec.Struct, kw_only=True):
+    """One wrist F/T sample: world axes at the sensor origin, minus the tare."""
+
+    arm: str
+    force: list[float]  # N
+    torque: list[float]  # N m
+    frame: str  # sensor link
+    rotation: list[float]  # 9 values, row-major: the sensor frame's axes in the world
+    estimated: bool = False  # solved from joint efforts, not measured
+
+
+class TactileSample(msgspec.Struct, kw_only=True):
+    """The pressure images of one hand's pads."""
+
+    hand: str
+    pads: list[str]
+    pressure: NDArray  # (pads, rows, cols) float32, N per taxel
+
+
+class RobotState(Message, tag="robot_state"):
+    """Everything a controller reads of one robot after world tick ``tick`` (published every tick)."""
+
+    max_bytes = 4 << 20
+    robot: str
+    tick: int
+    t: float  # s, simulated time after the tick
+    names: list[str]  # every active joint
+    position: NDArray  # (n,) float64, rad or m
+    velocity: NDArray  # (n,) float64
+    arms: list[ArmState]
+    hands: list[HandState]
+    wrenches: list[WrenchSample] = []
+    tactile: list[TactileSample] = []
+    failed: bool = False  # stopped by a hardware fault (the robot does not move again)
+    failure: str = ""
+    held: bool = False  # held by the world: its controller died or stalled
+    refused: int = 0  # commands refused so far (unknown part, non-finite, outside the joint limits)
+
+
+class ArmCommandKind(StrEnum):
+    JOINTS = "joints"  # values: (n,) joint target, interpolated at ``speed`` rad/s
+    WAYPOINTS = "waypoints"  # values: (k, n) joint path, aborted beyond ``abort_force``
+    POSE = "pose"  # values: (4, 4) pose of the controlled frame in ``frame``
+    TWIST = "twist"  # values: (6,) m/s, rad/s in ``frame``
+    WRENCH = "wrench"  # values: (6,) N, N m in ``frame`` (admittance)
+    GUARDED = "guarded"  # values: (6,) twist until the wrist force changes by ``max_force``
+    STOP = "stop"  # hold the commanded position
+    TARE = "tare"  # zero the arm's wrist F/T sensor
+
+
+class ArmCommand(Message, tag="arm_command"):
+    """A command to one arm's controller; ``seq`` comes back in :class:`ArmState` once applied."""
+
+    max_bytes = 1 << 20
+    robot: str
+    arm: str
+    kind: ArmCommandKind
+    seq: int
+    values: NDArray | None = None
+    frame: str = "world"
+    speed: float = 0.0  # m/s for pose moves, rad/s for joint moves; 0: the arm's default
+    duration: float = 0.0  # s a twist lasts; 0: until the next command
+    max_force: float = 5.0  # N, guarded moves
+    abort_force: float = 0.0  # N, joint paths stop when the wrist force changes this much; 0: never
+
+
+class HandCommand(Message, tag="hand_command"):
+    """Finger targets (``values``) or a named preshape of one hand, at ``effort`` of the force limit."""
+
+    robot: str
+    hand: str
+    seq: int
+    values: NDArray | None = None
+    preshape: str = ""
+    effort: float = 1.0  # fraction of the fingers' force limit, (0, 1]
+
+
+class HeadCommand(Message, tag="head_command"):
+    """Joint targets of the pan-tilt head (clipped to its limits)."""
+
+    robot: str
+    values: list[float]  # rad
+
+
+class CameraRequest(Message, tag="camera_request"):
+    """Ask the world for a frame of a robot's camera at the current tick."""
+
+    robot: str
+    camera: str
+    request: int
+
+
+class CameraFrame(Message, tag="camera_frame"):
+    """One depth frame, answering :class:`CameraRequest` ``request``."""
+
+    max_bytes = 32 << 20
+    robot: str
+    camera: str
+    request: int
+    t: float  # s, when the frame was taken
+    depth: NDArray  # (H, W) float32, m along the optical axis, 0 = no return
+    points: NDArray  # (N, 3) float64, world, valid pixels only
+    pixels: NDArray  # (N, 2) int32, (row, col) of each point
+    K: list[float]  # 9 values, row-major intrinsics
+    pose: list[float]  # 16 values, row-major world pose of the optical frame
+
+
+class ObstacleMsg(msgspec.Struct, kw_only=True):
+    """A fixture of the cell (known layout, not a simulation readout), as the planners use it."""
+
+    name: str
+    kind: str  # box | cylinder | sphere | capsule
+    size: list[float]  # m
+    pose: list[float]  # 16 values, row-major world pose
+
+
+class RobotInfo(Message, tag="robot_info"):
+    """What a world's robot is (answered on ``robot/<robot>/info``): its embodiment, base and cell fixtures."""
+
+    robot: str
+    embodiment: str  # registry name
+    base: list[float]  # 16 values, row-major world pose of the base
+    fixtures: list[ObstacleMsg] = []
+    world: str = ""  # the world module's address
+    clock: str = "lockstep"  # lockstep | realtime
+    control_rate: float = 200.0  # Hz, one tick

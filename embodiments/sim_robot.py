@@ -472,7 +472,8 @@ class SimRobot:
         q[self._s2k] = self._q_s
         return q
 
-    def _kin_q_cmd(self) -> np.ndarray:
+    def kin_q_cmd(self) -> np.ndarray:
+        """The model's joints: measured, with each arm at its commanded joints (where plans start)."""
         q = self._kin_q()
         for a in self._arms.values():
             q[a._kidx] = a.q_cmd
@@ -502,6 +503,12 @@ class SimRobot:
         """Pose of any link, fixed frame or task frame at the measured joint state."""
         self._sync_kin()
         return self.kin.frame_pose(frame, relative_to)
+
+    def fixtures(self) -> list:
+        """The cell's fixtures at their declared pose (planning obstacles)."""
+        from contactflow.embodiments.control.planning import fixtures_from_world
+
+        return fixtures_from_world(self.world)
 
     def add_task_frame(self, name: str, parent: str, T: np.ndarray) -> None:
         """A named frame at ``T`` (4x4) relative to ``parent``, usable in every ``frame=`` argument."""

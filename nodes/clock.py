@@ -6,9 +6,9 @@ import threading
 import time
 
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.messages import Clock
+from contactflow.nodes.messages import Clock, LockstepAck
 from contactflow.nodes.transport import Handle, Transport
-from contactflow.nodes.wire import WireError, decode
+from contactflow.nodes.wire import WireError, decode, encode, stamp
 
 
 class WallClock:
@@ -66,3 +66,53 @@ class SimClock:
 
     def close(self) -> None:
         self._sub.close()
+
+
+class LockstepClock(SimClock):
+    """The simulation clock of a node the world waits for: one host tick per world tick, then an ack.
+
+    The node announces itself on ``alive/lockstep/<node>``; the world publishes tick k's
+    sensor messages and then the clock, this node steps every module due at that time, and
+    :meth:`ack` tells the world it may advance (thesis §6.3: one control cycle). Messages a
+    module sends during the tick leave before the ack, on the same session, so the world
+    applies them before tick k+1 whatever the process layout.
+    """
+
+    def __init__(self, transport: Transport, ks: KeySpace, node: str) -> None:
+        self._tick = -1
+        self._done = -1
+        super().__init__(transport, ks)
+        self.node = node
+        self._ack = transport.publisher(ks.lockstep(node))
+        self._seq = 0
+        self._token: Handle = transport.token(ks.alive_lockstep(node))
+
+    def _on_clock(self, key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, Clock, key)
+        except WireError:
+            self.rejected += 1
+            return
+        with self._cond:
+            if msg.tick > self._tick:
+                self._tick, self._t = msg.tick, max(self._t, msg.t)
+                self._cond.notify_all()
+
+    def wait_tick(self, stop: threading.Event) -> int | None:
+        """Block until the world publishes a tick this node has not stepped; None when ``stop`` is set."""
+        with self._cond:
+            while self._tick <= self._done and not stop.is_set():
+                self._cond.wait(0.05)
+            if stop.is_set():
+                return None
+            self._done = self._tick
+            return self._tick
+
+    def ack(self, tick: int) -> None:
+        self._seq += 1
+        msg = stamp(LockstepAck(node=self.node, tick=tick), f"lockstep/{self.node}", self._seq, self._t)
+        self._ack(encode(msg))
+
+    def close(self) -> None:
+        self._token.close()
+        super().close()

@@ -6,7 +6,7 @@ Example::
     node: control
     host: control-pc
     robot: tombatossals          # default robot of the modules below
-    clock: wall                  # wall | sim (follow the world's clock on the key space)
+    clock: wall                  # wall | sim (follow the world's clock) | lockstep (the world waits for this node each tick)
     zenoh: {mode: peer, listen: [tcp/127.0.0.1:7501], connect: [], multicast_scouting: false}
     modules:
       - name: source
@@ -202,8 +202,8 @@ def parse_node_config(doc: YamlDoc) -> NodeConfig:
         except KeyExprError as exc:
             raise doc.error((what,), str(exc)) from None
     clock = doc.get(("clock",), str, "wall")
-    if clock not in ("wall", "sim"):
-        raise doc.error(("clock",), f"{clock!r} is not wall or sim")
+    if clock not in ("wall", "sim", "lockstep"):
+        raise doc.error(("clock",), f"{clock!r} is not wall, sim or lockstep")
     modules = []
     names: set[str] = set()
     for i, _ in enumerate(doc.get(("modules",), list, [])):

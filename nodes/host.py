@@ -16,7 +16,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from contactflow.nodes.clock import SimClock, WallClock
+from contactflow.nodes.clock import LockstepClock, SimClock, WallClock
 from contactflow.nodes.config import ModuleConfig, NodeConfig, mix_problem
 from contactflow.nodes.keys import KeyExprError, KeySpace, ModuleAddr
 from contactflow.nodes.messages import (
@@ -105,6 +105,11 @@ class HostedIO:
     def node(self) -> str:
         return self._host.config.node
 
+    @property
+    def robot(self) -> str:
+        """The robot the module belongs to (``site`` for none)."""
+        return self._hm.addr.robot
+
     def deliver(self, port: str, msg: Message) -> int:
         """Queue an input; returns how many sequence numbers of its source were missed before it."""
         with self._lock:
@@ -192,9 +197,10 @@ class ModuleHost:
         self.config = config
         self.ks: KeySpace = config.keyspace
         self.transport = transport
-        self.clock = clock if clock is not None else (
-            SimClock(transport, self.ks) if config.clock == "sim" else WallClock()
-        )
+        if clock is None:
+            clock = {"sim": lambda: SimClock(transport, self.ks),
+                     "lockstep": lambda: LockstepClock(transport, self.ks, config.node)}.get(config.clock, WallClock)()
+        self.clock = clock
         self.log = logging.getLogger(f"contactflow.node.{config.node}")
         self.modules: dict[tuple[str, str], HostedModule] = {}
         self._lock = threading.RLock()
@@ -296,6 +302,8 @@ class ModuleHost:
             m.state = Status.STOPPED
             self._release(hm)
         elif req.cmd == Command.RESET:
+            if isinstance(hm.cfg.params, type(m).Params):  # back to the configured parameters
+                m.params = hm.cfg.params
             m.reset()
             if m.state != Status.RUNNING:
                 m.state = Status.IDLE
@@ -452,10 +460,16 @@ class ModuleHost:
         return next_due
 
     def run(self) -> None:
-        """Block, stepping modules until :meth:`shutdown`."""
+        """Block, stepping modules until :meth:`shutdown`; a lockstep node answers every world tick."""
+        clock = self.clock
+        if isinstance(clock, LockstepClock):
+            while (k := clock.wait_tick(self._stop)) is not None:
+                self.tick()
+                clock.ack(k)
+            return
         while not self._stop.is_set():
             due = self.tick()
-            self.clock.wait_until(due, self._stop)
+            clock.wait_until(due, self._stop)
 
     def start(self, host_name: str | None = None) -> None:
         """Announce the node, autostart modules and run the loop on a thread."""

@@ -13,6 +13,11 @@ Layout (``docs/protocol.md`` documents it with examples)::
     cf/<site>/broker/progress/<task_id>                    abstract progress stream
     cf/<site>/broker/robots/<robot>/{caps,translate,run}   per-robot broker queryables
     cf/<site>/eval/<robot>/<stream>                        ground truth, for evaluation only
+    cf/<site>/robot/<robot>/{state,command,camera,info}   a world's robot: state per tick, commands in,
+                                                           camera frames on request, description (queryable)
+    cf/<site>/lockstep/<node>                              lockstep: a node finished a world tick
+    cf/<site>/alive/lockstep/<node>                        liveliness: a node the world waits for each tick
+    cf/<site>/alive/controller/<robot>/<node>              liveliness: a node commanding a world's robot
     cf/<site>/alive/node/<host>/<node>                     liveliness: node process
     cf/<site>/alive/m/<robot>/<node>/<module>              liveliness: module
     cf/<site>/alive/robot/<robot>                          liveliness: robot advertising
@@ -39,6 +44,8 @@ ANY = "*"
 CLAIM_MODES = ("excl", "mix")
 """A claim is exclusive, or shared by modules that all declare weighted mixing (thesis §6.3.1)."""
 BENCH_SIGNALS = ("ready", "done")
+ROBOT_STREAMS = ("state", "command", "camera", "info")
+"""A world's robot: its state each tick, the commands it takes, camera frames, its description."""
 
 
 class KeyExprError(ValueError):
@@ -134,6 +141,22 @@ class KeySpace:
         if verb not in ("caps", "translate", "run", "cancel"):
             raise KeyExprError(f"verb={verb!r}: robot services are caps, translate, run, cancel")
         return f"{self.prefix}/broker/robots/{segment(robot, 'robot')}/{verb}"
+
+    # -- a world's robots (the interface layer) ----------------------------------------
+    def robot(self, robot: str = ANY, stream: str = ANY) -> str:
+        if stream != ANY and stream not in ROBOT_STREAMS:
+            raise KeyExprError(f"stream={stream!r}: robot streams are {', '.join(ROBOT_STREAMS)}")
+        return f"{self.prefix}/robot/{segment(robot, 'robot')}/{stream}"
+
+    def lockstep(self, node: str = ANY) -> str:
+        """Where a lockstep node says it finished a tick of the world."""
+        return f"{self.prefix}/lockstep/{segment(node, 'node')}"
+
+    def alive_lockstep(self, node: str = ANY) -> str:
+        return f"{self.prefix}/alive/lockstep/{segment(node, 'node')}"
+
+    def alive_controller(self, robot: str = ANY, node: str = ANY) -> str:
+        return f"{self.prefix}/alive/controller/{segment(robot, 'robot')}/{segment(node, 'node')}"
 
     # -- evaluation (ground truth; primitives and fusion never subscribe) -------------
     def evaluation(self, robot: str = ANY, stream: str = ANY) -> str:

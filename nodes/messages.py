@@ -61,6 +61,14 @@ class Clock(Message, tag="clock"):
 
     t: float  # s of simulated time
     real_time_factor: float = 1.0
+    tick: int = 0  # control tick of the world; lockstep nodes answer each one
+
+
+class LockstepAck(Message, tag="lockstep_ack"):
+    """A lockstep node stepped its modules for world tick ``tick`` (and sent what they commanded)."""
+
+    node: str
+    tick: int
 
 
 class Vector(Message, tag="vector"):

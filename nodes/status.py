@@ -40,7 +40,8 @@ class Event(StrEnum):
     CONTACT_BROKEN (fusion's condensed contacts appearing/disappearing), GRASP_STABLE,
     GRASP_LOST, OBJECT_LOST.
     Perception: OBJECT_DETECTED, OBJECT_NOT_FOUND, MOTION_DETECTED.
-    Robot: HARDWARE_FAILURE (physics blow-up, stuck joint, lost sensor stream), STUCK.
+    Robot: HARDWARE_FAILURE (physics blow-up, stuck joint, lost sensor stream, a controller
+    gone or stalled), STUCK, OVERRUN (a lockstep node answered a world tick after its deadline).
     Prediction: PREDICTION_MISMATCH (simulated and sensed events disagree, §5.7).
     """
 
@@ -59,6 +60,7 @@ class Event(StrEnum):
     MOTION_DETECTED = "motion_detected"
     HARDWARE_FAILURE = "hardware_failure"
     STUCK = "stuck"
+    OVERRUN = "overrun"
     PREDICTION_MISMATCH = "prediction_mismatch"
 
 

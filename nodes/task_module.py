@@ -93,12 +93,12 @@ class ControlRunner:
             self._queue.append(RunnerEvent(instance, Event.ERROR, detail=str(exc)))
             return
         target = self._target(module)
+        self.io.command(target, Command.RESET)  # the configured parameters, then this node's
         if wire:
             reply = self.io.command(target, Command.SET, wire)
             if not reply.ok:
                 self._queue.append(RunnerEvent(instance, Event.ERROR, detail=f"{target}: {reply.error}"))
                 return
-        self.io.command(target, Command.RESET)
         reply = self.io.command(target, Command.RUN)
         if not reply.ok:
             self._queue.append(RunnerEvent(instance, Event.ERROR, detail=f"{target}: {reply.error}"))

@@ -114,8 +114,12 @@ class ZenohTransport:
         return pub.put
 
     def subscribe(self, keyexpr: str, callback: Callback) -> Handle:
+        # Called on the thread that receives the sample (a session's own puts: the putting thread),
+        # not on a thread per subscriber: samples of one link then reach every subscriber in the
+        # order they were sent, which lockstep runs rely on (a tick's commands before its ack).
+        # Callbacks only decode and queue, so the network thread is never held long.
         sub = self._s.declare_subscriber(
-            keyexpr, lambda s: callback(str(s.key_expr), s.payload.to_bytes())
+            keyexpr, zenoh.handlers.Callback(lambda s: callback(str(s.key_expr), s.payload.to_bytes()), indirect=False)
         )
         return _Closer(sub.undeclare)
 

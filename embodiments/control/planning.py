@@ -430,7 +430,7 @@ def sensed_cloud(robot, camera: str = "kinect", self_margin: float = 0.03, fixtu
     if len(pts):
         pts = pts[robot.spherical.distance(pts) > self_margin]
     if len(pts):
-        pts = pts[~inside_obstacles(pts, fixtures_from_world(robot.world), fixture_margin)]
+        pts = pts[~inside_obstacles(pts, robot.fixtures(), fixture_margin)]
     if len(pts) and voxel > 0:
         _, first = np.unique(np.floor(pts / voxel).astype(np.int64), axis=0, return_index=True)
         pts = pts[np.sort(first)]
@@ -440,7 +440,7 @@ def sensed_cloud(robot, camera: str = "kinect", self_margin: float = 0.03, fixtu
 def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
              obstacles: tuple[Obstacle, ...] | list[Obstacle] = (), cloud: np.ndarray | None = None,
              fixtures: bool = True, seed: int | None = None, rest: bool = False) -> Plan | None:
-    """Plan ``arm`` of a SimRobot from its commanded joints to a joint goal or a 4x4 pose.
+    """Plan ``arm`` of a robot (simulated or remote) from its commanded joints to a joint goal or a 4x4 pose.
 
     Collisions are checked against ``obstacles`` and the point ``cloud`` the caller sensed or
     was given, plus the cell's fixtures when ``fixtures``; never against the simulated objects.
@@ -449,8 +449,8 @@ def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: fl
     arm got there (a 7-joint arm's elbow otherwise drifts from move to move).
     """
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
-    q_full = robot._kin_q_cmd()
-    scene = list(obstacles) + (fixtures_from_world(robot.world) if fixtures else [])
+    q_full = robot.kin_q_cmd()
+    scene = list(obstacles) + (robot.fixtures() if fixtures else [])
     parts = robot.spec.collision_groups
     if checker == "coal":
         check = CoalChecker(kin, str(robot.spec.urdf()), scene, cloud=cloud, parts=parts)

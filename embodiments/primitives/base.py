@@ -152,6 +152,34 @@ class Primitive(Module):
             raise PrimitiveError(f"{self.name}: primitive is not bound to a robot (call bind first)")
         return self.robot
 
+    def _hosted_robot(self) -> str:
+        """The robot of a module hosted on a node ("" elsewhere: in-process runs bind a robot themselves)."""
+        from contactflow.nodes.keys import SITE_ROBOT
+
+        robot = getattr(self.io, "robot", SITE_ROBOT)
+        return "" if robot == SITE_ROBOT or not hasattr(self.io, "transport") else robot
+
+    def setup(self, io) -> None:
+        super().setup(io)
+        robot = self._hosted_robot()
+        if robot and self.robot is None:
+            from contactflow.embodiments.remote import link
+
+            link(io.transport, io.keyspace, robot, io.node)
+
+    def _bind_hosted(self) -> None:
+        """On a node: bind the world's robot this module belongs to, over the key space."""
+        from contactflow.embodiments.remote import RemoteError, connect
+
+        io = self.io
+        robot = self._hosted_robot()
+        if io is None or not robot:
+            raise PrimitiveError(f"{self.name}: primitive is not bound to a robot (host it with robot: <name>)")
+        try:
+            self.bind(connect(io.transport, io.keyspace, robot, io.node))
+        except RemoteError as exc:
+            raise PrimitiveError(f"{self.name}: {exc}") from None
+
     @property
     def arm(self) -> ArmLike:
         return self.r.arm(self.arm_name)
@@ -287,6 +315,8 @@ class Primitive(Module):
 
     # -- lifecycle -----------------------------------------------------------------------
     def start(self) -> None:
+        if self.robot is None:
+            self._bind_hosted()
         self.t0 = self.r.time
         self.result = {}
         self._outcome = Status.RUNNING

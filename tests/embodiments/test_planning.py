@@ -39,7 +39,7 @@ def scene():
 def _swept_clear(robot, plan, obstacles) -> bool:
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
     check = CoalChecker(kin, str(robot.spec.urdf()), obstacles, padding=0.0)
-    q = robot._kin_q_cmd()
+    q = robot.kin_q_cmd()
     idx = kin.q_index(plan.joints)
     for w in plan.waypoints:
         q[idx] = w
@@ -55,7 +55,7 @@ def _check_detour(robot, arm, plan, b, obstacles, label):
     assert plan is not None and plan.success, f"{label}: no plan"
     assert _swept_clear(robot, plan, obstacles), f"{label}: path collides"
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
-    q = robot._kin_q_cmd()
+    q = robot.kin_q_cmd()
     q[kin.q_index(plan.joints)] = plan.waypoints[-1]
     kin.update(q)
     assert np.linalg.norm(kin.frame_pose(arm.spec.ee_frame)[:3, 3] - b[:3, 3]) < 2e-3
@@ -183,7 +183,7 @@ def test_unreachable_goal_returns_no_plan(scene):
 def test_checker_sees_a_box_on_the_arm():
     robot = make_robot("melfa", table=False)
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
-    q = robot._kin_q_cmd()
+    q = robot.kin_q_cmd()
     kin.update(q)
     at_hand = kin.frame_pose("panda_hand")
     check = CoalChecker(kin, str(robot.spec.urdf()), [Obstacle("b", "box", (0.05, 0.05, 0.05), at_hand)])
@@ -198,7 +198,7 @@ def test_the_checkers_and_the_planner_see_the_other_arm_as_the_simulation_does()
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
     spec = robot.spec.arm("right")
     idx = kin.q_index(spec.joints)
-    q = robot._kin_q_cmd()
+    q = robot.kin_q_cmd()
     reach = np.asarray(spec.home) + (1.6, 0.6, 0.0, 0.8, 0.0, 0.0, 0.0)  # the right hand inside the left arm
     q_in = q.copy()
     q_in[idx] = reach
@@ -232,7 +232,7 @@ def test_execution_stops_on_unexpected_contact():
     # an obstacle the planner did not know about, in the path of the fingers
     mid = plan.waypoints[(3 * len(plan.waypoints)) // 4]
     kin = Kinematics(robot.spec.urdf(), robot.kin.base)
-    q = robot._kin_q_cmd()
+    q = robot.kin_q_cmd()
     q[kin.q_index(plan.joints)] = mid
     kin.update(q)
     p = kin.frame_pose("panda_hand_tcp")[:3, 3]

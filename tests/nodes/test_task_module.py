@@ -26,8 +26,8 @@ def test_task_module_commands_primitives_and_finishes(tmp_path):
     mod.setup(io)
     mod.start()
     assert io.commands[:3] == [
-        ("melfa/move_to", Command.SET, {"target": [0.1, 0.2, 0.3], "motion": "line"}),
         ("melfa/move_to", Command.RESET, {}),
+        ("melfa/move_to", Command.SET, {"target": [0.1, 0.2, 0.3], "motion": "line"}),
         ("melfa/move_to", Command.RUN, {}),
     ]
     assert mod.step() is Status.RUNNING

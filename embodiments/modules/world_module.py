@@ -1,0 +1,483 @@
+"""The world (thesis §6.1 interface layer): one SAPIEN cell with its robots, driven only over the key space.
+
+The module builds the cell of a scene file (robots at their base poses, table, objects) and
+is its robots' hardware: it takes arm, hand, head and camera commands on
+``robot/<robot>/command``, runs each robot's joint controllers at the control rate, and
+publishes every tick each robot's :class:`RobotState` on ``robot/<robot>/state``, then the
+clock. Object poses go only to ``eval/``. Nothing else in the system touches the scene.
+
+Two clocks (``params.clock``):
+
+- ``lockstep``: tick k+1 runs only when every node announced on ``alive/lockstep/*`` has
+  acknowledged tick k, or after ``deadline`` s of wall time (an OVERRUN event; a node that
+  misses it has its robots held). A seeded run repeats exactly whatever the process layout.
+- ``realtime``: the ticks follow the wall clock, as on the thesis robot; a command that
+  arrives after the tick it was meant for is counted late.
+
+Commands are validated before they reach a controller: an unknown robot, arm, hand or
+camera, a non-finite value or a joint target outside the limits is refused and counted.
+When the last controller node of a robot goes away (its liveliness token drops) the world
+holds that robot where it is and raises HARDWARE_FAILURE; the other robots keep running.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from contactflow.embodiments.messages import (
+    ArmCommand,
+    ArmCommandKind,
+    ArmState,
+    CameraFrame,
+    CameraRequest,
+    HandCommand,
+    HandState,
+    HeadCommand,
+    ObjectPoses,
+    ObstacleMsg,
+    RobotInfo,
+    RobotState,
+    TactileSample,
+    WrenchSample,
+)
+from contactflow.nodes.messages import Clock, LockstepAck
+from contactflow.nodes.module import Layer, Module, ModuleIO
+from contactflow.nodes.status import Event, Status
+from contactflow.nodes.wire import NDArray, WireError, decode, encode, stamp
+
+RobotCommand = ArmCommand | HandCommand | HeadCommand | CameraRequest
+_command_decoder = msgspec.msgpack.Decoder(RobotCommand)
+MAX_COMMAND_BYTES = 1 << 20
+MAX_QUEUED = 4096  # commands kept between two ticks; a flood beyond it is refused, not buffered
+
+
+class CommandError(ValueError):
+    """A command the world refuses (never applied)."""
+
+
+def _finite(a: np.ndarray, what: str) -> np.ndarray:
+    if not np.all(np.isfinite(a)):
+        raise CommandError(f"{what}: non-finite value")
+    return a
+
+
+@dataclass
+class _Robot:
+    sim: Any  # SimRobot
+    info: bytes
+    state_pub: Any
+    camera_pub: Any
+    arm_seq: dict[str, int] = field(default_factory=dict)
+    hand_seq: dict[str, int] = field(default_factory=dict)
+    controllers: set[str] = field(default_factory=set)  # nodes holding alive/controller/<robot>/<node>
+    held: bool = False
+    refused: int = 0
+    seq: int = 0
+    last: RobotState | None = None  # the state of the current tick
+
+
+class WorldModule(Module):
+    """A SAPIEN cell from a scene file; its robots commanded and sensed over ``robot/<robot>/...``."""
+
+    layer = Layer.INTERFACE
+    events = (Event.HARDWARE_FAILURE, Event.OVERRUN)
+
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 1000.0  # Hz the host calls step; each call runs the ticks that are due
+        scene_file: str = ""  # path of the scene file (YAML: robots with base poses, objects)
+        clock: str = "lockstep"  # lockstep | realtime
+        control_rate: float = 200.0  # Hz, one tick: joint control, state messages, the clock (§6.3.1)
+        settle: float = 0.3  # s of physics before the first tick (objects come to rest)
+        deadline: float = 10.0  # s of wall time a lockstep node has to answer a tick (a plan may take seconds)
+        slice: float = 0.05  # s of wall time one step may spend on lockstep ticks
+        ground_truth_hz: float = 20.0  # Hz of object poses on eval/
+        camera_backend: str = "auto"  # auto | render | raycast
+        seed: int = 0  # sensor noise seed of every robot
+        wait_for: tuple[str, ...] = ()  # lockstep nodes tick 1 waits for (a seeded run starts at a known tick)
+        republish: float = 0.2  # s of wall time between repeats of the current tick while waiting (late joiners)
+        start_timeout: float = 60.0  # s of wall time tick 1 waits for the nodes of wait_for to come up
+
+    def __init__(self, name: str, params: Params | None = None) -> None:
+        super().__init__(name, params)
+        self.world: Any = None
+        self.robots: dict[str, _Robot] = {}
+        self.tick_no = 0
+        self.overruns = 0
+        self.late = 0
+        self.refused_unknown = 0
+        self._commands: deque[ArmCommand | HandCommand | HeadCommand] = deque()
+        self._requests: deque[CameraRequest] = deque()
+        self._holds: deque[tuple[str, str]] = deque()
+        self._acks: dict[str, int] = {}
+        self._lockstep: set[str] = set()
+        self._cond = threading.Condition()
+        self._handles: list[Any] = []
+        self._gt_due = 0.0
+        self._clock_seq = 0
+        self._t0_wall = 0.0
+        self._t0_sim = 0.0
+        self.log = logging.getLogger(f"contactflow.world.{name}")
+
+    # -- set up ------------------------------------------------------------------------------
+    def setup(self, io: ModuleIO) -> None:
+        super().setup(io)
+        from contactflow.embodiments.control.planning import fixtures_from_world
+        from contactflow.embodiments.scene_file import load_scene
+        from contactflow.embodiments.scenes import SCENES
+        from contactflow.embodiments.sim_robot import SimRobot, SimRobotParams
+        from contactflow.embodiments.transforms import xyz_rpy_to_matrix
+        from contactflow.embodiments.world import World, WorldParams
+
+        p = self.params
+        where = f"{self.name}.params"
+        if p.clock not in ("lockstep", "realtime"):
+            raise ValueError(f"{where}.clock: {p.clock!r} is not lockstep or realtime")
+        if not p.scene_file:
+            raise ValueError(f"{where}.scene_file: a world needs a scene file")
+        if p.control_rate <= 0 or p.deadline <= 0 or p.slice <= 0:
+            raise ValueError(f"{where}: control_rate, deadline and slice must be positive")
+        scene = load_scene(p.scene_file)
+        transport = io.transport  # the world is infrastructure: its streams are per robot, not per port
+        self.ks = ks = io.keyspace
+        self.world = world = World(WorldParams(camera_backend=p.camera_backend))
+        if scene.scene:
+            SCENES[scene.scene](world)
+        for obj in scene.objects:
+            world.add_object(obj)
+        addr = f"{io.robot}/{io.node}/{self.name}" if hasattr(io, "robot") else self.name
+        self.source = addr
+        sims = []
+        for k, rp in enumerate(scene.robots):
+            base = None if rp.base is None else xyz_rpy_to_matrix(rp.base[:3], rp.base[3:])
+            sims.append((rp, SimRobot(world, rp.embodiment, name=rp.name, base=base,
+                                      params=SimRobotParams(control_rate=p.control_rate, seed=p.seed + 101 * k))))
+        fixtures = [ObstacleMsg(name=o.name, kind=o.kind, size=[float(v) for v in o.size],
+                                pose=[float(v) for v in np.asarray(o.pose).ravel()])
+                    for o in fixtures_from_world(world)]
+        for rp, sim in sims:
+            info = RobotInfo(robot=rp.name, embodiment=rp.embodiment, base=[float(v) for v in sim.art.base.ravel()],
+                             fixtures=fixtures, world=addr, clock=p.clock, control_rate=p.control_rate)
+            self.robots[rp.name] = _Robot(sim, encode(stamp(info, f"{addr}/info", 1, 0.0)),
+                                          transport.publisher(ks.robot(rp.name, "state")),
+                                          transport.publisher(ks.robot(rp.name, "camera")))
+        world.step(max(1, int(round(p.settle / world.params.timestep))))
+        self._every = max(1, int(round(1.0 / (p.control_rate * world.params.timestep))))
+        self._clock_pub = transport.publisher(ks.clock())
+        self._gt_pub = transport.publisher(ks.evaluation(self.name, "object_poses"))
+        for name, r in self.robots.items():
+            self._handles.append(transport.queryable(ks.robot(name, "info"), lambda _k, _p, b=r.info: b))
+        self._handles.append(transport.subscribe(ks.robot("*", "command"), self._on_command))
+        self._handles.append(transport.subscribe(ks.lockstep("*"), self._on_ack))
+        self._handles.append(transport.watch_alive(ks.alive_lockstep("*"), self._on_lockstep_node))
+        self._handles.append(transport.watch_alive(ks.alive_controller("*", "*"), self._on_controller))
+
+    # -- zenoh callbacks: decode and queue, never block ---------------------------------------
+    def _on_command(self, key: str, payload: bytes) -> None:
+        robot = key.split("/")[-2]
+        with self._cond:
+            if len(self._commands) + len(self._requests) >= MAX_QUEUED or len(payload) > MAX_COMMAND_BYTES:
+                self._refuse(robot, f"{key}: command queue full or payload of {len(payload)} bytes")
+                return
+            try:
+                msg = _command_decoder.decode(payload)
+            except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+                self._refuse(robot, f"{key}: invalid command: {exc}")
+                return
+            if msg.robot != robot:
+                self._refuse(robot, f"{key}: the command names robot {msg.robot!r}")
+                return
+            (self._requests if isinstance(msg, CameraRequest) else self._commands).append(msg)
+            self._cond.notify_all()
+
+    def _on_ack(self, key: str, payload: bytes) -> None:
+        try:
+            ack = decode(payload, LockstepAck, key)
+        except WireError:
+            return
+        with self._cond:
+            if ack.tick > self._acks.get(ack.node, -1):
+                self._acks[ack.node] = ack.tick
+                self._cond.notify_all()
+
+    def _on_lockstep_node(self, key: str, alive: bool) -> None:
+        node = key.rsplit("/", 1)[-1]
+        with self._cond:
+            if alive:
+                self._lockstep.add(node)
+            else:
+                self._lockstep.discard(node)
+                self._acks.pop(node, None)
+            self._cond.notify_all()
+
+    def _on_controller(self, key: str, alive: bool) -> None:
+        robot, node = key.split("/")[-2:]
+        with self._cond:
+            r = self.robots.get(robot)
+            if r is None:
+                return
+            if alive:
+                r.controllers.add(node)
+            elif node in r.controllers:
+                r.controllers.discard(node)
+                if not r.controllers:
+                    self._holds.append((robot, f"its controller node {node!r} is gone"))
+            self._cond.notify_all()
+
+    # -- lifecycle ----------------------------------------------------------------------------
+    def start(self) -> None:
+        self._t0_wall = time.monotonic()
+        self._t0_sim = self.world.time
+        self._publish_tick()
+
+    def step(self) -> Status:
+        p = self.params
+        if p.clock == "realtime":
+            target = self._t0_sim + (time.monotonic() - self._t0_wall)
+            dt = 1.0 / p.control_rate
+            while self.world.time + dt <= target + 1e-9:
+                self._serve_requests()
+                self._tick()
+            self._serve_requests()
+            return Status.RUNNING
+        end = time.monotonic() + p.slice
+        while time.monotonic() < end:
+            self._await_acks()
+            self._tick()
+        return Status.RUNNING
+
+    def stop(self) -> None:
+        for h in self._handles:
+            h.close()
+        self._handles.clear()
+
+    # -- the tick -----------------------------------------------------------------------------
+    def _await_acks(self) -> None:
+        """Wait until every lockstep node answered the current tick (serving camera requests meanwhile)."""
+        k = self.tick_no
+        now = time.monotonic()
+        deadline, repeat = now + self.params.deadline, now + self.params.republish
+        start_by = now + self.params.start_timeout
+        while True:
+            with self._cond:
+                expected = self._lockstep | (set(self.params.wait_for) if k == 0 else set())
+                missing = [n for n in expected if self._acks.get(n, -1) < k]
+                if not missing:
+                    return
+                now = time.monotonic()
+                absent = k == 0 and bool(set(missing) - self._lockstep)  # a node tick 1 waits for is not up yet
+                if now >= (start_by if absent else deadline):
+                    break
+                if not self._requests:
+                    self._cond.wait(min(max(deadline - now, 0.0), repeat - now, 0.05) if repeat > now else 0.0)
+            if self._serve_requests():  # the time the world spent rendering is not the nodes' delay
+                deadline = time.monotonic() + self.params.deadline
+            if time.monotonic() >= repeat:  # a node that joined after the tick was published gets it now
+                self._publish_tick(repeat=True)
+                repeat = time.monotonic() + self.params.republish
+        self.overruns += 1
+        detail = f"tick {k}: lockstep node(s) {sorted(missing)} did not answer within {self.params.deadline:g} s"
+        self.log.warning(detail)
+        self.io.emit(Event.OVERRUN, detail)
+        with self._cond:
+            for n in missing:  # a stalled node is treated as gone until it answers again
+                self._acks[n] = k
+            stalled = [name for name, r in self.robots.items() if r.controllers & set(missing)]
+        for name in stalled:
+            self._hold(name, f"its controller node(s) {sorted(missing)} stalled")
+
+    def _serve_requests(self) -> int:
+        """Answer queued camera requests with a frame of the current state (commands wait for the tick)."""
+        with self._cond:
+            todo, self._requests = self._requests, deque()
+        for msg in todo:
+            self._apply(msg)
+        return len(todo)
+
+    def _tick(self) -> None:
+        with self._cond:
+            batch, self._commands = self._commands, deque()
+            holds, self._holds = self._holds, deque()
+        for robot, why in holds:
+            self._hold(robot, why)
+        for msg in batch:
+            self._apply(msg)
+        try:
+            self.world.step(self._every)
+        except Exception as exc:  # a physics blow-up stops the robots, not the node
+            for name, r in self.robots.items():
+                if not r.sim.failed:
+                    r.sim.failed, r.sim.failure = True, f"physics: {type(exc).__name__}: {exc}"
+                    self.io.emit(Event.HARDWARE_FAILURE, f"{name}: {r.sim.failure}"[:500])
+        self.tick_no += 1
+        self._publish_tick()
+
+    def _publish_tick(self, repeat: bool = False) -> None:
+        t = self.world.time
+        for name, r in self.robots.items():
+            if not repeat or r.last is None:
+                r.last = self._state(name, r)
+            r.seq += 1
+            r.state_pub(encode(stamp(r.last, f"{self.source}/{name}/state", r.seq, t)))
+        if not repeat and self.params.ground_truth_hz > 0 and t >= self._gt_due - 1e-9:
+            self._gt_due = t + 1.0 / self.params.ground_truth_hz
+            objs = self.world.objects
+            poses = np.stack([o.pose() for o in objs.values()]) if objs else np.zeros((0, 4, 4))
+            self._gt_pub(encode(stamp(ObjectPoses(names=list(objs), poses=NDArray.of(poses)),
+                                      f"{self.source}/object_poses", self.tick_no + 1, t)))
+        self._clock_seq += 1
+        self._clock_pub(encode(stamp(Clock(t=t, tick=self.tick_no), f"{self.source}/clock", self._clock_seq, t)))
+
+    def _state(self, name: str, r: _Robot) -> RobotState:
+        sim = r.sim
+        names, q, qd, _effort = sim.joint_state()
+        arms = [ArmState(name=a, q_cmd=NDArray.of(np.asarray(sim.arm(a).q_cmd, dtype=np.float64)),
+                         status=str(sim.arm(a).status), abort_reason=sim.arm(a).abort_reason,
+                         applied=r.arm_seq.get(a, 0)) for a in sim.arms]
+        hands = [HandState(name=h, positions=NDArray.of(sim.hand(h).positions()), status=str(sim.hand(h).status),
+                           applied=r.hand_seq.get(h, 0)) for h in sim.hands]
+        wrenches = []
+        for a in sim.spec.arms:
+            if a.ft:
+                w = sim.ft(a.name)
+                wrenches.append(WrenchSample(arm=a.name, force=[float(v) for v in w.force],
+                                             torque=[float(v) for v in w.torque], frame=w.frame,
+                                             rotation=[float(v) for v in np.asarray(w.R_world_sensor).ravel()],
+                                             estimated=w.estimated))
+        tactile = []
+        for h in sim.spec.hands:
+            if h.pads:
+                pads = sim.tactile(h.name)
+                tactile.append(TactileSample(hand=h.name, pads=list(pads), pressure=NDArray.of(
+                    np.stack([np.asarray(v, dtype=np.float32) for v in pads.values()]))))
+        return RobotState(robot=name, tick=self.tick_no, t=sim.time, names=names, position=NDArray.of(q),
+                          velocity=NDArray.of(qd), arms=arms, hands=hands, wrenches=wrenches, tactile=tactile,
+                          failed=sim.failed, failure=sim.failure, held=r.held, refused=r.refused)
+
+    # -- commands -----------------------------------------------------------------------------
+    def _refuse(self, robot: str, why: str) -> None:
+        r = self.robots.get(robot)
+        if r is None:
+            self.refused_unknown += 1
+        else:
+            r.refused += 1
+        self.log.warning("refused: %s", why)
+
+    def _apply(self, msg: RobotCommand) -> None:
+        r = self.robots.get(msg.robot)
+        if r is None:
+            self._refuse(msg.robot, f"{type(msg).__name__}: no robot {msg.robot!r} in this world ({sorted(self.robots)})")
+            return
+        try:
+            if isinstance(msg, CameraRequest):
+                self._camera(r, msg)
+            elif isinstance(msg, ArmCommand):
+                self._arm(r, msg)
+            elif isinstance(msg, HandCommand):
+                self._hand(r, msg)
+            else:
+                self._head(r, msg)
+        except (CommandError, ValueError, KeyError) as exc:
+            self._refuse(msg.robot, f"{msg.robot}: {type(msg).__name__}: {exc}")
+            return
+        if not isinstance(msg, CameraRequest):
+            r.held = False
+
+    def _hold(self, robot: str, why: str) -> None:
+        r = self.robots.get(robot)
+        if r is None or r.held or r.sim.failed:
+            return
+        r.held = True
+        for a in r.sim.arms:
+            arm = r.sim.arm(a)
+            arm.move_joints(arm.q(), speed=1e6)  # stop where it is; the hands keep their grip
+        detail = f"{robot}: held by the world: {why}"
+        self.log.warning(detail)
+        self.io.emit(Event.HARDWARE_FAILURE, detail[:500])
+
+    def _joint_values(self, sim: Any, joints: tuple[str, ...], values: np.ndarray, what: str) -> np.ndarray:
+        idx = sim.art.indices(joints)
+        lo, hi = sim.art.lower[idx], sim.art.upper[idx]
+        tol = 1e-6
+        bad = np.nonzero((values < lo - tol) | (values > hi + tol))
+        if len(bad[-1]):
+            j = int(bad[-1][0])
+            raise CommandError(f"{what}: joint {joints[j]!r} target {float(values.reshape(-1, len(joints))[0, j]):.4f} "
+                               f"outside its limits [{lo[j]:.4f}, {hi[j]:.4f}]")
+        return values
+
+    def _arm(self, r: _Robot, msg: ArmCommand) -> None:
+        sim = r.sim
+        arm = sim.arm(msg.arm)
+        what = f"arm {msg.arm}"
+        v = None if msg.values is None else _finite(msg.values.numpy().astype(np.float64), what)
+        for f in ("speed", "duration", "max_force", "abort_force"):
+            x = getattr(msg, f)
+            if not np.isfinite(x) or x < 0:
+                raise CommandError(f"{what}: {f}={x} is not a finite non-negative number")
+        n = len(arm.joints)
+        need = {ArmCommandKind.JOINTS: (n,), ArmCommandKind.POSE: (4, 4), ArmCommandKind.TWIST: (6,),
+                ArmCommandKind.WRENCH: (6,), ArmCommandKind.GUARDED: (6,)}
+        k = msg.kind
+        if k in need and (v is None or v.shape != need[k]):
+            raise CommandError(f"{what}: {k} needs values of shape {need[k]}, got {None if v is None else v.shape}")
+        if k is ArmCommandKind.WAYPOINTS and (v is None or v.ndim != 2 or v.shape[1] != n or not len(v)):
+            raise CommandError(f"{what}: waypoints need shape (k, {n}), got {None if v is None else v.shape}")
+        speed = msg.speed or None
+        if k is ArmCommandKind.JOINTS:
+            arm.move_joints(self._joint_values(sim, arm.joints, v, what), speed=speed)
+        elif k is ArmCommandKind.WAYPOINTS:
+            arm.execute_waypoints(self._joint_values(sim, arm.joints, v, what), speed=speed,
+                                  abort_force=msg.abort_force or np.inf)
+        elif k is ArmCommandKind.POSE:
+            arm.move_pose(v, frame=msg.frame, speed=msg.speed or 0.1)
+        elif k is ArmCommandKind.TWIST:
+            arm.set_twist(v, frame=msg.frame, duration=msg.duration or None)
+        elif k is ArmCommandKind.WRENCH:
+            arm.set_wrench(v, frame=msg.frame)
+        elif k is ArmCommandKind.GUARDED:
+            arm.guarded_move(v, frame=msg.frame, max_force=msg.max_force, duration=msg.duration or None)
+        elif k is ArmCommandKind.STOP:
+            arm.stop()
+        elif k is ArmCommandKind.TARE:
+            sim.tare_ft(msg.arm)
+        r.arm_seq[msg.arm] = max(r.arm_seq.get(msg.arm, 0), msg.seq)
+
+    def _hand(self, r: _Robot, msg: HandCommand) -> None:
+        hand = r.sim.hand(msg.hand)
+        if not 0.0 < msg.effort <= 1.0:
+            raise CommandError(f"hand {msg.hand}: effort {msg.effort} is not in (0, 1]")
+        if msg.preshape:
+            hand.preshape(msg.preshape, msg.effort)
+        else:
+            if msg.values is None:
+                raise CommandError(f"hand {msg.hand}: a command needs values or a preshape")
+            v = _finite(msg.values.numpy().astype(np.float64), f"hand {msg.hand}")
+            if v.shape != (len(hand.joints),):
+                raise CommandError(f"hand {msg.hand}: needs {len(hand.joints)} values, got shape {v.shape}")
+            hand.set_fingers(self._joint_values(r.sim, hand.joints, v, f"hand {msg.hand}"), msg.effort)
+        r.hand_seq[msg.hand] = max(r.hand_seq.get(msg.hand, 0), msg.seq)
+
+    def _head(self, r: _Robot, msg: HeadCommand) -> None:
+        head = r.sim.head
+        if head is None:
+            raise CommandError(f"robot {r.sim.name} has no head")
+        head.move_joints(_finite(np.asarray(msg.values, dtype=np.float64), "head"))
+
+    def _camera(self, r: _Robot, msg: CameraRequest) -> None:
+        frame = r.sim.camera(msg.camera)
+        out = CameraFrame(robot=r.sim.name, camera=msg.camera, request=msg.request, t=frame.t,
+                          depth=NDArray.of(np.asarray(frame.depth, dtype=np.float32)),
+                          points=NDArray.of(np.asarray(frame.points, dtype=np.float64)),
+                          pixels=NDArray.of(np.asarray(frame.pixels, dtype=np.int32)),
+                          K=[float(v) for v in np.asarray(frame.K).ravel()],
+                          pose=[float(v) for v in np.asarray(frame.T_world_cam).ravel()])
+        r.camera_pub(encode(stamp(out, f"{self.source}/{r.sim.name}/camera", msg.request, self.world.time)))

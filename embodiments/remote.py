@@ -1,0 +1,513 @@
+"""A world's robot seen from a node: the primitives' robot facade over the key space.
+
+:class:`RemoteRobot` satisfies :class:`~contactflow.embodiments.primitives.base.Robot`, as
+:class:`~contactflow.embodiments.sim_robot.SimRobot` does, but everything crosses zenoh:
+it reads the newest :class:`RobotState` the world published on ``robot/<robot>/state``,
+computes frames at the measured joints with its own pinocchio model, and sends arm, hand,
+head and camera commands on ``robot/<robot>/command``. A command is pending until a state
+shows the world applied it, so a primitive that commands and then asks ``done()`` sees the
+command running, as it would on the robot itself.
+
+One :class:`RobotLink` per node and robot (:func:`connect`) carries the subscriptions and
+announces the node as a controller of the robot (``alive/controller/<robot>/<node>``): when
+the last one drops, the world holds the robot.
+"""
+
+from __future__ import annotations
+
+import secrets
+import threading
+import time
+import weakref
+from typing import Any
+
+import numpy as np
+
+from contactflow.embodiments.messages import (
+    ArmCommand,
+    ArmCommandKind,
+    ArmState,
+    CameraFrame,
+    CameraRequest,
+    HandCommand,
+    HandState,
+    HeadCommand,
+    RobotInfo,
+    RobotState,
+)
+from contactflow.embodiments.sensors.camera import DepthFrame
+from contactflow.embodiments.sensors.ft import WrenchReading
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.status import Status
+from contactflow.nodes.transport import Transport
+from contactflow.nodes.wire import NDArray, WireError, decode, encode, stamp
+
+CAMERA_TIMEOUT = 30.0  # s of wall time a camera frame may take (the first render compiles shaders)
+
+
+class RemoteError(RuntimeError):
+    """The world does not answer for a robot."""
+
+
+class RobotLink:
+    """One node's subscriptions to a world's robot, and its command publisher."""
+
+    def __init__(self, transport: Transport, ks: KeySpace, robot: str, node: str) -> None:
+        self.transport, self.ks, self.robot, self.node = transport, ks, robot, node
+        self._lock = threading.Condition()
+        self.state: RobotState | None = None
+        self.rejected = 0
+        self._frames: dict[int, CameraFrame] = {}
+        self._seq = 0
+        self._info: RobotInfo | None = None
+        self.facade: RemoteRobot | None = None
+        self._requests = 0
+        self._request_base = secrets.randbits(40) << 20
+        self._cmd = transport.publisher(ks.robot(robot, "command"))
+        self._handles = [transport.subscribe(ks.robot(robot, "state"), self._on_state),
+                         transport.subscribe(ks.robot(robot, "camera"), self._on_frame),
+                         transport.token(ks.alive_controller(robot, node))]
+
+    def _on_state(self, key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, RobotState, key)
+        except WireError:
+            self.rejected += 1
+            return
+        with self._lock:
+            if self.state is None or msg.tick >= self.state.tick or msg.tick == 0:
+                self.state = msg
+                self._lock.notify_all()
+
+    def _on_frame(self, key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, CameraFrame, key)
+        except WireError:
+            self.rejected += 1
+            return
+        with self._lock:
+            self._frames[msg.request] = msg
+            self._lock.notify_all()
+
+    def info(self, timeout: float = 5.0) -> RobotInfo:
+        """The robot's description, asked once of its world."""
+        if self._info is None:
+            key = self.ks.robot(self.robot, "info")
+            end = time.monotonic() + timeout
+            while self._info is None:
+                replies = self.transport.query(key, b"", timeout=min(1.0, timeout))
+                for rkey, payload in replies:
+                    self._info = decode(payload, RobotInfo, rkey)
+                if self._info is None and time.monotonic() > end:
+                    raise RemoteError(f"no world answers for robot {self.robot!r} on {key}")
+        return self._info
+
+    def wait_state(self, timeout: float = 5.0) -> RobotState:
+        with self._lock:
+            if self.state is None:
+                self._lock.wait_for(lambda: self.state is not None, timeout)
+            if self.state is None:
+                raise RemoteError(f"no state of robot {self.robot!r} on {self.ks.robot(self.robot, 'state')} "
+                                  f"within {timeout:g} s")
+            return self.state
+
+    def send(self, msg: ArmCommand | HandCommand | HeadCommand | CameraRequest) -> None:
+        self._seq += 1
+        t = self.state.t if self.state is not None else 0.0
+        self._cmd(encode(stamp(msg, f"{self.robot}/{self.node}/controller", self._seq, t)))
+
+    def frame(self, camera: str, timeout: float = CAMERA_TIMEOUT) -> CameraFrame:
+        """Ask the world for a frame now and wait for it (the world answers within the current tick)."""
+        self._requests += 1
+        request = self._request_base + self._requests  # unique across the nodes asking one world
+        self.send(CameraRequest(robot=self.robot, camera=camera, request=request))
+        with self._lock:
+            self._lock.wait_for(lambda: request in self._frames, timeout)
+            msg = self._frames.pop(request, None)
+        if msg is None:
+            raise RemoteError(f"robot {self.robot}: no frame of camera {camera!r} within {timeout:g} s")
+        return msg
+
+    def close(self) -> None:
+        for h in self._handles:
+            h.close()
+        self._handles.clear()
+
+
+_links: weakref.WeakKeyDictionary[Any, dict[str, RobotLink]] = weakref.WeakKeyDictionary()
+_links_lock = threading.Lock()
+
+
+def link(transport: Transport, ks: KeySpace, robot: str, node: str) -> RobotLink:
+    """The node's link to ``robot``: one per transport and robot, shared by the node's modules.
+
+    Subscribing is all it does; a module makes it in ``setup`` so the robot's state is there
+    when it starts (in lockstep the world publishes a new state only after the node's answer).
+    """
+    with _links_lock:
+        per = _links.setdefault(transport, {})
+        lk = per.get(robot)
+        if lk is None:
+            lk = per[robot] = RobotLink(transport, ks, robot, node)
+        return lk
+
+
+def connect(transport: Transport, ks: KeySpace, robot: str, node: str) -> RemoteRobot:
+    """The facade of ``robot`` for a node, shared by its modules (as one robot is shared by the
+    primitives that run on it)."""
+    lk = link(transport, ks, robot, node)
+    with _links_lock:
+        if lk.facade is None:
+            lk.facade = RemoteRobot(lk)
+        return lk.facade
+
+
+def _pending(sent: int, applied: int, status: str) -> Status:
+    return Status.RUNNING if sent > applied else Status(status)
+
+
+class RemoteArm:
+    """An arm of a :class:`RemoteRobot` (the :class:`~contactflow.embodiments.primitives.base.ArmLike` of a primitive)."""
+
+    def __init__(self, robot: RemoteRobot, spec: Any) -> None:
+        self.robot, self.spec = robot, spec
+        self.name, self.joints, self.home = spec.name, spec.joints, spec.home
+        self._idx: np.ndarray | None = None
+        self._sent = 0
+        self._stop_sent = 0
+
+    def _state(self) -> ArmState:
+        for a in self.robot.state.arms:
+            if a.name == self.name:
+                return a
+        raise RemoteError(f"robot {self.robot.name}: the world reports no arm {self.name!r}")
+
+    def q(self) -> np.ndarray:
+        return self.robot._q()[self.robot._index(self.joints)].copy()
+
+    def qd(self) -> np.ndarray:
+        return self.robot.state.velocity.numpy()[self.robot._index(self.joints)].copy()
+
+    @property
+    def q_cmd(self) -> np.ndarray:
+        return self._state().q_cmd.numpy().copy()
+
+    def ee_pose(self, frame: str = "world") -> np.ndarray:
+        return self.robot.frame_pose(self.spec.ee_frame, frame)
+
+    @property
+    def status(self) -> Status:
+        s = self._state()
+        if self._stop_sent == self._sent and self._sent > s.applied:
+            return Status.IDLE  # a stop in flight: nothing runs
+        return _pending(self._sent, s.applied, s.status)
+
+    @property
+    def abort_reason(self) -> str:
+        s = self._state()
+        return "" if self._sent > s.applied else s.abort_reason
+
+    def done(self) -> bool:
+        return self.status in (Status.SUCCESS, Status.FAILURE)
+
+    def _send(self, kind: ArmCommandKind, values: np.ndarray | None = None, **fields: Any) -> None:
+        self._sent += 1
+        arr = None if values is None else NDArray.of(np.ascontiguousarray(values, dtype=np.float64))
+        self.robot.link.send(ArmCommand(robot=self.robot.name, arm=self.name, kind=kind, seq=self._sent,
+                                        values=arr, **fields))
+
+    def stop(self) -> None:
+        self._send(ArmCommandKind.STOP)
+        self._stop_sent = self._sent
+
+    def set_joint_target(self, q: np.ndarray) -> None:
+        self.move_joints(q, speed=1e6)
+
+    def move_joints(self, q: np.ndarray, speed: float | None = None) -> None:
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (len(self.joints),):
+            raise ValueError(f"arm {self.name}: move_joints needs {len(self.joints)} values, got shape {q.shape}")
+        self._send(ArmCommandKind.JOINTS, q, speed=float(speed or 0.0))
+
+    def execute_waypoints(self, waypoints: np.ndarray, speed: float | None = None, abort_force: float = 8.0) -> None:
+        w = np.atleast_2d(np.asarray(waypoints, dtype=np.float64))
+        self._send(ArmCommandKind.WAYPOINTS, w, speed=float(speed or 0.0),
+                   abort_force=0.0 if not np.isfinite(abort_force) else float(abort_force))
+
+    def execute(self, plan: Any, abort_force: float = 8.0, speed: float | None = None) -> None:
+        self.execute_waypoints(getattr(plan, "waypoints", plan), speed=speed, abort_force=abort_force)
+
+    def move_pose(self, T: np.ndarray, frame: str = "world", speed: float = 0.1) -> None:
+        self._send(ArmCommandKind.POSE, np.asarray(T, dtype=np.float64), frame=frame, speed=float(speed))
+
+    def set_twist(self, twist: np.ndarray, frame: str = "world", duration: float | None = None) -> None:
+        self._send(ArmCommandKind.TWIST, np.asarray(twist, dtype=np.float64), frame=frame,
+                   duration=float(duration or 0.0))
+
+    def set_wrench(self, wrench: np.ndarray, frame: str = "world") -> None:
+        if not self.spec.ft:
+            raise ValueError(f"arm {self.name} has no F/T sensor for wrench control")
+        self._send(ArmCommandKind.WRENCH, np.asarray(wrench, dtype=np.float64), frame=frame)
+
+    def guarded_move(self, twist: np.ndarray, frame: str = "world", max_force: float = 5.0,
+                     duration: float | None = None) -> None:
+        if not self.spec.ft:
+            raise ValueError(f"arm {self.name} has no F/T sensor for a guarded move")
+        self._send(ArmCommandKind.GUARDED, np.asarray(twist, dtype=np.float64), frame=frame,
+                   max_force=float(max_force), duration=float(duration or 0.0))
+
+    def tare(self) -> None:
+        self._send(ArmCommandKind.TARE)
+
+    def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
+             obstacles: tuple = (), cloud: np.ndarray | None = None, rest: bool = False):
+        """OMPL plan from the commanded joints, as :meth:`SimRobot.arm(...).plan` (see ``plan_arm``)."""
+        from contactflow.embodiments.control.planning import plan_arm
+
+        return plan_arm(self.robot, self, goal, planner=planner, timeout=timeout, checker=checker,
+                        obstacles=obstacles, cloud=cloud, rest=rest)
+
+
+class RemoteHand:
+    """A hand of a :class:`RemoteRobot`."""
+
+    def __init__(self, robot: RemoteRobot, spec: Any) -> None:
+        self.robot, self.spec = robot, spec
+        self.name, self.kind, self.joints = spec.name, spec.kind, spec.joints
+        self.preshapes = tuple(spec.preshapes)
+        self._sent = 0
+
+    def _state(self) -> HandState:
+        for h in self.robot.state.hands:
+            if h.name == self.name:
+                return h
+        raise RemoteError(f"robot {self.robot.name}: the world reports no hand {self.name!r}")
+
+    def positions(self) -> np.ndarray:
+        return self._state().positions.numpy().copy()
+
+    @property
+    def status(self) -> Status:
+        s = self._state()
+        return _pending(self._sent, s.applied, s.status)
+
+    def done(self) -> bool:
+        return self.status in (Status.SUCCESS, Status.FAILURE)
+
+    def set_fingers(self, q: np.ndarray, effort: float = 1.0) -> None:
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (len(self.joints),):
+            raise ValueError(f"hand {self.name}: set_fingers needs {len(self.joints)} values, got shape {q.shape}")
+        if not 0.0 < effort <= 1.0:
+            raise ValueError(f"hand {self.name}: effort must be in (0, 1], got {effort}")
+        self._sent += 1
+        self.robot.link.send(HandCommand(robot=self.robot.name, hand=self.name, seq=self._sent,
+                                         values=NDArray.of(q), effort=float(effort)))
+
+    def preshape(self, name: str, effort: float = 1.0) -> None:
+        if name not in self.spec.preshapes:
+            raise ValueError(f"hand {self.name}: unknown preshape {name!r} (known: {list(self.preshapes)})")
+        self._sent += 1
+        self.robot.link.send(HandCommand(robot=self.robot.name, hand=self.name, seq=self._sent, preshape=name,
+                                         effort=float(effort)))
+
+    def open(self) -> None:
+        self.preshape("open")
+
+    def close(self, effort: float = 1.0) -> None:
+        self.preshape("closed", effort)
+
+
+class RemoteHead:
+    """The pan-tilt head of a :class:`RemoteRobot`: joint state, gaze Jacobians, joint targets."""
+
+    def __init__(self, robot: RemoteRobot, joints: tuple[str, ...]) -> None:
+        self.robot, self.joints = robot, tuple(joints)
+        kin = robot.kin
+        idx = kin.q_index(self.joints)
+        self.lower = np.asarray(kin.model.lowerPositionLimit)[idx].copy()
+        self.upper = np.asarray(kin.model.upperPositionLimit)[idx].copy()
+
+    def q(self) -> np.ndarray:
+        return self.robot._q()[self.robot._index(self.joints)].copy()
+
+    def jacobian(self, frame: str) -> np.ndarray:
+        self.robot._sync_kin()
+        return self.robot.kin.jacobian(frame)[:, self.robot.kin.q_index(self.joints)]
+
+    def move_joints(self, q: np.ndarray) -> None:
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (len(self.joints),):
+            raise ValueError(f"head: move_joints needs {len(self.joints)} values, got shape {q.shape}")
+        self.robot.link.send(HeadCommand(robot=self.robot.name, values=[float(v) for v in np.clip(q, self.lower, self.upper)]))
+
+
+class RemoteRobot:
+    """A robot of a world, driven and sensed over the key space (what primitives bind to on a node)."""
+
+    def __init__(self, link: RobotLink) -> None:
+        from contactflow.embodiments import registry
+        from contactflow.embodiments.control.kinematics import Kinematics
+
+        self.link = link
+        self.name = link.robot
+        self.info = link.info()
+        self.spec = registry.get(self.info.embodiment)
+        self.base = np.asarray(self.info.base, dtype=np.float64).reshape(4, 4)
+        self.kin = Kinematics(self.spec.urdf(), self.base)
+        self._kin_tick = -1
+        self._names: list[str] = []
+        self._index_of: dict[tuple[str, ...], np.ndarray] = {}
+        self._arms = {a.name: RemoteArm(self, a) for a in self.spec.arms}
+        self._hands = {h.name: RemoteHand(self, h) for h in self.spec.hands}
+        self.head = RemoteHead(self, self.spec.head_joints) if self.spec.head_joints else None
+        self._tare: dict[str, tuple[int, np.ndarray]] = {}
+        link.wait_state()
+
+    # -- state --------------------------------------------------------------------------------
+    @property
+    def state(self) -> RobotState:
+        s = self.link.state
+        if s is None:
+            raise RemoteError(f"robot {self.name}: no state received yet")
+        if s.names != self._names:
+            self._names = list(s.names)
+            self._index_of.clear()
+            self._s2k = self.kin.q_index(self._names)
+        return s
+
+    def _index(self, joints: tuple[str, ...]) -> np.ndarray:
+        self.state  # noqa: B018 (refreshes the joint order)
+        idx = self._index_of.get(joints)
+        if idx is None:
+            pos = {n: i for i, n in enumerate(self._names)}
+            idx = self._index_of[joints] = np.array([pos[j] for j in joints], dtype=np.intp)
+        return idx
+
+    def _q(self) -> np.ndarray:
+        return self.state.position.numpy()
+
+    @property
+    def time(self) -> float:
+        return self.state.t
+
+    @property
+    def failed(self) -> bool:
+        s = self.state
+        return s.failed or s.held
+
+    @property
+    def failure(self) -> str:
+        s = self.state
+        return s.failure or ("held by the world" if s.held else "")
+
+    @property
+    def arms(self) -> list[str]:
+        return list(self._arms)
+
+    @property
+    def hands(self) -> list[str]:
+        return list(self._hands)
+
+    def arm(self, name: str) -> RemoteArm:
+        try:
+            return self._arms[name]
+        except KeyError:
+            raise KeyError(f"robot {self.name}: no arm {name!r} (arms: {list(self._arms)})") from None
+
+    def hand(self, name: str) -> RemoteHand:
+        try:
+            return self._hands[name]
+        except KeyError:
+            raise KeyError(f"robot {self.name}: no hand {name!r} (hands: {list(self._hands)})") from None
+
+    # -- sensors ------------------------------------------------------------------------------
+    def ft(self, arm: str) -> WrenchReading:
+        for w in self.state.wrenches:
+            if w.arm == arm:
+                f, tq = np.asarray(w.force, dtype=np.float64), np.asarray(w.torque, dtype=np.float64)
+                pending = self._tare.get(arm)
+                if pending is not None:
+                    seq, offset = pending
+                    if self.arm(arm)._state().applied >= seq:
+                        del self._tare[arm]
+                    else:  # the world tares at its next tick: read as if it had
+                        f, tq = f - offset[:3], tq - offset[3:]
+                return WrenchReading(self.time, f, tq, w.frame, np.asarray(w.rotation).reshape(3, 3), w.estimated)
+        raise KeyError(f"robot {self.name}: arm {arm!r} has no F/T sensor")
+
+    def tare_ft(self, arm: str) -> None:
+        reading = self.ft(arm)
+        a = self.arm(arm)
+        a.tare()
+        self._tare[arm] = (a._sent, np.concatenate([reading.force, reading.torque]) + self._tare_offset(arm))
+
+    def _tare_offset(self, arm: str) -> np.ndarray:
+        pending = self._tare.get(arm)
+        return np.zeros(6) if pending is None else pending[1]
+
+    def tactile(self, hand: str) -> dict[str, np.ndarray]:
+        for t in self.state.tactile:
+            if t.hand == hand:
+                p = t.pressure.numpy()
+                return {pad: p[k].astype(np.float64) for k, pad in enumerate(t.pads)}
+        if hand not in self._hands:
+            raise KeyError(f"robot {self.name}: no hand {hand!r}")
+        return {}
+
+    def finger_positions(self, hand: str) -> np.ndarray:
+        return self.hand(hand).positions()
+
+    def camera(self, name: str = "kinect") -> DepthFrame:
+        self.spec.camera(name)
+        f = self.link.frame(name)
+        depth = f.depth.numpy()
+        return DepthFrame(t=f.t, depth=depth, points=f.points.numpy(), pixels=f.pixels.numpy(),
+                          K=np.asarray(f.K).reshape(3, 3), T_world_cam=np.asarray(f.pose).reshape(4, 4),
+                          labels=np.full(depth.shape, -1, np.int32), label_names=())
+
+    # -- kinematics ---------------------------------------------------------------------------
+    def _kin_q(self) -> np.ndarray:
+        q = self.kin.q.copy()
+        q[self._s2k] = self._q()
+        return q
+
+    def _sync_kin(self) -> None:
+        s = self.state
+        if self._kin_tick != s.tick:
+            self.kin.update(self._kin_q())
+            self._kin_tick = s.tick
+
+    def kin_q_cmd(self) -> np.ndarray:
+        """The model's joints: measured, with each arm at its commanded joints (where plans start)."""
+        q = self._kin_q()
+        for a in self._arms.values():
+            q[self.kin.q_index(a.joints)] = a.q_cmd
+        return q
+
+    def frame_pose(self, frame: str, relative_to: str = "world") -> np.ndarray:
+        self._sync_kin()
+        return self.kin.frame_pose(frame, relative_to)
+
+    def camera_pose(self, name: str = "kinect") -> np.ndarray:
+        spec = self.spec.camera(name)
+        return self.frame_pose(spec.link) @ spec.optical_in_link()
+
+    def add_task_frame(self, name: str, parent: str, T: np.ndarray) -> None:
+        self.kin.add_task_frame(name, parent, T)
+
+    def fixtures(self) -> list:
+        """The cell's fixtures as the world declared them (planning obstacles)."""
+        from contactflow.embodiments.control.planning import Obstacle
+
+        return [Obstacle(o.name, o.kind, tuple(o.size), np.asarray(o.pose).reshape(4, 4)) for o in self.info.fixtures]
+
+    @property
+    def spherical(self):
+        from contactflow.embodiments.spherical import SphericalModel
+
+        if not hasattr(self, "_spherical"):
+            self._spherical = SphericalModel.from_urdf(self.kin, str(self.spec.urdf()))
+        self._sync_kin()
+        self._spherical.update(self.kin)
+        return self._spherical

@@ -1,0 +1,113 @@
+"""Scene files (YAML): one cell of a world, its robots with their base poses, the table and the objects.
+
+Example::
+
+    scene: table                 # a named scene of embodiments.scenes (default: an empty floor)
+    robots:
+      - {name: tombatossals}                         # at the embodiment's own placement
+      - {name: melfa_2, embodiment: melfa, base: [1.3, 0.0, 0.0, 0.0, 0.0, 3.14159]}
+    objects:
+      - {name: cyl, kind: cylinder, radius: 0.03, length: 0.12, xyz: [0.55, -0.3, 0.81], mass: 0.2, friction: 0.8}
+      - {name: cube, kind: box, size: [0.05, 0.05, 0.05], xyz: [0.5, 0.1, 0.775]}
+      - {name: ball, kind: sphere, radius: 0.03, xyz: [0.6, 0.2, 0.78]}
+
+Poses are ``[x, y, z, roll, pitch, yaw]`` (m, rad, world). Errors name the file, line and field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from contactflow.nodes.yamldoc import YamlDoc
+
+_TOP = {"scene", "robots", "objects"}
+_ROBOT = {"name", "embodiment", "base"}
+_OBJECT = {"name", "kind", "size", "radius", "length", "xyz", "rpy", "mass", "friction", "static"}
+_SHAPE_FIELDS = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",)}
+
+
+@dataclass(frozen=True)
+class RobotPlacement:
+    name: str  # the robot's name on the key space (unique in the site)
+    embodiment: str  # registry name
+    base: tuple[float, ...] | None  # [x, y, z, roll, pitch, yaw] (m, rad); None: the embodiment's placement
+
+
+@dataclass(frozen=True)
+class SceneFile:
+    scene: str
+    robots: tuple[RobotPlacement, ...]
+    objects: tuple  # ObjectSpec
+    file: str = "<scene>"
+
+
+def _floats(doc: YamlDoc, path: tuple, n: int) -> tuple[float, ...]:
+    values = doc.get(path, list)
+    if len(values) != n or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+        raise doc.error(path, f"expected {n} numbers, got {values!r}")
+    return tuple(float(v) for v in values)
+
+
+def _number(doc: YamlDoc, path: tuple, default: float | object = ...) -> float:
+    v = doc.get(path, (int, float), default)
+    if isinstance(v, bool) or not float(v) > 0:
+        raise doc.error(path, f"expected a positive number, got {v!r}")
+    return float(v)
+
+
+def parse_scene(doc: YamlDoc) -> SceneFile:
+    """Validate a scene document; nothing is built (no SAPIEN here)."""
+    from contactflow.embodiments import registry
+    from contactflow.embodiments.scenes import SCENES
+    from contactflow.embodiments.world import ObjectSpec, ShapeSpec
+
+    doc.mapping((), _TOP)
+    scene = doc.get(("scene",), str, "")
+    if scene and scene not in SCENES:
+        raise doc.error(("scene",), f"{scene!r} is not one of {sorted(SCENES)}")
+    robots: list[RobotPlacement] = []
+    for i, _ in enumerate(doc.get(("robots",), list)):
+        p = ("robots", i)
+        doc.mapping(p, _ROBOT)
+        name = doc.get(p + ("name",), str)
+        emb = doc.get(p + ("embodiment",), str, name)
+        if emb not in registry.names():
+            raise doc.error(p + ("embodiment",), f"{emb!r} is not a robot of the registry ({registry.names()})")
+        if any(r.name == name for r in robots):
+            raise doc.error(p + ("name",), f"robot {name!r} is placed twice")
+        base = _floats(doc, p + ("base",), 6) if doc.get(p + ("base",), list, None) is not None else None
+        robots.append(RobotPlacement(name, emb, base))
+    if not robots:
+        raise doc.error(("robots",), "a scene needs at least one robot")
+    objects = []
+    for i, _ in enumerate(doc.get(("objects",), list, [])):
+        p = ("objects", i)
+        fields = doc.mapping(p, _OBJECT)
+        name = doc.get(p + ("name",), str)
+        kind = doc.get(p + ("kind",), str)
+        if kind not in _SHAPE_FIELDS:
+            raise doc.error(p + ("kind",), f"{kind!r} is not one of {sorted(_SHAPE_FIELDS)}")
+        for f in sorted({"size", "radius", "length"} - set(_SHAPE_FIELDS[kind]) & set(fields)):
+            raise doc.error(p + (f,), f"a {kind} has no {f!r} (it takes {list(_SHAPE_FIELDS[kind])})")
+        if kind == "box":
+            size = _floats(doc, p + ("size",), 3)
+            if min(size) <= 0:
+                raise doc.error(p + ("size",), f"sizes must be positive, got {list(size)}")
+        elif kind == "cylinder":
+            size = (_number(doc, p + ("radius",)), _number(doc, p + ("length",)))
+        else:
+            size = (_number(doc, p + ("radius",)),)
+        xyz = _floats(doc, p + ("xyz",), 3)
+        rpy = _floats(doc, p + ("rpy",), 3) if doc.get(p + ("rpy",), list, None) is not None else (0.0, 0.0, 0.0)
+        mass = _number(doc, p + ("mass",), 0.2)
+        friction = _number(doc, p + ("friction",), 0.6)
+        static = doc.get(p + ("static",), bool, False)
+        if any(o.name == name for o in objects):
+            raise doc.error(p + ("name",), f"object {name!r} is defined twice")
+        objects.append(ObjectSpec(name, (ShapeSpec(kind, size),), mass, friction, xyz, rpy, static, kind))
+    return SceneFile(scene, tuple(robots), tuple(objects), doc.file)
+
+
+def load_scene(path: str | Path) -> SceneFile:
+    return parse_scene(YamlDoc.load(path))
