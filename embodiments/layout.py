@@ -10,13 +10,19 @@ document runs in a process of its own (``contactflow node``) or beside others in
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from contactflow.nodes.messages import Clock, EventMsg
+from contactflow.nodes.status import Event
 from contactflow.nodes.taskgraph import NodeKind, TaskGraph
+from contactflow.nodes.wire import decode
 
 CELLS = Path(__file__).parent / "cells"
 
@@ -93,3 +99,142 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
                                "pool": pool}})
     return {"site": site, "node": node or f"control_{robot}", "clock": clock, "zenoh": zenoh(listen, connect),
             "modules": modules}
+
+
+class SiteWatch:
+    """A tool session on a site: every module event, and the world clock's progress (what ``contactflow echo`` shows)."""
+
+    FINAL = frozenset({Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.TIMEOUT, Event.HARDWARE_FAILURE})
+
+    def __init__(self, site: str, endpoint: str) -> None:
+        from contactflow.nodes.keys import KeySpace
+        from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+
+        self.ks = KeySpace(site)
+        self.t = ZenohTransport(ZenohSettings(connect=(endpoint,))).open()
+        self.events: list[EventMsg] = []
+        self.first_tick: tuple[float, float] | None = None  # (sim s, wall s) of tick 1
+        self.last_tick: tuple[float, float] | None = None
+        self._lock = threading.Lock()
+        self._subs = [self.t.subscribe(self.ks.events(), self._on_event),
+                      self.t.subscribe(self.ks.clock(), self._on_clock)]
+
+    def _on_event(self, key: str, payload: bytes) -> None:
+        with self._lock:
+            self.events.append(decode(payload, EventMsg, key))
+
+    def _on_clock(self, key: str, payload: bytes) -> None:
+        msg = decode(payload, Clock, key)
+        now = time.time()  # epoch, as the events' t_wall stamps of the nodes on this machine
+        with self._lock:
+            if msg.tick >= 1 and self.first_tick is None:
+                self.first_tick = (msg.t, now)
+            self.last_tick = (msg.t, now)
+
+    def outcome(self, module: str) -> EventMsg | None:
+        """The final event of the module whose address ends with ``module``, if it came."""
+        with self._lock:
+            return next((e for e in self.events if e.module.endswith(module) and e.event in self.FINAL), None)
+
+    def sequence(self) -> list[tuple[float, str, str]]:
+        """(sim time, module, event) of every event, in simulated-time order."""
+        with self._lock:
+            return sorted((round(e.hdr.t_sim, 6), e.module.rsplit("/", 1)[-1], str(e.event)) for e in self.events)
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.close()
+        self.t.close()
+
+
+@dataclass
+class CellRun:
+    """What a run of a cell's nodes gave: each robot's task outcome, every event, the clock's pace."""
+
+    outcomes: dict[str, EventMsg]
+    events: list[tuple[float, str, str]]
+    sim_s: float  # simulated s from tick 1 to the last outcome
+    wall_s: float  # wall s over the same span
+    world: Any = None  # the world module, when it ran in this process
+
+    @property
+    def rtf(self) -> float:
+        return self.sim_s / self.wall_s if self.wall_s > 0 else 0.0
+
+
+def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str, Any]], endpoint: str,
+             processes: bool = False, timeout: float = 300.0, keep: Callable[[Any], None] | None = None) -> CellRun:
+    """Run a world node and control nodes until every control node's task ended.
+
+    ``processes``: each node a process of its own (``contactflow node``); else all of them in
+    this process, a zenoh session each. ``keep`` is called with the world module (in-process
+    runs) before the nodes stop, to read what only the simulation knows.
+    """
+    from contactflow.nodes.config import load_node_config
+    from contactflow.nodes.node import Node
+    from contactflow.nodes.procs import spawn_node, stop_process, wait_for, write_config
+
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [write_config(folder / f"{c['node']}.yaml", c) for c in (world, *controls)]
+    robots = [next(m["robot"] for m in c["modules"] if m["name"] == "task") for c in controls]
+    started: list[Any] = []
+    watch: SiteWatch | None = None
+    try:
+        for k, p in enumerate(paths):
+            if processes:
+                started.append(spawn_node(p, folder / f"{p.stem}.log"))
+            else:
+                node = Node(load_node_config(p))
+                node.start()
+                started.append(node)
+            if k == 0:
+                watch = SiteWatch(world["site"], endpoint)
+        names = [f"{r}/control_{r}/task" for r in robots]
+        if not wait_for(lambda: all(watch.outcome(n) for n in names), timeout):
+            logs = "".join((folder / f"{p.stem}.log").read_text()[-2000:] for p in paths if (folder / f"{p.stem}.log").exists())
+            raise TimeoutError(f"tasks still running after {timeout:g} s: {watch.sequence()[-10:]} {logs}")
+        outcomes = {r: watch.outcome(n) for r, n in zip(robots, names, strict=True)}
+        end = max(outcomes.values(), key=lambda e: e.hdr.t_sim)
+        t0_sim, t0_wall = watch.first_tick
+        world_module = None if processes else started[0].host.modules[("site", "world")].module
+        if keep is not None and world_module is not None:
+            keep(world_module)
+        return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, world_module)
+    finally:
+        for s in reversed(started):
+            if processes:
+                stop_process(s)
+            else:
+                s.stop()
+        if watch is not None:
+            watch.close()
+
+
+PLACE_TARGET = (0.55, -0.12, 0.93)  # m, where tombatossals' pick and place puts the can (grasp frame)
+TAP_ABOVE = (0.85, 0.3, 0.95)  # m, where melfa taps down onto the cube of the shared table
+
+
+def _pose(xyz: tuple[float, float, float]) -> list[float]:
+    from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+
+    p = pose6(top_grasp_pose(xyz))
+    return [p[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
+
+
+def table_cell(site: str, endpoint: str, melfa: bool = False, **world: Any) -> tuple[dict, list[dict]]:
+    """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3);
+    with ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube.
+
+    Returns the world node (listening on ``endpoint``, waiting for the control nodes before
+    tick 1, so a run repeats exactly) and the control nodes (connecting to it, tasks autostarted).
+    """
+    from contactflow.embodiments.tasks import TASKS_DIR
+
+    controls = [control_node(site, "tombatossals", "tombatossals", TASKS_DIR / "thesis.yaml", "pick_and_place",
+                             {"target": _pose(PLACE_TARGET)}, connect=(endpoint,), autostart=True)]
+    if melfa:
+        controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE)},
+                                     connect=(endpoint,), autostart=True))
+    cell = CELLS / ("shared_table.yaml" if melfa else "pick_place.yaml")
+    w = world_node(site, cell, listen=endpoint, wait_for=tuple(c["node"] for c in controls), **world)
+    return w, controls

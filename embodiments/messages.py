@@ -185,8 +185,10 @@ class RobotState(Message, tag="robot_state"):
     tactile: list[TactileSample] = []
     failed: bool = False  # stopped by a hardware fault (the robot does not move again)
     failure: str = ""
-    held: bool = False  # held by the world: its controller died or stalled
+    held: bool = False  # held by the world: its controller died or stalled (until a command comes)
+    held_at: int = -1  # the tick the hold began (-1: not held); a controller that connected later may take over
     refused: int = 0  # commands refused so far (unknown part, non-finite, outside the joint limits)
+    late: int = 0  # commands applied a tick or more after the state they answered (real-time clock)
 
 
 class ArmCommandKind(StrEnum):

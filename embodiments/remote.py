@@ -56,6 +56,7 @@ class RobotLink:
         self.transport, self.ks, self.robot, self.node = transport, ks, robot, node
         self._lock = threading.Condition()
         self.state: RobotState | None = None
+        self.first_tick = 0  # the tick of the first state this node received
         self.rejected = 0
         self._frames: dict[int, CameraFrame] = {}
         self._seq = 0
@@ -76,6 +77,8 @@ class RobotLink:
             return
         with self._lock:
             if self.state is None or msg.tick >= self.state.tick or msg.tick == 0:
+                if self.state is None:
+                    self.first_tick = msg.tick
                 self.state = msg
                 self._lock.notify_all()
 
@@ -393,8 +396,10 @@ class RemoteRobot:
 
     @property
     def failed(self) -> bool:
+        """Stopped by a fault, or held by the world while this node commanded it (a node that
+        connects to a held robot takes it over with its first command)."""
         s = self.state
-        return s.failed or s.held
+        return s.failed or (s.held and s.held_at >= self.link.first_tick)
 
     @property
     def failure(self) -> str:

@@ -79,7 +79,9 @@ class _Robot:
     hand_seq: dict[str, int] = field(default_factory=dict)
     controllers: set[str] = field(default_factory=set)  # nodes holding alive/controller/<robot>/<node>
     held: bool = False
+    held_at: int = -1
     refused: int = 0
+    late: int = 0
     seq: int = 0
     last: RobotState | None = None  # the state of the current tick
 
@@ -112,7 +114,6 @@ class WorldModule(Module):
         self.robots: dict[str, _Robot] = {}
         self.tick_no = 0
         self.overruns = 0
-        self.late = 0
         self.refused_unknown = 0
         self._commands: deque[ArmCommand | HandCommand | HeadCommand] = deque()
         self._requests: deque[CameraRequest] = deque()
@@ -244,7 +245,6 @@ class WorldModule(Module):
             target = self._t0_sim + (time.monotonic() - self._t0_wall)
             dt = 1.0 / p.control_rate
             while self.world.time + dt <= target + 1e-9:
-                self._serve_requests()
                 self._tick()
             self._serve_requests()
             return Status.RUNNING
@@ -303,12 +303,16 @@ class WorldModule(Module):
         return len(todo)
 
     def _tick(self) -> None:
+        self._serve_requests()
         with self._cond:
             batch, self._commands = self._commands, deque()
             holds, self._holds = self._holds, deque()
         for robot, why in holds:
             self._hold(robot, why)
         for msg in batch:
+            # in real time a command stamped before the previous tick missed the tick it was meant for
+            if self.world.time - msg.hdr.t_sim > 1.5 / self.params.control_rate and msg.robot in self.robots:
+                self.robots[msg.robot].late += 1
             self._apply(msg)
         try:
             self.world.step(self._every)
@@ -360,7 +364,8 @@ class WorldModule(Module):
                     np.stack([np.asarray(v, dtype=np.float32) for v in pads.values()]))))
         return RobotState(robot=name, tick=self.tick_no, t=sim.time, names=names, position=NDArray.of(q),
                           velocity=NDArray.of(qd), arms=arms, hands=hands, wrenches=wrenches, tactile=tactile,
-                          failed=sim.failed, failure=sim.failure, held=r.held, refused=r.refused)
+                          failed=sim.failed, failure=sim.failure, held=r.held,
+                          held_at=r.held_at if r.held else -1, refused=r.refused, late=r.late)
 
     # -- commands -----------------------------------------------------------------------------
     def _refuse(self, robot: str, why: str) -> None:
@@ -395,7 +400,7 @@ class WorldModule(Module):
         r = self.robots.get(robot)
         if r is None or r.held or r.sim.failed:
             return
-        r.held = True
+        r.held, r.held_at = True, self.tick_no
         for a in r.sim.arms:
             arm = r.sim.arm(a)
             arm.move_joints(arm.q(), speed=1e6)  # stop where it is; the hands keep their grip

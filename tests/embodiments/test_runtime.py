@@ -2,111 +2,98 @@
 
 from __future__ import annotations
 
-import threading
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from contactflow.embodiments.layout import CELLS, control_node, world_node
-from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
-from contactflow.embodiments.tasks import TASKS_DIR
-from contactflow.nodes.config import load_node_config
-from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.messages import EventMsg
-from contactflow.nodes.node import Node
-from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
+from contactflow.embodiments.layout import TAP_ABOVE, run_cell, table_cell
+from contactflow.nodes.procs import free_port
 from contactflow.nodes.status import Event
-from contactflow.nodes.transport import ZenohSettings, ZenohTransport
-from contactflow.nodes.wire import decode
 
 ROBOT = "tombatossals"
-_T = pose6(top_grasp_pose((0.55, -0.12, 0.93)))
-PLAN = {"target": [_T[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]}
-FINAL = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.TIMEOUT, Event.HARDWARE_FAILURE)
 
 
-class Observer:
-    """A tool session recording every module event of a site (what ``contactflow echo`` would show)."""
-
-    def __init__(self, site: str, endpoint: str) -> None:
-        self.ks = KeySpace(site)
-        self.t = ZenohTransport(ZenohSettings(connect=(endpoint,))).open()
-        self.events: list[EventMsg] = []
-        self._lock = threading.Lock()
-        self._sub = self.t.subscribe(self.ks.events(), self._on)
-
-    def _on(self, key: str, payload: bytes) -> None:
-        with self._lock:
-            self.events.append(decode(payload, EventMsg, key))
-
-    def outcome(self, module: str) -> EventMsg | None:
-        with self._lock:
-            return next((e for e in self.events if e.module.endswith(module) and e.event in FINAL), None)
-
-    def sequence(self) -> list[tuple[float, str, str]]:
-        """(sim time, module, event) of every event, in simulated-time order."""
-        with self._lock:
-            return sorted((round(e.hdr.t_sim, 6), e.module.rsplit("/", 1)[-1], str(e.event)) for e in self.events)
-
-    def close(self) -> None:
-        self._sub.close()
-        self.t.close()
-
-
-def configs(tmp: Path, site: str, seed: int = 0) -> tuple[Path, Path, str]:
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    control = f"control_{ROBOT}"
-    w = write_config(tmp / "world.yaml", world_node(site, CELLS / "pick_place.yaml", listen=endpoint,
-                                                    wait_for=(control,), seed=seed))
-    c = write_config(tmp / "control.yaml", control_node(site, ROBOT, ROBOT, TASKS_DIR / "thesis.yaml", "pick_and_place", PLAN,
-                                                        connect=(endpoint,), autostart=True))
-    return w, c, endpoint
-
-
-def run_in_one_process(tmp: Path, site: str, timeout: float = 240.0):
-    w, c, endpoint = configs(tmp, site)
-    world = Node(load_node_config(w))
-    world.start()
-    obs = Observer(site, endpoint)
-    control = Node(load_node_config(c))
-    control.start()
-    try:
-        assert wait_for(lambda: obs.outcome("/task") is not None, timeout), obs.sequence()[-20:]
-        wm = world.host.modules[("site", "world")].module
-        cyl = wm.robots[ROBOT].sim.ground_truth().object_poses["cyl"][:3, 3].copy()
-        return obs.outcome("/task"), obs.sequence(), cyl, wm
-    finally:
-        control.stop()
-        world.stop()
-        obs.close()
+def can_position(wm) -> np.ndarray:
+    return wm.robots[ROBOT].sim.ground_truth().object_poses["cyl"][:3, 3].copy()
 
 
 def test_pick_and_place_runs_over_the_key_space_and_repeats_exactly_in_one_process_and_in_two(tmp_path):
-    one, seq_one, cyl, wm = run_in_one_process(tmp_path / "one", "rt1")
-    assert one.event is Event.SUCCESS, seq_one
-    assert wm.overruns == 0 and wm.robots[ROBOT].refused == 0
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    kept = {}
+    one = run_cell(tmp_path / "one", *table_cell("rt1", endpoint), endpoint,
+                   keep=lambda wm: kept.update(can=can_position(wm), overruns=wm.overruns,
+                                               refused=wm.robots[ROBOT].refused))
+    assert one.outcomes[ROBOT].event is Event.SUCCESS, one.events
+    assert kept["overruns"] == 0 and kept["refused"] == 0
     # the can left its place and stands on the table near the place target
+    cyl = kept["can"]
     assert cyl[2] == pytest.approx(0.81, abs=0.015)
     assert np.hypot(cyl[0] - 0.55, cyl[1] + 0.3) > 0.1
-    visited = {m for _, m, _ in seq_one}
+    visited = {m for _, m, _ in one.events}
     assert {"detect_objects", "move_to", "robust_grasp", "lift", "transport", "place", "release"} <= visited
 
     # the same configuration, each node a process of its own
-    w, c, endpoint = configs(tmp_path / "two", "rt1")
-    procs = [spawn_node(w, tmp_path / "two" / "world.log")]
-    obs = Observer("rt1", endpoint)
-    procs.append(spawn_node(c, tmp_path / "two" / "control.log"))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    two = run_cell(tmp_path / "two", *table_cell("rt1", endpoint), endpoint, processes=True)
+    assert two.outcomes[ROBOT].event is Event.SUCCESS
+    assert two.outcomes[ROBOT].hdr.t_sim == pytest.approx(one.outcomes[ROBOT].hdr.t_sim, abs=1e-9)
+    assert two.events == one.events
+
+
+def test_two_robots_in_one_cell_each_run_a_task_without_disturbing_the_other(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    kept = {}
+
+    def keep(wm) -> None:
+        gt = wm.robots[ROBOT].sim.ground_truth()
+        kept.update(can=gt.object_poses["cyl"][:3, 3].copy(), cube=gt.object_poses["cube"][:3, 3].copy(),
+                    contacts=gt.contacts, refused=[r.refused for r in wm.robots.values()],
+                    failed=[r.sim.failed for r in wm.robots.values()])
+
+    run = run_cell(tmp_path, *table_cell("rt2", endpoint, melfa=True), endpoint, keep=keep)
+    assert all(o.event is Event.SUCCESS for o in run.outcomes.values()), run.events
+    assert ("touch", "success") in {(m, e) for _, m, e in run.events}
+    # the can was moved by tombatossals; melfa touched down at the cube and left it standing there
+    cyl = kept["can"]
+    assert np.hypot(cyl[0] - 0.55, cyl[1] + 0.3) > 0.1 and cyl[2] == pytest.approx(0.81, abs=0.015)
+    assert kept["cube"] == pytest.approx([TAP_ABOVE[0], TAP_ABOVE[1], 0.775], abs=0.01)
+    end = max(o.hdr.t_sim for o in run.outcomes.values())
+    assert not [e for t, _, e in run.events if t <= end and e == "hardware_failure"]  # no robot held or failed
+    assert kept["refused"] == [0, 0] and kept["failed"] == [False, False]
+    # the robots do not touch each other
+    assert not any({c.body_a.split("/")[0], c.body_b.split("/")[0]} == {ROBOT, "melfa"} for c in kept["contacts"])
+
+
+def test_killing_the_control_node_mid_grasp_holds_the_robot_and_a_new_control_node_finishes_the_task(tmp_path):
+    import signal
+    import time
+
+    from contactflow.embodiments.layout import SiteWatch
+    from contactflow.nodes.procs import spawn_node, stop_process, wait_for, write_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    world, (control,) = table_cell("rt3", endpoint)
+    w = spawn_node(write_config(tmp_path / "world.yaml", world), tmp_path / "world.log")
+    watch = SiteWatch("rt3", endpoint)
+    c1 = spawn_node(write_config(tmp_path / "control.yaml", control), tmp_path / "control1.log")
+    c2 = None
     try:
-        assert wait_for(lambda: obs.outcome("/task") is not None, 300), (
-            (tmp_path / "two" / "control.log").read_text()[-3000:])
-        two = obs.outcome("/task")
-        seq_two = obs.sequence()
+        assert wait_for(lambda: ("robust_grasp", "contact") in {(m, e) for _, m, e in watch.sequence()}, 120), (
+            watch.sequence())
+        c1.send_signal(signal.SIGKILL)  # dies mid-grasp: no goodbye, its session just drops
+        c1.wait(10)
+        held = lambda: next((e for e in watch.events if e.event is Event.HARDWARE_FAILURE  # noqa: E731
+                             and e.detail.startswith(f"{ROBOT}: held by the world")), None)
+        assert wait_for(lambda: held() is not None, 10), watch.sequence()[-5:]
+        t_held = watch.last_tick[0]
+        time.sleep(1.0)
+        assert watch.last_tick[0] > t_held + 0.5  # the world runs on without the dead node
+        # the deployment starts the control node again: the task runs from the start and ends
+        c2 = spawn_node(tmp_path / "control.yaml", tmp_path / "control2.log")
+        assert wait_for(lambda: watch.outcome(f"{ROBOT}/control_{ROBOT}/task") is not None, 240), (
+            (tmp_path / "control2.log").read_text()[-3000:])
+        assert watch.outcome(f"{ROBOT}/control_{ROBOT}/task").event is Event.SUCCESS, [(round(e.hdr.t_sim, 2), e.module.rsplit("/", 1)[-1], str(e.event), e.detail[:80]) for e in watch.events]
     finally:
-        for p in procs:
-            stop_process(p)
-        obs.close()
-    assert two.event is Event.SUCCESS
-    assert two.hdr.t_sim == pytest.approx(one.hdr.t_sim, abs=1e-9)
-    assert seq_two == seq_one
+        for p in (c2, c1, w):
+            if p is not None:
+                stop_process(p)
+        watch.close()

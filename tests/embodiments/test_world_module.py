@@ -1,0 +1,218 @@
+"""The world module: scene files, commands and their refusal, the lockstep barrier, holding a robot whose controller died."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from contactflow.embodiments.layout import world_node
+from contactflow.embodiments.messages import (
+    ArmCommand,
+    ArmCommandKind,
+    CameraFrame,
+    CameraRequest,
+    HandCommand,
+    RobotState,
+)
+from contactflow.embodiments.scene_file import parse_scene
+from contactflow.nodes.config import parse_node_config
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.messages import Clock, EventMsg, LockstepAck
+from contactflow.nodes.node import Node
+from contactflow.nodes.procs import free_port, wait_for
+from contactflow.nodes.status import Event
+from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+from contactflow.nodes.wire import NDArray, decode, encode
+from contactflow.nodes.yamldoc import ConfigError, YamlDoc
+
+SCENE = """\
+scene: table
+robots:
+  - {name: melfa}
+objects:
+  - {name: cube, kind: box, size: [0.05, 0.05, 0.05], xyz: [0.5, 0.2, 0.775]}
+"""
+
+
+@pytest.mark.parametrize("text, where", [
+    ("robots:\n  - {name: walle}\n", r"scene.yaml:2: robots\[0\].embodiment: 'walle' is not a robot"),
+    ("robots:\n  - {name: melfa, color: red}\n", r"scene.yaml:2: robots\[0\].color: unknown field"),
+    ("robots: [{name: melfa}]\nobjects:\n  - {name: c, kind: box, radius: 0.1, size: [1, 1, 1], xyz: [0, 0, 1]}\n",
+     r"scene.yaml:3: objects\[0\].radius: a box has no 'radius'"),
+    ("robots: [{name: melfa}]\nobjects:\n  - {name: c, kind: sphere, radius: -1, xyz: [0, 0, 1]}\n",
+     r"scene.yaml:3: objects\[0\].radius: expected a positive number"),
+    ("robots: [{name: melfa, base: [0, 0]}]\n", r"scene.yaml:1: robots\[0\].base: expected 6 numbers"),
+    ("robots: [{name: melfa}, {name: melfa}]\n", r"scene.yaml:1: robots\[1\].name: robot 'melfa' is placed twice"),
+    ("scene: moon\nrobots: [{name: melfa}]\n", r"scene.yaml:1: scene: 'moon' is not one of"),
+])
+def test_a_bad_scene_file_names_the_line_and_field(text, where):
+    with pytest.raises(ConfigError, match=where):
+        parse_scene(YamlDoc.parse(text, "scene.yaml"))
+
+
+class Client:
+    """A hand-written controller session: state in, commands out (what a node's robot link does)."""
+
+    def __init__(self, site: str, endpoint: str, robot: str = "melfa") -> None:
+        self.ks = KeySpace(site)
+        self.robot = robot
+        self.t = ZenohTransport(ZenohSettings(connect=(endpoint,))).open()
+        self.states: list[RobotState] = []
+        self.clocks: list[Clock] = []
+        self.events: list[EventMsg] = []
+        self.frames: list[CameraFrame] = []
+        self._lock = threading.Lock()
+        self._cmd = self.t.publisher(self.ks.robot(robot, "command"))
+        self._ack = self.t.publisher(self.ks.lockstep("tester"))
+        self._subs = [
+            self.t.subscribe(self.ks.robot(robot, "state"), lambda k, p: self._add(self.states, decode(p, RobotState, k))),
+            self.t.subscribe(self.ks.clock(), lambda k, p: self._add(self.clocks, decode(p, Clock, k))),
+            self.t.subscribe(self.ks.events(), lambda k, p: self._add(self.events, decode(p, EventMsg, k))),
+            self.t.subscribe(self.ks.robot(robot, "camera"), lambda k, p: self._add(self.frames, decode(p, CameraFrame, k))),
+        ]
+
+    def _add(self, where: list, msg) -> None:
+        with self._lock:
+            where.append(msg)
+
+    @property
+    def state(self) -> RobotState:
+        with self._lock:
+            return self.states[-1]
+
+    def send(self, msg) -> None:
+        self._cmd(encode(msg))
+
+    def ack(self, tick: int) -> None:
+        self._ack(encode(LockstepAck(node="tester", tick=tick)))
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.close()
+        self.t.close()
+
+
+@pytest.fixture
+def world(tmp_path):
+    scene = tmp_path / "cell.yaml"
+    scene.write_text(SCENE)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    site = f"w{free_port()}"
+    node = Node(parse_node_config(YamlDoc.parse(
+        __import__("yaml").safe_dump(world_node(site, scene, listen=endpoint)), "world.yaml")))
+    node.start()
+    client = Client(site, endpoint)
+    assert wait_for(lambda: len(client.states) > 5, 30)
+    yield node.host.modules[("site", "world")].module, client
+    client.close()
+    node.stop()
+
+
+def arm_cmd(kind: ArmCommandKind, values=None, seq: int = 1, **kw) -> ArmCommand:
+    return ArmCommand(robot=kw.pop("robot", "melfa"), arm=kw.pop("arm", "arm"), kind=kind, seq=seq,
+                      values=None if values is None else NDArray.of(np.asarray(values, dtype=np.float64)), **kw)
+
+
+def test_commands_outside_the_robot_are_refused_counted_and_never_applied(world):
+    wm, c = world
+    q0 = c.state.position.numpy().copy()
+    home = np.array(wm.robots["melfa"].sim.spec.arm("arm").home)
+    bad = [
+        arm_cmd(ArmCommandKind.JOINTS, home + [10.0, 0, 0, 0, 0, 0]),  # outside the joint limits
+        arm_cmd(ArmCommandKind.JOINTS, [np.nan] * 6),
+        arm_cmd(ArmCommandKind.JOINTS, home[:3]),  # wrong shape
+        arm_cmd(ArmCommandKind.TWIST, [0.0, 0, np.inf, 0, 0, 0]),
+        arm_cmd(ArmCommandKind.JOINTS, home, arm="left"),  # no such arm
+        arm_cmd(ArmCommandKind.POSE, np.eye(4), speed=-1.0),
+        HandCommand(robot="melfa", hand="gripper", seq=1, preshape="fist"),
+        HandCommand(robot="melfa", hand="gripper", seq=2, preshape="open", effort=3.0),
+    ]
+    for m in bad:
+        c.send(m)
+    assert wait_for(lambda: c.state.refused == len(bad), 10), c.state.refused
+    # a command naming another robot than its key, and a robot the world does not have
+    c.send(arm_cmd(ArmCommandKind.STOP, robot="baxter"))
+    other = ZenohTransport(ZenohSettings(connect=c.t.settings.connect)).open()
+    other.publisher(c.ks.robot("walle", "command"))(encode(arm_cmd(ArmCommandKind.STOP, robot="walle")))
+    assert wait_for(lambda: c.state.refused == len(bad) + 1 and wm.refused_unknown == 1, 10)
+    other.close()
+    assert np.abs(c.state.position.numpy()[:6] - q0[:6]).max() < 0.02  # nothing moved the arm
+    assert not c.state.held and not c.state.failed
+    # a valid command after all that is applied, and its sequence number comes back
+    target = home + [0.2, 0, 0, 0, 0, 0]
+    c.send(arm_cmd(ArmCommandKind.JOINTS, target, seq=7))
+    names = c.state.names
+    idx = [names.index(j) for j in wm.robots["melfa"].sim.spec.arm("arm").joints]
+    assert wait_for(lambda: c.state.arms[0].applied == 7 and c.state.arms[0].status == "success", 20)
+    assert c.state.position.numpy()[idx] == pytest.approx(target, abs=0.01)
+
+
+def test_a_lockstep_node_holds_the_world_at_each_tick_until_it_answers(world):
+    wm, c = world
+    token = c.t.token(c.ks.alive_lockstep("tester"))
+    assert wait_for(lambda: "tester" in wm._lockstep, 10)
+    time.sleep(0.3)
+    k = wm.tick_no
+    time.sleep(0.5)
+    assert wm.tick_no == k  # waiting for the tester's answer to tick k
+    for i in range(3):
+        c.ack(k + i)
+        assert wait_for(lambda i=i: wm.tick_no == k + i + 1, 5)
+    time.sleep(0.3)
+    assert wm.tick_no == k + 3
+    ticks = [m.tick for m in c.clocks if m.tick >= k]
+    assert {k + 1, k + 2, k + 3} <= set(ticks)
+    token.close()  # gone: the world runs on without it
+    assert wait_for(lambda: wm.tick_no > k + 50, 10)
+    assert wm.overruns == 0
+
+
+def test_the_world_holds_a_robot_whose_controller_is_gone_and_raises_hardware_failure(world):
+    wm, c = world
+    token = c.t.token(c.ks.alive_controller("melfa", "tester"))
+    assert wait_for(lambda: "tester" in wm.robots["melfa"].controllers, 10)
+    c.send(arm_cmd(ArmCommandKind.TWIST, [0.0, 0.0, -0.03, 0.0, 0.0, 0.0], seq=1))
+    assert wait_for(lambda: c.state.arms[0].applied == 1, 10)
+    time.sleep(0.3)
+    token.close()  # the controller dies mid-motion
+    assert wait_for(lambda: c.state.held, 10)
+    assert wait_for(lambda: any(e.event is Event.HARDWARE_FAILURE and "melfa" in e.detail for e in c.events), 5)
+    time.sleep(0.5)  # the arm stopped where it was and stays there
+    idx = [c.state.names.index(j) for j in wm.robots["melfa"].sim.spec.arm("arm").joints]
+    q1 = c.state.position.numpy()[idx].copy()
+    time.sleep(0.5)
+    assert np.abs(c.state.position.numpy()[idx] - q1).max() < 1e-3
+    assert np.abs(c.state.velocity.numpy()[idx]).max() < 0.01
+    # a new controller's command takes the robot back
+    c.send(arm_cmd(ArmCommandKind.STOP, seq=2))
+    assert wait_for(lambda: not c.state.held, 10)
+
+
+def test_a_camera_request_is_answered_with_a_frame_of_that_tick(tmp_path):
+    scene = tmp_path / "cell.yaml"
+    scene.write_text(SCENE.replace("{name: melfa}", "{name: tombatossals}"))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    site = f"w{free_port()}"
+    node = Node(parse_node_config(YamlDoc.parse(__import__("yaml").safe_dump(
+        world_node(site, scene, listen=endpoint, camera_backend="raycast")), "world.yaml")))
+    node.start()
+    c = Client(site, endpoint, robot="tombatossals")
+    try:
+        assert wait_for(lambda: len(c.states) > 2, 30)
+        c.send(CameraRequest(robot="tombatossals", camera="kinect", request=42))
+        c.send(CameraRequest(robot="tombatossals", camera="eye", request=43))  # no such camera: refused
+        assert wait_for(lambda: c.frames, 30)
+        f = c.frames[0]
+        assert f.request == 42 and len(f.points.numpy()) > 1000
+        pts = f.points.numpy()
+        # the cube is in the frame: points on its top face
+        top = pts[(np.abs(pts[:, 0] - 0.5) < 0.02) & (np.abs(pts[:, 1] - 0.2) < 0.02)]
+        assert len(top) and top[:, 2].max() == pytest.approx(0.80, abs=0.01)
+        assert wait_for(lambda: c.state.refused == 1, 10)
+        assert len(c.frames) == 1
+    finally:
+        c.close()
+        node.stop()
