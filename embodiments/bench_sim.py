@@ -12,6 +12,9 @@
 3. KPIECE1 vs. RRTConnect on a fixed set of 7-DoF table problems (tombatossals' left panda
    arm, table with three box obstacles, seeded start/goal pairs, coal collision checking):
    median planning time and success rate.
+4. The runtime (``bench_runtime``): the real-time factor of a world node and control nodes
+   running their tasks in lockstep, one robot and two robots in one cell, every node in one
+   process and each in its own, side by side; the command -> sensor round trip over loopback.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ import pinocchio as pin
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
+
+from contactflow.embodiments import bench_runtime
 
 ROBOTS = ("tombatossals", "melfa", "baxter")
 
@@ -200,7 +205,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
                      "sim_time_s": sim_time, "single": {}, "pair": {}}
     ctx = mp.get_context("spawn")
     with Progress(console=console, transient=True) as progress:
-        task = progress.add_task("sim bench", total=len(ROBOTS) + 4 + 2 * n_problems)
+        task = progress.add_task("sim bench", total=len(ROBOTS) + 4 + 2 * n_problems + bench_runtime.steps(quick))
         with ctx.Pool(1) as pool:
             for name in ROBOTS:
                 summary["single"][name] = pool.apply(_rtf_job, (((name,), sim_time, 0, False),))
@@ -230,6 +235,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
                            "median_time_success_s": float(np.median([t for t, s in zip(times, ok, strict=True) if s])) if any(ok) else None,
                            "problems": len(problems), "timeout_s": timeout}
         summary["planning"] = plans
+        summary["runtime"] = bench_runtime.run(quick, advance=lambda: progress.advance(task))
     table = Table(title="contactflow bench sim")
     table.add_column("measure")
     table.add_column("value", justify="right")
@@ -244,6 +250,13 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
     for name, r in plans.items():
         med = r["median_time_success_s"]
         table.add_row(f"{name}: success / median time", f"{100 * r['success_rate']:.0f}% / {1000 * med:.0f} ms" if med else "0%")
+    for label, row in summary["runtime"]["rtf"].items():
+        one, split = row["one_process"], row["split"]
+        table.add_row(f"runtime RTF, {label}: one process | split (vs one)",
+                      f"{one['rtf']:.1f}x | {split['rtf']:.1f}x ({row['split_vs_one']:.2f})")
+    rt = summary["runtime"]["round_trip"]
+    table.add_row(f"command -> sensor round trip, loopback ({rt['ticks']} ticks): p50 / p99",
+                  f"{rt['p50_ms']:.2f} / {rt['p99_ms']:.2f} ms")
     console.print(table)
     console.print(f"load average at start: {load[0]:.1f} on {os.cpu_count()} cores")
     (out_dir / "sim.json").write_text(json.dumps(summary, indent=2))

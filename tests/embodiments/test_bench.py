@@ -16,3 +16,10 @@ def test_quick_bench_writes_its_summary(tmp_path):
     assert summary["kinematics"]["wrapper_us"] > 0
     assert set(summary["planning"]) == {"KPIECE1", "RRTConnect"}
     assert all(0.0 <= p["success_rate"] <= 1.0 for p in summary["planning"].values())
+    rt = summary["runtime"]
+    row = rt["rtf"]["1 robot"]
+    assert row["one_process"]["outcomes"] == row["split"]["outcomes"] == {"tombatossals": "success"}
+    assert row["one_process"]["sim_s"] == row["split"]["sim_s"] > 5.0  # the same run, exactly, in both layouts
+    assert row["one_process"]["rtf"] > 0 and row["split"]["rtf"] > 0
+    assert rt["round_trip"]["ticks"] == 90 and 0 < rt["round_trip"]["p50_ms"] <= rt["round_trip"]["p99_ms"]
+    assert saved["runtime"]["round_trip"] == rt["round_trip"]
