@@ -2,45 +2,69 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import queue
+import threading
+from dataclasses import dataclass, field
+from typing import Any
 
 from contactflow.abstraction.agent import RobotAgent
 from contactflow.abstraction.profiles import PROFILES
 from contactflow.embodiments.messages import DepthImage, ObjectPoses
+from contactflow.nodes.messages import EventMsg
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
 from contactflow.nodes.params import ParamError
-from contactflow.nodes.status import Status
+from contactflow.nodes.status import Event, Status
 from contactflow.nodes.wire import NDArray, encode, stamp
+
+EXECUTORS = ("runtime", "sim")
+
+
+@dataclass
+class _Job:
+    """A task the agent's broker thread hands to the module's step loop, and its outcome."""
+
+    translation: Any
+    report: Any
+    cancel: threading.Event
+    params: dict
+    outcome: Event = Event.ERROR
+    done: threading.Event = field(default_factory=threading.Event)
 
 
 class RobotAgentModule(Module):
     """Advertises the robot, bids on ATDs and runs the ESTDs it is given.
 
-    The task runs on the robot's simulated embodiment (primitives reading physics sensors).
-    The station also publishes its world's object poses on the evaluation keys (ground truth
-    no primitive reads) when the world is built and whenever a task ends, so a deployment can
-    check what a task physically did.
+    With ``executor: runtime`` (the deployed system) the task engine runs in this module's
+    step on the robot's control node, in lockstep with the world: it starts and stops the
+    node's primitive modules with control messages and follows their events, and the
+    primitives drive the world's robot over the key space. The robot's contact cues are
+    fused here and published as contact events. With ``executor: sim`` the agent keeps a
+    world of its own in-process (benchmarks and tests of the factory), publishing its object
+    poses on the evaluation keys when the world is built and whenever a task ends.
     """
 
     layer = Layer.TASK
     autostart = True
-    outputs = (Port("depth", DepthImage, "the robot camera's depth frames while a task runs"),)
+    inputs = (Port("events", EventMsg, "events of the primitive modules of this robot (runtime executor)"),)
+    outputs = (Port("depth", DepthImage, "the robot camera's depth frames while a task runs (sim executor)"),)
 
     @dataclass(frozen=True)
     class Params:
-        rate_hz: float = 1.0  # Hz, status heartbeat
+        rate_hz: float = 20.0  # Hz, task engine ticks (runtime executor)
         robot: str = "tombatossals"  # embodiment name
-        executor: str = "sim"  # sim (the only one: the robot's simulated embodiment)
-        realtime: float = 1.0  # pace of the task loop (1 = real time, 0 = as fast as possible)
-        scene: str = "thesis_7_3"  # the station's world (embodiments/scenes.py)
+        executor: str = "runtime"  # runtime (the node's primitive modules, the world's robot) | sim (in-process world)
+        realtime: float = 1.0  # sim executor: pace of the task loop (1 = real time, 0 = as fast as possible)
+        scene: str = "thesis_7_3"  # sim executor: the station's world (embodiments/scenes.py)
         fusion: bool = True  # fuse the robot's contact cues and publish contact events
-        camera_hz: float = 1.0  # Hz of simulated time, depth frames of the robot's camera (0 = none)
+        camera_hz: float = 1.0  # sim executor: Hz of simulated time, depth frames of the robot's camera (0 = none)
+        pool: int = 2  # runtime executor: modules per primitive type on the node (T, T_2, ...)
+        max_time: float = 120.0  # s of simulated time a task may run
 
         def validate(self) -> None:
             if self.robot not in PROFILES:
                 raise ValueError(f"robot: {self.robot!r} is not one of {sorted(PROFILES)}")
-            if self.executor != "sim":
-                raise ValueError(f"executor: {self.executor!r} is not sim")
+            if self.executor not in EXECUTORS:
+                raise ValueError(f"executor: {self.executor!r} is not one of {list(EXECUTORS)}")
             if self.realtime < 0:
                 raise ValueError(f"realtime: {self.realtime} is negative")
 
@@ -49,8 +73,12 @@ class RobotAgentModule(Module):
         self._agent: RobotAgent | None = None
         self._truth_seq = 0
         self._truth_pub = None
+        self._jobs: queue.Queue[_Job] = queue.Queue()
+        self._run: Any = None  # (job, engine, run id, control runner, monitor, t0) of the task under way
 
     def _executor(self):
+        if self.params.executor == "runtime":
+            return self._runtime_executor()
         from contactflow.abstraction.sim_executor import SimExecutor
 
         p = self.params
@@ -137,10 +165,82 @@ class RobotAgentModule(Module):
                                  self._executor(), node=self.io.node)
         self._agent.start()
 
+    # -- runtime executor -----------------------------------------------------------------
+    def _runtime_executor(self):
+        def run(translation, report, cancel, params) -> Event:
+            job = _Job(translation, report, cancel, dict(params or {}))
+            self._jobs.put(job)
+            while not job.done.wait(0.2):
+                if self.state is not Status.RUNNING:  # the module was stopped: nobody steps the task
+                    return Event.ERROR
+            return job.outcome
+
+        return run
+
+    def _begin(self, job: _Job) -> None:
+        from contactflow.abstraction.concrete import ConcreteRunner, HandGeometry
+        from contactflow.abstraction.execution import bound_params
+        from contactflow.embodiments.primitives.profiles import GRASP_CENTER
+        from contactflow.embodiments.remote import connect
+        from contactflow.nodes.task_module import ControlRunner
+        from contactflow.nodes.taskengine import TaskEngine
+
+        io, p = self.io, self.params
+        robot = connect(io.transport, io.keyspace, io.robot, io.node)
+        hands = {arm: HandGeometry(robot.hand_points(arm), grasp_center=GRASP_CENTER.get(p.robot, (0.0, 0.0, 0.0)))
+                 for arm in robot.arms if robot.spec.arm(arm).hand}
+        inner = ControlRunner(io, io.robot, p.pool)
+        runner = ConcreteRunner(inner, robot.arms, PROFILES[p.robot].max_opening,
+                                hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=hands)
+        tr = job.translation
+        engine = TaskEngine(runner, lambda: io.now, on_progress=lambda pr: job.report(tr.abstract(pr)))
+        run_id = engine.launch(tr.estd, bound_params(tr, job.params))
+        monitor = self._contact_monitor(robot) if p.fusion else None
+        self._run = (job, engine, run_id, inner, monitor, io.now)
+
+    def _advance(self) -> None:
+        job, engine, run_id, inner, monitor, t0 = self._run
+        inner.feed([m for m in self.io.take("events") if isinstance(m, EventMsg)])
+        engine.tick()
+        if monitor is not None:
+            monitor(monitor.robot)
+        if not engine.done(run_id):
+            if job.cancel.is_set():
+                engine.cancel(run_id, "cancelled")
+            elif self.io.now - t0 >= self.params.max_time:
+                engine.cancel(run_id, f"gave up after {self.params.max_time:g} s")
+        if engine.done(run_id):
+            result = engine.result(run_id)
+            job.outcome = result.event if result is not None else Event.ERROR
+            self._run = None
+            job.done.set()
+
     def step(self) -> Status:
+        if self.params.executor != "runtime":
+            return Status.RUNNING
+        if self._run is None:
+            try:
+                job = self._jobs.get_nowait()
+            except queue.Empty:
+                self.io.take("events")  # nothing runs: old events belong to nobody
+                return Status.RUNNING
+            try:
+                self._begin(job)
+            except Exception as exc:  # the robot does not answer, a hand was not measured...
+                self.io.log(f"task not started: {type(exc).__name__}: {exc}")
+                job.outcome = Event.HARDWARE_FAILURE
+                job.done.set()
+                return Status.RUNNING
+        self._advance()
         return Status.RUNNING
 
     def stop(self) -> None:
+        if self._run is not None:
+            job, engine, run_id, *_ = self._run
+            engine.cancel(run_id, "agent stopped")
+            job.outcome = Event.ERROR
+            job.done.set()
+            self._run = None
         if self._agent is not None:
             self._agent.stop()
             self._agent = None

@@ -14,6 +14,19 @@ from contactflow.nodes.status import Event
 from contactflow.nodes.taskengine import PrimitiveRunner, TaskEngine
 
 
+def frame_of(translation: Translation) -> TaskFrame:
+    from contactflow.abstraction.profiles import PROFILES
+
+    profile = PROFILES.get(translation.robot)
+    return profile.task_frame if profile is not None else TaskFrame()
+
+
+def bound_params(translation: Translation, params: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The dispatch's parameters the ESTD declares, in world coordinates."""
+    declared = translation.estd.params
+    return params_to_world({k: v for k, v in (params or {}).items() if k in declared}, frame_of(translation))
+
+
 @dataclass
 class SimTime:
     """Simulated seconds, advanced by the executor loop."""
@@ -39,22 +52,13 @@ class EngineExecutor:
         self.max_time = max_time
         self.realtime = realtime
 
-    @staticmethod
-    def frame_of(translation: Translation) -> TaskFrame:
-        from contactflow.abstraction.profiles import PROFILES
-
-        profile = PROFILES.get(translation.robot)
-        return profile.task_frame if profile is not None else TaskFrame()
 
     def __call__(self, translation: Translation, report: Callable[[AbstractProgress], None],
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
         clock = SimTime()
         runner, advance = self.make(clock)
         engine = TaskEngine(runner, clock, on_progress=lambda p: report(translation.abstract(p)))
-        declared = translation.estd.params
-        bound = params_to_world({k: v for k, v in (params or {}).items() if k in declared},
-                                self.frame_of(translation))
-        run = engine.launch(translation.estd, bound)
+        run = engine.launch(translation.estd, bound_params(translation, params))
         wall0 = time.monotonic()
         while not engine.done(run):
             if cancel.is_set():

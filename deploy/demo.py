@@ -34,6 +34,7 @@ from contactflow.abstraction.messages import AbstractProgressMsg
 from contactflow.abstraction.primitives import AbstractPrimitive
 from contactflow.abstraction.profiles import PROFILES
 from contactflow.embodiments.messages import DepthImage, ObjectPoses
+from contactflow.embodiments.primitives.profiles import profile
 from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
@@ -82,14 +83,20 @@ def physical_checks(atd: Atd, frame: TaskFrame, before: Positions, after: Positi
     return out
 
 
-def agent(robot: str, camera_hz: float = 1.0) -> dict:
-    return {"name": "agent", "type": "robot_agent", "robot": robot,
-            "params": {"robot": robot, "executor": "sim", "realtime": 0.0, "scene": "thesis_7_3",
-                       "camera_hz": camera_hz}}
+def cell_file(folder: Path, robot: str) -> Path:
+    """The scene file of a robot's cell: the §7.3 table (a box in front of a target) and the robot."""
+    path = folder / f"cell_{robot}.yaml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f"scene: thesis_7_3\nrobots:\n  - {{name: {robot}}}\n")
+    return path
 
 
-def layout(site: str, camera_hz: float = 1.0) -> dict[str, dict]:
-    """Node configurations: Tombatossals' three computers by role, one station per other robot."""
+def layout(site: str, folder: Path, camera_hz: float = 1.0) -> dict[str, dict]:
+    """Node configurations: per robot a world (its cell) and a control node in lockstep with it,
+    Tombatossals' 2D and 3D vision computers fed by its world's Kinect stream."""
+    from contactflow.nodes.module import Layer
+    from contactflow.nodes.registry import catalog, layer_types
+
     hub = free_port()
 
     def zen(port: int, first: bool = False) -> dict:
@@ -98,26 +105,37 @@ def layout(site: str, camera_hz: float = 1.0) -> dict[str, dict]:
             z["connect"] = [f"tcp/127.0.0.1:{hub}"]
         return z
 
-    depth = "tombatossals/agent.depth"
-    nodes = {
-        "tombatossals_control": {"host": "control", "robot": "tombatossals", "zenoh": zen(hub, first=True),
-                                 "modules": [{"name": "broker", "type": "broker", "robot": "site"},
-                                             agent("tombatossals", camera_hz)]},
-        "tombatossals_vision3d": {"host": "vision3d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
-            {"name": "cloud", "type": f"{REC}.services.cloud_builder:CloudBuilder", "inputs": {"depth": depth}},
-            {"name": "plane", "type": f"{REC}.services.plane_detector:PlaneDetector", "inputs": {"cloud": "cloud.cloud"}},
-            {"name": "roi", "type": f"{REC}.services.roi_filter:RoiFilter",
-             "inputs": {"cloud": "cloud.cloud", "roi": "plane.roi"}},
-            {"name": "objects", "type": f"{REC}.services.cluster_extractor:ClusterExtractor",
-             "inputs": {"cloud": "roi.cloud", "plane": "plane.plane"}},
-        ]},
-        "tombatossals_vision2d": {"host": "vision2d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
-            {"name": "shape", "type": f"{REC}.primitives.classify_shape:ClassifyShape", "autostart": True,
-             "inputs": {"depth": depth, "objects": "objects.objects"}, "params": {"timeout": 0.0}},
-        ]},
-        "melfa_station": {"host": "melfa_pc", "robot": "melfa", "zenoh": zen(free_port()), "modules": [agent("melfa", camera_hz)]},
-        "baxter_station": {"host": "baxter_pc", "robot": "baxter", "zenoh": zen(free_port()), "modules": [agent("baxter", camera_hz)]},
-    }
+    primitives = layer_types(Layer.PRIMITIVE) & set(catalog())
+    nodes: dict[str, dict] = {}
+    for r in ROBOTS:
+        control = f"{r}_control"
+        modules = [{"name": "broker", "type": "broker", "robot": "site"}] if r == "tombatossals" else []
+        modules.append({"name": "agent", "type": "robot_agent", "robot": r,
+                        "inputs": {"events": f"cf/{site}/m/{r}/*/*/evt"},
+                        "params": {"robot": r, "executor": "runtime", "pool": 2}})
+        for t in sorted(PROFILES[r].capabilities & primitives):
+            params = {k: list(v) if isinstance(v, tuple) else v for k, v in profile(r).get(t, {}).items()}
+            modules += [{"name": t if k == 1 else f"{t}_{k}", "type": t, "robot": r, "autostart": False,
+                         **({"params": params} if params else {})} for k in (1, 2)]
+        nodes[control] = {"host": r if r != "tombatossals" else "control", "robot": r, "clock": "lockstep", "cell": r,
+                          "zenoh": zen(hub, first=True) if r == "tombatossals" else zen(free_port()), "modules": modules}
+        nodes[f"{r}_world"] = {"host": f"{r}_robot", "robot": r, "zenoh": zen(free_port()), "modules": [
+            {"name": "world", "type": "world", "robot": "site",
+             "params": {"scene_file": str(cell_file(folder, r)), "cell": r, "wait_for": [control],
+                        "camera_hz": camera_hz if r == "tombatossals" else 0.0}}]}
+    depth = f"cf/{site}/robot/tombatossals/depth"
+    nodes["tombatossals_vision3d"] = {"host": "vision3d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
+        {"name": "cloud", "type": f"{REC}.services.cloud_builder:CloudBuilder", "inputs": {"depth": depth}},
+        {"name": "plane", "type": f"{REC}.services.plane_detector:PlaneDetector", "inputs": {"cloud": "cloud.cloud"}},
+        {"name": "roi", "type": f"{REC}.services.roi_filter:RoiFilter",
+         "inputs": {"cloud": "cloud.cloud", "roi": "plane.roi"}},
+        {"name": "objects", "type": f"{REC}.services.cluster_extractor:ClusterExtractor",
+         "inputs": {"cloud": "roi.cloud", "plane": "plane.plane"}},
+    ]}
+    nodes["tombatossals_vision2d"] = {"host": "vision2d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
+        {"name": "shape", "type": f"{REC}.primitives.classify_shape:ClassifyShape", "autostart": True,
+         "inputs": {"depth": depth, "objects": "objects.objects"}, "params": {"timeout": 0.0}},
+    ]}
     for name, cfg in nodes.items():
         cfg.update(site=site, node=name)
     return nodes
@@ -206,7 +224,7 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     site = f"demo{int(time.time()) % 100000}"
     ks = KeySpace(site)
-    nodes = layout(site, camera_hz=QUICK_CAMERA_HZ if quick else 1.0)
+    nodes = layout(site, out / "config", camera_hz=QUICK_CAMERA_HZ if quick else 1.0)
     hub = nodes["tombatossals_control"]["zenoh"]["listen"][0]
     rec = Record()
     procs = {name: spawn_node(write_config(out / "config" / f"{name}.yaml", cfg), out / "logs" / f"{name}.log")
@@ -268,13 +286,13 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
 
     subs = [tool.subscribe(ks.fused("*", "events"), on_contact),
             tool.subscribe(ks.output("tombatossals", "*", "objects", "objects"), on_objects),
-            tool.subscribe(ks.output("tombatossals", "*", "agent", "depth"), on_depth),
+            tool.subscribe(ks.robot("tombatossals", "depth"), on_depth),
             tool.subscribe(ks.evaluation("*", "object_poses"), on_truth)]
     tasks: list[dict] = []
     code = 1
     try:
         with Progress(console=console, transient=True) as bar:
-            task = bar.add_task("starting 5 nodes", total=len(ROBOTS))
+            task = bar.add_task(f"starting {len(nodes)} nodes", total=len(ROBOTS))
 
             def robots_up() -> bool:
                 n = len(tool.alive(ks.alive_robot(), timeout=0.5))

@@ -268,13 +268,22 @@ class ObstacleMsg(msgspec.Struct, kw_only=True):
     pose: list[float]  # 16 values, row-major world pose
 
 
-class RobotInfo(Message, tag="robot_info"):
-    """What a world's robot is (answered on ``robot/<robot>/info``): its embodiment, base and cell fixtures."""
+class HandPoints(msgspec.Struct, kw_only=True):
+    """The space a hand takes around its arm's controlled frame, measured on its collision geometry."""
 
+    arm: str
+    points: NDArray  # (N, 3) float64, m, in the arm's controlled frame, hand as it started
+
+
+class RobotInfo(Message, tag="robot_info"):
+    """What a world's robot is (answered on ``robot/<robot>/info``): its embodiment, base, hands and cell fixtures."""
+
+    max_bytes = 8 << 20
     robot: str
     embodiment: str  # registry name
     base: list[float]  # 16 values, row-major world pose of the base
     fixtures: list[ObstacleMsg] = []
+    hands: list[HandPoints] = []
     world: str = ""  # the world module's address
     clock: str = "lockstep"  # lockstep | realtime
     control_rate: float = 200.0  # Hz, one tick

@@ -501,6 +501,13 @@ class RemoteRobot:
     def add_task_frame(self, name: str, parent: str, T: np.ndarray) -> None:
         self.kin.add_task_frame(name, parent, T)
 
+    def hand_points(self, arm: str) -> np.ndarray:
+        """Where ``arm``'s hand is around its controlled frame, as the world measured it (N, 3)."""
+        for h in self.info.hands:
+            if h.arm == arm:
+                return h.points.numpy().copy()
+        raise KeyError(f"robot {self.name}: the world measured no hand on arm {arm!r}")
+
     def fixtures(self) -> list:
         """The cell's fixtures as the world declared them (planning obstacles)."""
         from contactflow.embodiments.control.planning import Obstacle

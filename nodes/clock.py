@@ -33,11 +33,11 @@ class SimClock:
 
     simulated = True
 
-    def __init__(self, transport: Transport, ks: KeySpace) -> None:
+    def __init__(self, transport: Transport, ks: KeySpace, cell: str = "") -> None:
         self._t = 0.0
         self._cond = threading.Condition()
         self.rejected = 0
-        self._sub: Handle = transport.subscribe(ks.clock(), self._on_clock)
+        self._sub: Handle = transport.subscribe(ks.clock(cell), self._on_clock)
 
     def _on_clock(self, key: str, payload: bytes) -> None:
         try:
@@ -78,14 +78,14 @@ class LockstepClock(SimClock):
     applies them before tick k+1 whatever the process layout.
     """
 
-    def __init__(self, transport: Transport, ks: KeySpace, node: str) -> None:
+    def __init__(self, transport: Transport, ks: KeySpace, node: str, cell: str = "") -> None:
         self._tick = -1
         self._done = -1
-        super().__init__(transport, ks)
+        super().__init__(transport, ks, cell)
         self.node = node
-        self._ack = transport.publisher(ks.lockstep(node))
+        self._ack = transport.publisher(ks.lockstep(node, cell))
         self._seq = 0
-        self._token: Handle = transport.token(ks.alive_lockstep(node))
+        self._token: Handle = transport.token(ks.alive_lockstep(node, cell))
 
     def _on_clock(self, key: str, payload: bytes) -> None:
         try:

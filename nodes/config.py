@@ -7,6 +7,7 @@ Example::
     host: control-pc
     robot: tombatossals          # default robot of the modules below
     clock: wall                  # wall | sim (follow the world's clock) | lockstep (the world waits for this node each tick)
+    cell: ""                     # with sim/lockstep: the world (cell) to follow, when the site runs several
     zenoh: {mode: peer, listen: [tcp/127.0.0.1:7501], connect: [], multicast_scouting: false}
     modules:
       - name: source
@@ -33,7 +34,7 @@ from contactflow.nodes.registry import UnknownModuleType, resolve
 from contactflow.nodes.transport import ZenohSettings
 from contactflow.nodes.yamldoc import ConfigError, YamlDoc
 
-_NODE_KEYS = {"site", "node", "host", "robot", "clock", "zenoh", "modules"}
+_NODE_KEYS = {"site", "node", "host", "robot", "clock", "cell", "zenoh", "modules"}
 _MODULE_KEYS = {"name", "type", "robot", "params", "inputs", "outputs", "autostart", "mix"}
 _ZENOH_KEYS = {"mode", "listen", "connect", "multicast_scouting", "config_file"}
 
@@ -76,6 +77,7 @@ class NodeConfig:
     zenoh: ZenohSettings
     modules: tuple[ModuleConfig, ...]
     file: str = "<config>"
+    cell: str = ""  # the world (cell) whose clock a sim or lockstep node follows; "" the site's only one
 
     @property
     def keyspace(self) -> KeySpace:
@@ -204,6 +206,12 @@ def parse_node_config(doc: YamlDoc) -> NodeConfig:
     clock = doc.get(("clock",), str, "wall")
     if clock not in ("wall", "sim", "lockstep"):
         raise doc.error(("clock",), f"{clock!r} is not wall, sim or lockstep")
+    cell = doc.get(("cell",), str, "")
+    if cell:
+        try:
+            segment(cell, "cell")
+        except KeyExprError as exc:
+            raise doc.error(("cell",), str(exc)) from None
     modules = []
     names: set[str] = set()
     for i, _ in enumerate(doc.get(("modules",), list, [])):
@@ -212,7 +220,7 @@ def parse_node_config(doc: YamlDoc) -> NodeConfig:
             raise doc.error(("modules", i, "name"), f"module {m.robot}/{m.name} is defined twice")
         names.add((m.robot, m.name))
         modules.append(m)
-    return NodeConfig(site, node, host, robot, clock, parse_zenoh(doc, ("zenoh",)), tuple(modules), doc.file)
+    return NodeConfig(site, node, host, robot, clock, parse_zenoh(doc, ("zenoh",)), tuple(modules), doc.file, cell)
 
 
 def load_node_config(path: str | Path) -> NodeConfig:

@@ -198,8 +198,9 @@ class ModuleHost:
         self.ks: KeySpace = config.keyspace
         self.transport = transport
         if clock is None:
-            clock = {"sim": lambda: SimClock(transport, self.ks),
-                     "lockstep": lambda: LockstepClock(transport, self.ks, config.node)}.get(config.clock, WallClock)()
+            clock = {"sim": lambda: SimClock(transport, self.ks, config.cell),
+                     "lockstep": lambda: LockstepClock(transport, self.ks, config.node, config.cell),
+                     }.get(config.clock, WallClock)()
         self.clock = clock
         self.log = logging.getLogger(f"contactflow.node.{config.node}")
         self.modules: dict[tuple[str, str], HostedModule] = {}
@@ -287,11 +288,13 @@ class ModuleHost:
     def _apply(self, hm: HostedModule, req: ControlRequest) -> ControlReply:
         m = hm.module
         if req.cmd == Command.RUN:
+            old = m.params
+            if req.params:  # first: the parameters may choose what the run commands (a primitive's arm)
+                m.set_params(dict(req.params))
             refusal = self._claim(hm)
             if refusal:
+                m.params = old
                 return ControlReply(ok=False, error=refusal, state=m.state)
-            if req.params:
-                m.set_params(dict(req.params))
             m.start()
             m.state = Status.RUNNING
             hm.detail = ""
@@ -324,19 +327,25 @@ class ModuleHost:
         the check. Across nodes a claim is announced first and checked after: two nodes
         claiming at the same moment see each other and both refuse, neither commands twice.
         """
-        if hm.claims or not hm.module.resources:
+        if hm.claims:
+            return ""
+        try:
+            resources = hm.module.claimed_resources()
+        except Exception as exc:  # e.g. the robot the module would command does not answer
+            return f"{hm.addr}: cannot tell which resources it commands: {exc}"
+        if not resources:
             return ""
         a = hm.addr
         with self._claim_lock:
-            for res in hm.module.resources:
+            for res in resources:
                 refusal = self._conflict(hm, res, self._local_holders(hm, res))
                 if refusal:
                     return refusal
-            for res in hm.module.resources:
+            for res in resources:
                 mode = "mix" if res in hm.cfg.mix else "excl"
                 hm.claims.append(self.transport.token(self.ks.claim(a.robot, res, a.node, a.module, mode)))
                 hm.claimed[res] = mode
-            for res in hm.module.resources:
+            for res in resources:
                 refusal = self._conflict(hm, res, self._remote_holders(hm, res))
                 if refusal:
                     self._release(hm)

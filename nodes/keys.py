@@ -2,7 +2,7 @@
 
 Layout (``docs/protocol.md`` documents it with examples)::
 
-    cf/<site>/clock                                        simulation clock
+    cf/<site>/clock[/<cell>]                               simulation clock (of one cell's world)
     cf/<site>/m/<robot>/<node>/<module>/out/<port>         module data output
     cf/<site>/m/<robot>/<node>/<module>/evt                module events
     cf/<site>/m/<robot>/<node>/<module>/status             module status
@@ -13,10 +13,11 @@ Layout (``docs/protocol.md`` documents it with examples)::
     cf/<site>/broker/progress/<task_id>                    abstract progress stream
     cf/<site>/broker/robots/<robot>/{caps,translate,run}   per-robot broker queryables
     cf/<site>/eval/<robot>/<stream>                        ground truth, for evaluation only
-    cf/<site>/robot/<robot>/{state,command,camera,info}   a world's robot: state per tick, commands in,
-                                                           camera frames on request, description (queryable)
-    cf/<site>/lockstep/<node>                              lockstep: a node finished a world tick
-    cf/<site>/alive/lockstep/<node>                        liveliness: a node the world waits for each tick
+    cf/<site>/robot/<robot>/{state,command,camera,depth,info}
+                                                           a world's robot: state per tick, commands in, camera
+                                                           frames on request, depth stream, description (queryable)
+    cf/<site>/lockstep/[<cell>/]<node>                     lockstep: a node finished a world tick
+    cf/<site>/alive/lockstep/[<cell>/]<node>               liveliness: a node the world waits for each tick
     cf/<site>/alive/controller/<robot>/<node>              liveliness: a node commanding a world's robot
     cf/<site>/alive/node/<host>/<node>                     liveliness: node process
     cf/<site>/alive/m/<robot>/<node>/<module>              liveliness: module
@@ -44,7 +45,7 @@ ANY = "*"
 CLAIM_MODES = ("excl", "mix")
 """A claim is exclusive, or shared by modules that all declare weighted mixing (thesis §6.3.1)."""
 BENCH_SIGNALS = ("ready", "done")
-ROBOT_STREAMS = ("state", "command", "camera", "info")
+ROBOT_STREAMS = ("state", "command", "camera", "depth", "info")
 """A world's robot: its state each tick, the commands it takes, camera frames, its description."""
 
 
@@ -90,8 +91,9 @@ class KeySpace:
         return f"{ROOT}/{self.site}"
 
     # -- clock -------------------------------------------------------------------------
-    def clock(self) -> str:
-        return f"{self.prefix}/clock"
+    def clock(self, cell: str = "") -> str:
+        """The clock of a world; a site running several worlds (cells) names each."""
+        return f"{self.prefix}/clock" + (f"/{segment(cell, 'cell')}" if cell else "")
 
     # -- modules -----------------------------------------------------------------------
     def module(self, robot: str, node: str, module: str) -> str:
@@ -148,12 +150,12 @@ class KeySpace:
             raise KeyExprError(f"stream={stream!r}: robot streams are {', '.join(ROBOT_STREAMS)}")
         return f"{self.prefix}/robot/{segment(robot, 'robot')}/{stream}"
 
-    def lockstep(self, node: str = ANY) -> str:
-        """Where a lockstep node says it finished a tick of the world."""
-        return f"{self.prefix}/lockstep/{segment(node, 'node')}"
+    def lockstep(self, node: str = ANY, cell: str = "") -> str:
+        """Where a lockstep node says it finished a tick of its cell's world."""
+        return f"{self.prefix}/lockstep/" + (f"{segment(cell, 'cell')}/" if cell else "") + segment(node, "node")
 
-    def alive_lockstep(self, node: str = ANY) -> str:
-        return f"{self.prefix}/alive/lockstep/{segment(node, 'node')}"
+    def alive_lockstep(self, node: str = ANY, cell: str = "") -> str:
+        return f"{self.prefix}/alive/lockstep/" + (f"{segment(cell, 'cell')}/" if cell else "") + segment(node, "node")
 
     def alive_controller(self, robot: str = ANY, node: str = ANY) -> str:
         return f"{self.prefix}/alive/controller/{segment(robot, 'robot')}/{segment(node, 'node')}"

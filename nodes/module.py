@@ -141,6 +141,14 @@ class Module:
     def on_params(self, old: Any) -> None:
         """Called after an online parameter change."""
 
+    def claimed_resources(self) -> tuple[str, ...]:
+        """The shared resources a run with the current parameters commands (claimed on RUN).
+
+        The class's ``resources`` by default; a module whose parameters choose what it commands
+        (a primitive's ``arm``) narrows them to that.
+        """
+        return self.resources
+
     # -- helpers -------------------------------------------------------------------------
     def set_params(self, changes: dict[str, Any]) -> None:
         old = self.params

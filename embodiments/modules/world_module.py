@@ -38,7 +38,9 @@ from contactflow.embodiments.messages import (
     ArmState,
     CameraFrame,
     CameraRequest,
+    DepthImage,
     HandCommand,
+    HandPoints,
     HandState,
     HeadCommand,
     ObjectPoses,
@@ -75,6 +77,7 @@ class _Robot:
     info: bytes
     state_pub: Any
     camera_pub: Any
+    depth_pub: Any
     arm_seq: dict[str, int] = field(default_factory=dict)
     hand_seq: dict[str, int] = field(default_factory=dict)
     controllers: set[str] = field(default_factory=set)  # nodes holding alive/controller/<robot>/<node>
@@ -83,6 +86,7 @@ class _Robot:
     refused: int = 0
     late: int = 0
     seq: int = 0
+    depth_seq: int = 0
     last: RobotState | None = None  # the state of the current tick
 
 
@@ -102,8 +106,10 @@ class WorldModule(Module):
         deadline: float = 10.0  # s of wall time a lockstep node has to answer a tick (a plan may take seconds)
         slice: float = 0.05  # s of wall time one step may spend on lockstep ticks
         ground_truth_hz: float = 20.0  # Hz of object poses on eval/
+        camera_hz: float = 0.0  # Hz of simulated time, depth frames of each robot's first camera on robot/<r>/depth
         camera_backend: str = "auto"  # auto | render | raycast
         seed: int = 0  # sensor noise seed of every robot
+        cell: str = ""  # the cell's name when a site runs several worlds (its clock and lockstep keys)
         wait_for: tuple[str, ...] = ()  # lockstep nodes tick 1 waits for (a seeded run starts at a known tick)
         republish: float = 0.2  # s of wall time between repeats of the current tick while waiting (late joiners)
         start_timeout: float = 60.0  # s of wall time tick 1 waits for the nodes of wait_for to come up
@@ -123,6 +129,7 @@ class WorldModule(Module):
         self._cond = threading.Condition()
         self._handles: list[Any] = []
         self._gt_due = 0.0
+        self._depth_due = 0.0
         self._clock_seq = 0
         self._t0_wall = 0.0
         self._t0_sim = 0.0
@@ -132,6 +139,7 @@ class WorldModule(Module):
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)
         from contactflow.embodiments.control.planning import fixtures_from_world
+        from contactflow.embodiments.hand_geometry import hand_points
         from contactflow.embodiments.scene_file import load_scene
         from contactflow.embodiments.scenes import SCENES
         from contactflow.embodiments.sim_robot import SimRobot, SimRobotParams
@@ -165,20 +173,22 @@ class WorldModule(Module):
                                 pose=[float(v) for v in np.asarray(o.pose).ravel()])
                     for o in fixtures_from_world(world)]
         for rp, sim in sims:
+            hands = [HandPoints(arm=a.name, points=NDArray.of(hand_points(sim, a.name))) for a in sim.spec.arms if a.hand]
             info = RobotInfo(robot=rp.name, embodiment=rp.embodiment, base=[float(v) for v in sim.art.base.ravel()],
-                             fixtures=fixtures, world=addr, clock=p.clock, control_rate=p.control_rate)
+                             fixtures=fixtures, hands=hands, world=addr, clock=p.clock, control_rate=p.control_rate)
             self.robots[rp.name] = _Robot(sim, encode(stamp(info, f"{addr}/info", 1, 0.0)),
                                           transport.publisher(ks.robot(rp.name, "state")),
-                                          transport.publisher(ks.robot(rp.name, "camera")))
+                                          transport.publisher(ks.robot(rp.name, "camera")),
+                                          transport.publisher(ks.robot(rp.name, "depth")))
         world.step(max(1, int(round(p.settle / world.params.timestep))))
         self._every = max(1, int(round(1.0 / (p.control_rate * world.params.timestep))))
-        self._clock_pub = transport.publisher(ks.clock())
-        self._gt_pub = transport.publisher(ks.evaluation(self.name, "object_poses"))
+        self._clock_pub = transport.publisher(ks.clock(p.cell))
+        self._gt_pub = transport.publisher(ks.evaluation(p.cell or self.name, "object_poses"))
         for name, r in self.robots.items():
             self._handles.append(transport.queryable(ks.robot(name, "info"), lambda _k, _p, b=r.info: b))
         self._handles.append(transport.subscribe(ks.robot("*", "command"), self._on_command))
-        self._handles.append(transport.subscribe(ks.lockstep("*"), self._on_ack))
-        self._handles.append(transport.watch_alive(ks.alive_lockstep("*"), self._on_lockstep_node))
+        self._handles.append(transport.subscribe(ks.lockstep("*", p.cell), self._on_ack))
+        self._handles.append(transport.watch_alive(ks.alive_lockstep("*", p.cell), self._on_lockstep_node))
         self._handles.append(transport.watch_alive(ks.alive_controller("*", "*"), self._on_controller))
 
     # -- zenoh callbacks: decode and queue, never block ---------------------------------------
@@ -331,6 +341,11 @@ class WorldModule(Module):
                 r.last = self._state(name, r)
             r.seq += 1
             r.state_pub(encode(stamp(r.last, f"{self.source}/{name}/state", r.seq, t)))
+        if not repeat and self.params.camera_hz > 0 and t >= self._depth_due - 1e-9:
+            self._depth_due = t + 1.0 / self.params.camera_hz
+            for r in self.robots.values():
+                if r.sim.spec.cameras:
+                    self._stream_depth(r)
         if not repeat and self.params.ground_truth_hz > 0 and t >= self._gt_due - 1e-9:
             self._gt_due = t + 1.0 / self.params.ground_truth_hz
             objs = self.world.objects
@@ -476,6 +491,19 @@ class WorldModule(Module):
         if head is None:
             raise CommandError(f"robot {r.sim.name} has no head")
         head.move_joints(_finite(np.asarray(msg.values, dtype=np.float64), "head"))
+
+    def _stream_depth(self, r: _Robot) -> None:
+        camera = r.sim.spec.cameras[0].name
+        try:
+            frame = r.sim.camera(camera)
+        except Exception as exc:  # a camera that cannot render is a lost stream, not a dead world
+            self.log.warning("%s: camera %s: %s", r.sim.name, camera, exc)
+            return
+        r.depth_seq += 1
+        msg = DepthImage(camera=camera, depth=NDArray.of(np.asarray(frame.depth, dtype=np.float32)),
+                         K=[float(v) for v in np.asarray(frame.K).ravel()],
+                         T_world_cam=[float(v) for v in np.asarray(frame.T_world_cam).ravel()])
+        r.depth_pub(encode(stamp(msg, f"{self.source}/{r.sim.name}/depth", r.depth_seq, self.world.time)))
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:
         frame = r.sim.camera(msg.camera)

@@ -167,6 +167,20 @@ class Primitive(Module):
 
             link(io.transport, io.keyspace, robot, io.node)
 
+    def claimed_resources(self) -> tuple[str, ...]:
+        """On a node, the arm a commanding primitive drives (``arm_<name>``): one primitive per arm."""
+        robot = self._hosted_robot()
+        if not robot or not self.commands_arm:
+            return ()
+        arm = getattr(self.params, "arm", "")
+        if not arm:
+            from contactflow.embodiments import registry
+            from contactflow.embodiments.remote import link
+
+            info = link(self.io.transport, self.io.keyspace, robot, self.io.node).info()
+            arm = registry.get(info.embodiment).arms[0].name
+        return (f"arm_{arm}",)
+
     def _bind_hosted(self) -> None:
         """On a node: bind the world's robot this module belongs to, over the key space."""
         from contactflow.embodiments.remote import RemoteError, connect

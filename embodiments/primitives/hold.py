@@ -15,6 +15,7 @@ class Hold(Primitive):
 
     requires = Capability(hand=True, tactile=True)
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.GRASP_LOST, Event.GRASP_STABLE)
+    commands_arm = False  # the fingers only: it runs beside the transport that carries what it holds
 
     @dataclass(frozen=True)
     class Params(Primitive.Params):

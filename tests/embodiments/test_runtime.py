@@ -97,3 +97,32 @@ def test_killing_the_control_node_mid_grasp_holds_the_robot_and_a_new_control_no
             if p is not None:
                 stop_process(p)
         watch.close()
+
+
+def test_a_second_primitive_on_a_busy_arm_is_refused_naming_the_one_that_drives_it(tmp_path):
+    from contactflow.nodes.config import load_node_config
+    from contactflow.nodes.messages import Command
+    from contactflow.nodes.node import Node
+    from contactflow.nodes.procs import write_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    world, (control,) = table_cell("rt4", endpoint)
+    control["modules"][-1]["autostart"] = False  # the task stays idle: primitives are run by hand
+    nodes = [Node(load_node_config(write_config(tmp_path / f"{c['node']}.yaml", c))) for c in (world, control)]
+    for n in nodes:
+        n.start()
+    try:
+        host = nodes[1].host
+        far = [0.4, -0.4, 1.1, 3.14159, 0.0, 0.0]
+        assert host.send_control(f"{ROBOT}/move_to", Command.RUN, {"target": far, "arm": "right"}).ok
+        reply = host.send_control(f"{ROBOT}/move_to_2", Command.RUN, {"target": far, "arm": "right"})
+        assert not reply.ok
+        assert "resource 'arm_right' of robot 'tombatossals' is already commanded by control_tombatossals/move_to" in reply.error
+        # the other arm is free, and a watcher that commands no arm runs beside the mover
+        assert host.send_control(f"{ROBOT}/move_to_2", Command.RUN, {"target": far, "arm": "left"}).ok
+        assert host.send_control(f"{ROBOT}/wait_event", Command.RUN, {"arm": "right", "event": "grasp_lost"}).ok
+        assert host.send_control(f"{ROBOT}/move_to", Command.STOP, {}).ok
+        assert host.send_control(f"{ROBOT}/move_to", Command.RUN, {"target": far, "arm": "right"}).ok
+    finally:
+        for n in reversed(nodes):
+            n.stop()
