@@ -10,6 +10,7 @@ from typing import Any
 from contactflow.abstraction.agent import RobotAgent
 from contactflow.abstraction.profiles import PROFILES
 from contactflow.embodiments.messages import DepthImage, ObjectPoses
+from contactflow.nodes.keys import ANY, KeySpace
 from contactflow.nodes.messages import EventMsg
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
 from contactflow.nodes.params import ParamError
@@ -67,6 +68,11 @@ class RobotAgentModule(Module):
                 raise ValueError(f"executor: {self.executor!r} is not one of {list(EXECUTORS)}")
             if self.realtime < 0:
                 raise ValueError(f"realtime: {self.realtime} is negative")
+
+    @classmethod
+    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        """Without wiring, the events of every module of the robot (its primitives, wherever they run)."""
+        return {"events": ks.events(robot, ANY, ANY)}
 
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)
@@ -180,6 +186,7 @@ class RobotAgentModule(Module):
     def _begin(self, job: _Job) -> None:
         from contactflow.abstraction.concrete import ConcreteRunner, HandGeometry
         from contactflow.abstraction.execution import bound_params
+        from contactflow.embodiments.primitives.hands import held_center
         from contactflow.embodiments.primitives.profiles import GRASP_CENTER
         from contactflow.embodiments.remote import connect
         from contactflow.nodes.task_module import ControlRunner
@@ -191,7 +198,8 @@ class RobotAgentModule(Module):
                  for arm in robot.arms if robot.spec.arm(arm).hand}
         inner = ControlRunner(io, io.robot, p.pool)
         runner = ConcreteRunner(inner, robot.arms, PROFILES[p.robot].max_opening,
-                                hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=hands)
+                                hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=hands,
+                                held_at=lambda arm: held_center(robot, arm))
         tr = job.translation
         engine = TaskEngine(runner, lambda: io.now, on_progress=lambda pr: job.report(tr.abstract(pr)))
         run_id = engine.launch(tr.estd, bound_params(tr, job.params))

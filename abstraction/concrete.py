@@ -10,12 +10,13 @@ parameters such as an object location are only known when the node is entered).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from contactflow.nodes.status import Event
 from contactflow.nodes.taskengine import PrimitiveRunner, RunnerEvent
 
 DOWN = (0.0, 0.0, -1.0)
@@ -24,6 +25,8 @@ LINE_TURN = 0.5  # rad/s
 CARRY_FORCE = 10.0  # N, least unexpected-contact threshold of a guarded path
 SIDE_CLEARANCE = 0.03  # m, gap between the hand and an object it approaches from the side
 PUSH_HEIGHT = 0.02  # m, the hand's lowest point above the pushed object's bottom
+GRASPS = ("robust_grasp", "naive_grasp", "close_until_force", "close_until_stall")
+"""Primitives after whose success the hand holds an object (until a release)."""
 
 
 def top_down(yaw: float) -> np.ndarray:
@@ -270,20 +273,34 @@ class ConcreteRunner:
     def __init__(self, inner: PrimitiveRunner, arms: list[str], max_opening: float = 0.1,
                  hand_at: Callable[[str], np.ndarray] | None = None,
                  log: Callable[[str], None] | None = None,
-                 hands: Mapping[str, HandGeometry] | None = None) -> None:
+                 hands: Mapping[str, HandGeometry] | None = None,
+                 held_at: Callable[[str], np.ndarray | None] | None = None) -> None:
         self.inner = inner
         self.hand_at = hand_at
         self.hands = dict(hands or {})
+        self.held_at = held_at
         self.arms = arms
         self.max_opening = max_opening
         self.log = log
         self._arm = ""  # the arm of the last arm primitive: grasps and releases follow it
+        self._started: dict[str, tuple[str, str]] = {}  # instance -> (type, arm)
+        self._holding: set[str] = set()  # arms whose last grasp succeeded and that released nothing since
 
     def start(self, instance: str, type: str, params: Mapping[str, Any]) -> None:
+        hands = self.hands
+        arm = params.get("arm") or self._arm
+        if type in ("transport", "place") and arm in self._holding and arm in hands and self.held_at is not None:
+            center = self.held_at(arm)  # where the object sits in this grasp, not where grasps usually put it
+            if center is not None:  # across the approach axis; along it the place primitive finds the surface
+                xy = (float(center[0]), float(center[1]), float(hands[arm].grasp_center[2]))
+                hands = {**hands, arm: replace(hands[arm], grasp_center=xy)}
         concrete = concretize(type, params, self.arms, self.max_opening, last_arm=self._arm, hand_at=self.hand_at,
-                              hands=self.hands)
+                              hands=hands)
         if type in ("move_to", "transport") and "target" in concrete:
             self._arm = concrete["arm"]
+        if type in ("release", *GRASPS):
+            self._holding.discard(concrete["arm"])
+        self._started[instance] = (type, concrete["arm"])
         if self.log is not None:
             self.log(f"{instance}: {type} {concrete}")
         self.inner.start(instance, type, concrete)
@@ -292,4 +309,9 @@ class ConcreteRunner:
         self.inner.stop(instance)
 
     def poll(self) -> list[RunnerEvent]:
-        return self.inner.poll()
+        events = self.inner.poll()
+        for e in events:
+            type_, arm = self._started.get(e.instance, ("", ""))
+            if type_ in GRASPS and e.event is Event.SUCCESS:
+                self._holding.add(arm)
+        return events

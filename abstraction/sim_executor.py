@@ -64,6 +64,7 @@ class SimExecutor:
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
         from contactflow.abstraction.concrete import ConcreteRunner
         from contactflow.abstraction.profiles import PROFILES
+        from contactflow.embodiments.primitives.hands import held_center
         from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
 
         with self._lock:
@@ -71,7 +72,8 @@ class SimExecutor:
             runner = LocalPrimitiveRunner(robot)
             profile = PROFILES.get(self.robot_name)
             concrete = ConcreteRunner(runner, robot.arms, profile.max_opening if profile else 0.1,
-                                      hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=self.hands)
+                                      hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=self.hands,
+                                      held_at=lambda arm: held_center(robot, arm))
 
             def advance(dt: float) -> None:
                 runner.advance()

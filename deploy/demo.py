@@ -1,16 +1,20 @@
 """``contactflow demo``: the thesis §7.3 experiment on three robots over zenoh, with a report.
 
-It starts, as local processes on loopback, the Tombatossals layout (control node with the
-broker and the robot's agent, a 2D vision node, a 3D vision node) plus one station each for
-Melfa and Baxter. Each robot station simulates its own world. The demo then dispatches ATD 1
-(push the box away) and ATD 2 (pick the target behind it) with ``--on all``, shows the
-abstract progress and the fused contact events live, and writes a report folder:
-``summary.json``, ``timeline.png``, ``contacts.png`` and the camera frames it received.
+It starts, as local processes on loopback, eight nodes: per robot (Tombatossals, Melfa,
+Baxter) a world node simulating the robot's cell (the §7.3 table, a box in front of a
+target) and a control node in lockstep with it (the robot's agent, its primitive modules,
+contact fusion; Tombatossals' also hosts the broker), plus Tombatossals' 2D and 3D vision
+nodes fed by its world's Kinect stream. The demo then dispatches ATD 1 (push the box away)
+and ATD 2 (pick the target behind it) with ``--on all``: each agent runs its translation
+on the task engine, which runs the node's primitive modules, which drive the world's robot
+over the key space. It shows the abstract progress and the fused contact events live and
+writes a report folder: ``summary.json``, ``timeline.png``, ``contacts.png`` and the
+camera frames the vision nodes received.
 
-Each station publishes its world's object poses on the evaluation keys (ground truth); the
-demo checks with them what each task physically did (the pushed box moved towards its
-target, the placed object ended near its place location). The exit code is non-zero unless
-every task was dispatched to every robot, ended in success on each, and passed those checks.
+Each world publishes its object poses on the evaluation keys (ground truth); the demo
+checks with them what each task physically did (the pushed box moved towards its target,
+the placed object ended near its place location). The exit code is non-zero unless every
+task was dispatched to every robot, ended in success on each, and passed those checks.
 """
 
 from __future__ import annotations
@@ -33,11 +37,12 @@ from contactflow.abstraction.frames import TaskFrame, to_world
 from contactflow.abstraction.messages import AbstractProgressMsg
 from contactflow.abstraction.primitives import AbstractPrimitive
 from contactflow.abstraction.profiles import PROFILES
+from contactflow.deploy.launcher import render, tool_endpoints
+from contactflow.deploy.manifest import DEFAULT_MANIFEST, Manifest, load_manifest
 from contactflow.embodiments.messages import DepthImage, ObjectPoses
-from contactflow.embodiments.primitives.profiles import profile
 from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
+from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 from contactflow.nodes.wire import WireError, decode
 
@@ -83,62 +88,18 @@ def physical_checks(atd: Atd, frame: TaskFrame, before: Positions, after: Positi
     return out
 
 
-def cell_file(folder: Path, robot: str) -> Path:
-    """The scene file of a robot's cell: the §7.3 table (a box in front of a target) and the robot."""
-    path = folder / f"cell_{robot}.yaml"
+def deployment(site: str, folder: Path, camera_hz: float = 1.0) -> Manifest:
+    """The default manifest (``deploy/manifests/default.yaml``) on this machine: its own site and
+    loopback ports, Tombatossals' Kinect stream at ``camera_hz``."""
+    port = free_port()
+    while port > 65000:  # the nodes listen on consecutive ports from it
+        port = free_port()
+    text = (DEFAULT_MANIFEST.read_text().replace("site: lab", f"site: {site}").replace("cf/lab/", f"cf/{site}/")
+            .replace("port: 7450", f"port: {port}").replace("camera_hz: 1.0", f"camera_hz: {camera_hz}"))
+    path = folder / "manifest.yaml"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(f"scene: thesis_7_3\nrobots:\n  - {{name: {robot}}}\n")
-    return path
-
-
-def layout(site: str, folder: Path, camera_hz: float = 1.0) -> dict[str, dict]:
-    """Node configurations: per robot a world (its cell) and a control node in lockstep with it,
-    Tombatossals' 2D and 3D vision computers fed by its world's Kinect stream."""
-    from contactflow.nodes.module import Layer
-    from contactflow.nodes.registry import catalog, layer_types
-
-    hub = free_port()
-
-    def zen(port: int, first: bool = False) -> dict:
-        z = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"], "multicast_scouting": False}
-        if not first:
-            z["connect"] = [f"tcp/127.0.0.1:{hub}"]
-        return z
-
-    primitives = layer_types(Layer.PRIMITIVE) & set(catalog())
-    nodes: dict[str, dict] = {}
-    for r in ROBOTS:
-        control = f"{r}_control"
-        modules = [{"name": "broker", "type": "broker", "robot": "site"}] if r == "tombatossals" else []
-        modules.append({"name": "agent", "type": "robot_agent", "robot": r,
-                        "inputs": {"events": f"cf/{site}/m/{r}/*/*/evt"},
-                        "params": {"robot": r, "executor": "runtime", "pool": 2}})
-        for t in sorted(PROFILES[r].capabilities & primitives):
-            params = {k: list(v) if isinstance(v, tuple) else v for k, v in profile(r).get(t, {}).items()}
-            modules += [{"name": t if k == 1 else f"{t}_{k}", "type": t, "robot": r, "autostart": False,
-                         **({"params": params} if params else {})} for k in (1, 2)]
-        nodes[control] = {"host": r if r != "tombatossals" else "control", "robot": r, "clock": "lockstep", "cell": r,
-                          "zenoh": zen(hub, first=True) if r == "tombatossals" else zen(free_port()), "modules": modules}
-        nodes[f"{r}_world"] = {"host": f"{r}_robot", "robot": r, "zenoh": zen(free_port()), "modules": [
-            {"name": "world", "type": "world", "robot": "site",
-             "params": {"scene_file": str(cell_file(folder, r)), "cell": r, "wait_for": [control],
-                        "camera_hz": camera_hz if r == "tombatossals" else 0.0}}]}
-    depth = f"cf/{site}/robot/tombatossals/depth"
-    nodes["tombatossals_vision3d"] = {"host": "vision3d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
-        {"name": "cloud", "type": f"{REC}.services.cloud_builder:CloudBuilder", "inputs": {"depth": depth}},
-        {"name": "plane", "type": f"{REC}.services.plane_detector:PlaneDetector", "inputs": {"cloud": "cloud.cloud"}},
-        {"name": "roi", "type": f"{REC}.services.roi_filter:RoiFilter",
-         "inputs": {"cloud": "cloud.cloud", "roi": "plane.roi"}},
-        {"name": "objects", "type": f"{REC}.services.cluster_extractor:ClusterExtractor",
-         "inputs": {"cloud": "roi.cloud", "plane": "plane.plane"}},
-    ]}
-    nodes["tombatossals_vision2d"] = {"host": "vision2d", "robot": "tombatossals", "zenoh": zen(free_port()), "modules": [
-        {"name": "shape", "type": f"{REC}.primitives.classify_shape:ClassifyShape", "autostart": True,
-         "inputs": {"depth": depth, "objects": "objects.objects"}, "params": {"timeout": 0.0}},
-    ]}
-    for name, cfg in nodes.items():
-        cfg.update(site=site, node=name)
-    return nodes
+    path.write_text(text)
+    return load_manifest(path)
 
 
 @dataclass
@@ -221,15 +182,16 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
     ``quick`` runs the same experiment with the stations' cameras at a lower rate (less vision work).
     """
     console = console or Console()
+    out = out.resolve()  # the generated node configurations name their zenoh files by absolute path
     out.mkdir(parents=True, exist_ok=True)
     site = f"demo{int(time.time()) % 100000}"
     ks = KeySpace(site)
-    nodes = layout(site, out / "config", camera_hz=QUICK_CAMERA_HZ if quick else 1.0)
-    hub = nodes["tombatossals_control"]["zenoh"]["listen"][0]
+    m = deployment(site, out / "config", camera_hz=QUICK_CAMERA_HZ if quick else 1.0)
+    launches = render(m, out / "config", local=True)
+    nodes = [ln.node.name for ln in launches]
     rec = Record()
-    procs = {name: spawn_node(write_config(out / "config" / f"{name}.yaml", cfg), out / "logs" / f"{name}.log")
-             for name, cfg in nodes.items()}
-    tool = ZenohTransport(ZenohSettings(connect=(hub,))).open()
+    procs = {ln.node.name: spawn_node(ln.config, out / "logs" / f"{ln.node.name}.log") for ln in launches}
+    tool = ZenohTransport(ZenohSettings(connect=tuple(tool_endpoints(m, local=True)))).open()
 
     def on_contact(key: str, payload: bytes) -> None:
         try:

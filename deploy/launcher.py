@@ -62,6 +62,7 @@ def node_document(m: Manifest, n: NodeSpec, eps: dict[str, str], zenoh_file: Pat
     mode = "router" if n.router else "client" if m.topology.kind == "routers" else "peer"
     return {
         "site": m.site, "node": n.name, "host": n.host, "robot": n.robot, "clock": n.clock,
+        **({"cell": n.cell} if n.cell else {}),
         "zenoh": {"mode": mode, "listen": [eps[n.id]], "connect": _connect(m, n, eps),
                   "multicast_scouting": False, "config_file": str(zenoh_file)},
         "modules": list(n.modules),

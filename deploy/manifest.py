@@ -14,6 +14,9 @@ Example (``deploy/manifests/default.yaml`` is the full thesis layout)::
           control:
             robot: tombatossals
             sensors: [arm_left, arm_right]       # checked against robots.<r>.sensors
+            clock: lockstep                      # wall | sim | lockstep (the world waits for it each tick)
+            cell: tombatossals                   # with sim/lockstep: the world it follows (a site may run several)
+            primitives: 2                        # 2 modules of each primitive type the robot's tasks may run
             modules:                             # same schema as a node configuration
               - {name: source, type: signal_source, params: {rate_hz: 50}}
     robots:
@@ -40,7 +43,7 @@ _TOP = {"site", "zenoh", "security", "hosts", "robots"}
 _ZENOH = {"topology", "routers", "port", "lease_ms"}
 _SECURITY = {"transport", "auth", "certs", "broker", "dispatch_clients", "observers"}
 _HOST = {"address", "roles", "nodes"}
-_NODE = {"robot", "clock", "port", "sensors", "modules"}
+_NODE = {"robot", "clock", "cell", "port", "sensors", "primitives", "modules"}
 _ROBOT = {"control", "command_ports", "sensors"}
 TRANSPORTS = ("tcp", "tls", "mtls")
 AUTHS = ("none", "usrpwd")
@@ -57,9 +60,10 @@ class NodeSpec:
     clock: str
     port: int
     sensors: tuple[str, ...]
-    modules: tuple[dict[str, Any], ...]  # module entries as written (validated)
+    modules: tuple[dict[str, Any], ...]  # module entries as written (validated), then the primitives
     line: int = 1
     router: bool = False
+    cell: str = ""  # the world (cell) a lockstep or sim node follows
 
     @property
     def id(self) -> str:
@@ -167,12 +171,12 @@ def _port(doc: YamlDoc, path: PathKey, default: int) -> int:
     return port
 
 
-def _check_node_modules(doc: YamlDoc, path: PathKey, site: str, host: str, node: str, robot: str, clock: str) -> NodeConfig:
+def _check_node_modules(doc: YamlDoc, path: PathKey, site: str, host: str, node: str, robot: str, clock: str,
+                        modules: list) -> NodeConfig:
     """Validate a node's modules with the node-configuration parser, errors at manifest lines."""
     prefix_len = len(path)
     lines = {p[prefix_len:]: ln for p, ln in doc.lines.items() if p[:prefix_len] == path}
-    data = {"site": site, "node": node, "host": host, "robot": robot, "clock": clock,
-            "modules": doc.get(path + ("modules",), list, [])}
+    data = {"site": site, "node": node, "host": host, "robot": robot, "clock": clock, "modules": modules}
     sub = YamlDoc(data=data, file=doc.file, lines=lines)
     try:
         return parse_node_config(sub)
@@ -185,11 +189,26 @@ def _check_node_modules(doc: YamlDoc, path: PathKey, site: str, host: str, node:
 def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, port: int) -> NodeSpec:
     doc.mapping(path, _NODE)
     robot = _name(doc, path + ("robot",), doc.get(path + ("robot",), str, "site"), "robot")
-    clock = _choice(doc, path + ("clock",), ("wall", "sim"), "wall")
+    clock = _choice(doc, path + ("clock",), ("wall", "sim", "lockstep"), "wall")
+    cell = doc.get(path + ("cell",), str, "")
+    if cell:
+        _name(doc, path + ("cell",), cell, "cell")
     port = _port(doc, path + ("port",), port)
-    _check_node_modules(doc, path, site, host, name, robot, clock)
-    modules = tuple(doc.get(path + ("modules",), list, []))
-    return NodeSpec(host, name, robot, clock, port, _strs(doc, path + ("sensors",)), modules, doc.line(path))
+    modules = list(doc.get(path + ("modules",), list, []))
+    pool = doc.get(path + ("primitives",), int, 0)
+    if pool:
+        # every primitive the robot's translations may run, ``pool`` modules of each (parallel branches, helpers)
+        from contactflow.embodiments.layout import primitive_modules
+
+        if not 1 <= pool <= 8:
+            raise doc.error(path + ("primitives",), f"{pool} modules per primitive type is not in 1..8")
+        try:
+            modules += primitive_modules(robot, pool=pool)
+        except KeyError as exc:
+            raise doc.error(path + ("robot",), str(exc).strip("'\"")) from None
+    _check_node_modules(doc, path, site, host, name, robot, clock, modules)
+    return NodeSpec(host, name, robot, clock, port, _strs(doc, path + ("sensors",)), tuple(modules), doc.line(path),
+                    cell=cell)
 
 
 def parse_manifest(doc: YamlDoc) -> Manifest:

@@ -47,6 +47,29 @@ def primitive_types(tasks: Mapping[str, TaskGraph], main: str) -> list[str]:
     return sorted(out)
 
 
+def primitive_modules(robot: str, embodiment: str = "", types: list[str] | None = None, pool: int = 2) -> list[dict]:
+    """Module entries hosting ``pool`` modules of each primitive type (``T``, ``T_2``, ...) for ``robot``,
+    configured with the embodiment's profile; ``types`` defaults to every primitive type its
+    translations may run (its translation profile's capabilities)."""
+    from contactflow.abstraction.profiles import PROFILES
+    from contactflow.embodiments.primitives.profiles import profile
+    from contactflow.nodes.module import Layer
+    from contactflow.nodes.registry import layer_types
+
+    embodiment = embodiment or robot
+    if types is None:
+        if embodiment not in PROFILES:
+            raise KeyError(f"robot {embodiment!r} has no translation profile (known: {sorted(PROFILES)})")
+        types = sorted(PROFILES[embodiment].capabilities & layer_types(Layer.PRIMITIVE))
+    defaults = profile(embodiment)
+    out = []
+    for t in types:
+        params = {k: _plain(v) for k, v in defaults.get(t, {}).items()}
+        out += [{"name": t if k == 1 else f"{t}_{k}", "type": t, "robot": robot, "autostart": False,
+                 **({"params": params} if params else {})} for k in range(1, pool + 1)]
+    return out
+
+
 def _plain(v: Any) -> Any:
     if isinstance(v, tuple | list):
         return [_plain(x) for x in v]
@@ -80,18 +103,11 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
     With ``autostart`` the task starts with the node, at the first tick it steps (a world
     that waits for the node makes that tick 0); else on a RUN control message.
     """
-    from contactflow.embodiments.primitives.profiles import profile
     from contactflow.nodes.taskfile import load_tasks
 
     tasks, main = load_tasks(str(task_file))
     name = task or main
-    defaults = profile(embodiment)
-    modules: list[dict[str, Any]] = []
-    for t in primitive_types(tasks, name):
-        params = {k: _plain(v) for k, v in defaults.get(t, {}).items()}
-        for k in range(1, pool + 1):
-            modules.append({"name": t if k == 1 else f"{t}_{k}", "type": t, "robot": robot, "autostart": False,
-                            **({"params": params} if params else {})})
+    modules = primitive_modules(robot, embodiment, primitive_types(tasks, name), pool)
     modules.append({"name": "task", "type": "task", "robot": robot, "autostart": autostart,
                     "inputs": {"events": f"cf/{site}/m/{robot}/*/*/evt"},
                     "params": {"task_file": str(task_file), "task": name, "robot": robot,

@@ -287,3 +287,4 @@ class RobotInfo(Message, tag="robot_info"):
     world: str = ""  # the world module's address
     clock: str = "lockstep"  # lockstep | realtime
     control_rate: float = 200.0  # Hz, one tick
+    seed: int = 0  # the run's seed: controllers seed their planners with it, so a run repeats

@@ -351,10 +351,12 @@ class RemoteRobot:
     def __init__(self, link: RobotLink) -> None:
         from contactflow.embodiments import registry
         from contactflow.embodiments.control.kinematics import Kinematics
+        from contactflow.embodiments.control.planning import seed_ompl
 
         self.link = link
         self.name = link.robot
         self.info = link.info()
+        seed_ompl(self.info.seed)  # the process's planners draw from the run's seed (the first robot's, once)
         self.spec = registry.get(self.info.embodiment)
         self.base = np.asarray(self.info.base, dtype=np.float64).reshape(4, 4)
         self.kin = Kinematics(self.spec.urdf(), self.base)

@@ -110,4 +110,8 @@ def parse_scene(doc: YamlDoc) -> SceneFile:
 
 
 def load_scene(path: str | Path) -> SceneFile:
+    """A scene file by path, or a cell shipped in ``embodiments/cells`` by name (``pick_place``)."""
+    shipped = Path(__file__).parent / "cells" / f"{path}.yaml"
+    if not Path(path).exists() and "/" not in str(path) and shipped.exists():
+        path = shipped
     return parse_scene(YamlDoc.load(path))

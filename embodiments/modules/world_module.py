@@ -175,7 +175,8 @@ class WorldModule(Module):
         for rp, sim in sims:
             hands = [HandPoints(arm=a.name, points=NDArray.of(hand_points(sim, a.name))) for a in sim.spec.arms if a.hand]
             info = RobotInfo(robot=rp.name, embodiment=rp.embodiment, base=[float(v) for v in sim.art.base.ravel()],
-                             fixtures=fixtures, hands=hands, world=addr, clock=p.clock, control_rate=p.control_rate)
+                             fixtures=fixtures, hands=hands, world=addr, clock=p.clock, control_rate=p.control_rate,
+                             seed=p.seed)
             self.robots[rp.name] = _Robot(sim, encode(stamp(info, f"{addr}/info", 1, 0.0)),
                                           transport.publisher(ks.robot(rp.name, "state")),
                                           transport.publisher(ks.robot(rp.name, "camera")),

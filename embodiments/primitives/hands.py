@@ -98,3 +98,29 @@ def held_fingers(q: np.ndarray, target: np.ndarray, groups: dict[str, np.ndarray
         if np.abs(q[idx] - target[idx]).max() > margin:
             held.add(name)
     return held
+
+
+def held_center(robot, arm: str, margin: float = 0.15, contact: float = 0.05) -> np.ndarray | None:
+    """Where the object held by ``arm``'s closed multi-finger hand sits, in the arm's controlled frame (m).
+
+    Told by the joint configuration or contact information (thesis §3.3.1): the object is
+    between the thumb and the fingers on it (a pad senses it, or it holds the finger open,
+    short of the closed preshape), so its centre is taken midway between the thumb's tip and
+    the mean tip of those fingers. Ask it while the hand holds what a grasp closed on; None for
+    a hand without a thumb, or when no finger is on the object.
+    """
+    spec = robot.spec.hand(robot.spec.arm(arm).hand)
+    pads = [p.name for p in spec.pads]
+    if spec.kind != "multi_finger" or "thumb" not in pads or len(spec.fingertips) != len(pads):
+        return None
+    groups = finger_groups(spec)
+    q = robot.hand(spec.name).positions()
+    closed = np.asarray(spec.preshapes["closed"], dtype=np.float64)
+    tip = dict(zip(pads, spec.fingertips, strict=True))
+    touching = [p for p, v in robot.tactile(spec.name).items() if float(v.max(initial=0.0)) > contact]
+    held = sorted(held_fingers(q, closed, groups, touching, margin) - {"thumb"})
+    if not held:
+        return None
+    T_inv = np.linalg.inv(robot.frame_pose(robot.spec.arm(arm).ee_frame))
+    at = {p: (T_inv @ robot.frame_pose(tip[p]))[:3, 3] for p in [*held, "thumb"]}
+    return 0.5 * (at["thumb"] + np.mean([at[p] for p in held], axis=0))

@@ -91,3 +91,51 @@ def test_pusher_refuses_postures_whose_low_parts_miss_the_object():
     low = thumb.band(R, BOX[2] - height)
     side = low @ np.array([1.0, 0.0, 0.0])
     assert side.min() < 0.0 < side.max()
+
+
+def test_a_held_object_is_placed_by_where_it_sits_in_that_grasp():
+    from contactflow.abstraction.concrete import ConcreteRunner
+    from contactflow.nodes.status import Event
+    from contactflow.nodes.taskengine import RunnerEvent
+
+    class Inner:
+        def __init__(self) -> None:
+            self.started: list[tuple[str, str, dict]] = []
+            self.events: list[RunnerEvent] = []
+
+        def start(self, instance, type, params):
+            self.started.append((instance, type, params))
+
+        def stop(self, instance):
+            pass
+
+        def poll(self):
+            out, self.events = self.events, []
+            return out
+
+    hand = HandGeometry(GRIPPER.points, grasp_center=(-0.05, 0.02, 0.0))
+    measured = np.array([-0.02, -0.01, 0.03])  # where the object sits in this grasp (z ignored)
+    inner = Inner()
+    runner = ConcreteRunner(inner, ["left"], hands={"left": hand}, held_at=lambda arm: measured)
+    place = {"arm": "left", "target": [0.55, 0.15, 0.81]}
+
+    def centre_at(params: dict, c) -> np.ndarray:
+        T = xyz_rpy_to_matrix(params["target"][:3], params["target"][3:])
+        return T[:3, :3] @ np.asarray(c) + T[:3, 3]
+
+    runner.start("carry#1", "transport", place)  # nothing held yet: the usual grasp centre
+    assert centre_at(inner.started[-1][2], hand.grasp_center) == pytest.approx([0.55, 0.15, 0.81], abs=1e-9)
+    runner.start("grasp#2", "robust_grasp", {"arm": "left"})
+    inner.events.append(RunnerEvent("grasp#2", Event.SUCCESS))
+    runner.poll()
+    runner.start("carry#3", "transport", place)
+    assert centre_at(inner.started[-1][2], (-0.02, -0.01, 0.0)) == pytest.approx([0.55, 0.15, 0.81], abs=1e-9)
+    runner.start("open#4", "release", {"arm": "left"})
+    runner.start("carry#5", "transport", place)  # let go: the usual centre again
+    assert centre_at(inner.started[-1][2], hand.grasp_center) == pytest.approx([0.55, 0.15, 0.81], abs=1e-9)
+    failed = ConcreteRunner(inner, ["left"], hands={"left": hand}, held_at=lambda arm: measured)
+    failed.start("grasp#1", "robust_grasp", {"arm": "left"})
+    inner.events.append(RunnerEvent("grasp#1", Event.FAILURE))
+    failed.poll()
+    failed.start("carry#2", "transport", place)  # a failed grasp holds nothing
+    assert centre_at(inner.started[-1][2], hand.grasp_center) == pytest.approx([0.55, 0.15, 0.81], abs=1e-9)

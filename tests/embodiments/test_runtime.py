@@ -126,3 +126,45 @@ def test_a_second_primitive_on_a_busy_arm_is_refused_naming_the_one_that_drives_
     finally:
         for n in reversed(nodes):
             n.stop()
+
+
+def test_the_readme_world_and_control_nodes_work_as_written(tmp_path, monkeypatch):
+    """The README's two node configurations and its two ``contactflow ctl`` lines, on a free port."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    from rich.console import Console
+    from typer.testing import CliRunner
+
+    from contactflow.deploy import cli
+    from contactflow.embodiments.layout import SiteWatch
+    from contactflow.nodes.procs import spawn_node, stop_process, wait_for
+
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    blocks = dict(re.findall(r"```yaml\n# (world\.yaml|control\.yaml)\n(.*?)```", readme, re.S))
+    commands = [c for c in re.findall(r"^contactflow ctl (.*?)(?:\s+#.*)?$", readme, re.M) if "7447" in c]
+    assert set(blocks) == {"world.yaml", "control.yaml"} and len(commands) == 2
+    port = str(free_port())
+    procs = []
+    for name in ("world.yaml", "control.yaml"):
+        (tmp_path / name).write_text(blocks[name].replace("7447", port).replace("site: lab", "site: readme"))
+        procs.append(spawn_node(tmp_path / name, tmp_path / f"{name}.log"))
+    endpoint = f"tcp/127.0.0.1:{port}"
+    watch = SiteWatch("readme", endpoint)
+    monkeypatch.setattr(cli, "console", Console(width=400, soft_wrap=True))
+    try:
+        assert wait_for(lambda: len(watch.t.alive(watch.ks.alive_module(), timeout=0.5)) == 3, 60)
+        for line in commands:
+            args = shlex.split(line.replace("7447", port).replace("--site lab", "--site readme"))
+            out = CliRunner().invoke(cli.app, ["ctl", *args], catch_exceptions=False)
+            assert out.exit_code == 0 and ": ok" in out.output, out.output
+        assert wait_for(lambda: watch.outcome("tombatossals/control/move_to") is not None, 120), (
+            (tmp_path / "control.yaml.log").read_text()[-3000:])
+        done = watch.outcome("tombatossals/control/move_to")
+        assert done.event is Event.SUCCESS, done
+        assert [done.values[k] for k in ("x", "y", "z")] == pytest.approx([0.55, -0.3, 0.95], abs=0.01)
+    finally:
+        for p in reversed(procs):
+            stop_process(p)
+        watch.close()
