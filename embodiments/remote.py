@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from contactflow.embodiments.facade import RobotFacade
 from contactflow.embodiments.messages import (
     ArmCommand,
     ArmCommandKind,
@@ -345,7 +346,7 @@ class RemoteHead:
         self.robot.link.send(HeadCommand(robot=self.robot.name, values=[float(v) for v in np.clip(q, self.lower, self.upper)]))
 
 
-class RemoteRobot:
+class RemoteRobot(RobotFacade):
     """A robot of a world, driven and sensed over the key space (what primitives bind to on a node)."""
 
     def __init__(self, link: RobotLink) -> None:
@@ -408,26 +409,6 @@ class RemoteRobot:
         s = self.state
         return s.failure or ("held by the world" if s.held else "")
 
-    @property
-    def arms(self) -> list[str]:
-        return list(self._arms)
-
-    @property
-    def hands(self) -> list[str]:
-        return list(self._hands)
-
-    def arm(self, name: str) -> RemoteArm:
-        try:
-            return self._arms[name]
-        except KeyError:
-            raise KeyError(f"robot {self.name}: no arm {name!r} (arms: {list(self._arms)})") from None
-
-    def hand(self, name: str) -> RemoteHand:
-        try:
-            return self._hands[name]
-        except KeyError:
-            raise KeyError(f"robot {self.name}: no hand {name!r} (hands: {list(self._hands)})") from None
-
     # -- sensors ------------------------------------------------------------------------------
     def ft(self, arm: str) -> WrenchReading:
         for w in self.state.wrenches:
@@ -462,9 +443,6 @@ class RemoteRobot:
             raise KeyError(f"robot {self.name}: no hand {hand!r}")
         return {}
 
-    def finger_positions(self, hand: str) -> np.ndarray:
-        return self.hand(hand).positions()
-
     def camera(self, name: str = "kinect") -> DepthFrame:
         self.spec.camera(name)
         f = self.link.frame(name)
@@ -492,14 +470,6 @@ class RemoteRobot:
             q[self.kin.q_index(a.joints)] = a.q_cmd
         return q
 
-    def frame_pose(self, frame: str, relative_to: str = "world") -> np.ndarray:
-        self._sync_kin()
-        return self.kin.frame_pose(frame, relative_to)
-
-    def camera_pose(self, name: str = "kinect") -> np.ndarray:
-        spec = self.spec.camera(name)
-        return self.frame_pose(spec.link) @ spec.optical_in_link()
-
     def add_task_frame(self, name: str, parent: str, T: np.ndarray) -> None:
         self.kin.add_task_frame(name, parent, T)
 
@@ -515,13 +485,3 @@ class RemoteRobot:
         from contactflow.embodiments.control.planning import Obstacle
 
         return [Obstacle(o.name, o.kind, tuple(o.size), np.asarray(o.pose).reshape(4, 4)) for o in self.info.fixtures]
-
-    @property
-    def spherical(self):
-        from contactflow.embodiments.spherical import SphericalModel
-
-        if not hasattr(self, "_spherical"):
-            self._spherical = SphericalModel.from_urdf(self.kin, str(self.spec.urdf()))
-        self._sync_kin()
-        self._spherical.update(self.kin)
-        return self._spherical

@@ -23,6 +23,7 @@ from contactflow.embodiments.control.trajectory import (
     TrajectoryFollower,
     TrajectoryParams,
 )
+from contactflow.embodiments.facade import RobotFacade
 from contactflow.embodiments.faults import Fault, FaultMonitor, FaultParams
 from contactflow.embodiments.registry import ArmSpec, HandSpec, RobotSpec
 from contactflow.embodiments.sensors.camera import DepthCamera, DepthFrame
@@ -334,7 +335,7 @@ class HeadHandle:
         r.mixer.submit("head", self.joints, np.clip(q, self.lower, self.upper), None, 1.0, r.time)
 
 
-class SimRobot:
+class SimRobot(RobotFacade):
     """One robot in a :class:`World`, with controllers, sensors and fault handling."""
 
     def __init__(self, world: World, robot: str | RobotSpec, name: str | None = None, base: np.ndarray | None = None,
@@ -392,27 +393,6 @@ class SimRobot:
             return
         self._control(self._every * world.params.timestep)
 
-    # -- handles ---------------------------------------------------------------------------
-    def arm(self, name: str) -> ArmHandle:
-        try:
-            return self._arms[name]
-        except KeyError:
-            raise KeyError(f"robot {self.name}: no arm {name!r} (arms: {list(self._arms)})") from None
-
-    def hand(self, name: str) -> HandHandle:
-        try:
-            return self._hands[name]
-        except KeyError:
-            raise KeyError(f"robot {self.name}: no hand {name!r} (hands: {list(self._hands)})") from None
-
-    @property
-    def arms(self) -> list[str]:
-        return list(self._arms)
-
-    @property
-    def hands(self) -> list[str]:
-        return list(self._hands)
-
     # -- sensors ---------------------------------------------------------------------------
     def ft(self, arm: str) -> WrenchReading:
         try:
@@ -433,9 +413,6 @@ class SimRobot:
         except KeyError:
             raise KeyError(f"robot {self.name}: no hand {hand!r}") from None
         return sensor.sample(self.time, self.world.contacts(), self.world.params.timestep)
-
-    def finger_positions(self, hand: str) -> np.ndarray:
-        return self.hand(hand).positions()
 
     def _camera(self, name: str) -> DepthCamera:
         if name not in self._cameras:
@@ -494,16 +471,6 @@ class SimRobot:
         q[kidx] = values
         self._ctl_kin.update(q)
 
-    def camera_pose(self, name: str = "kinect") -> np.ndarray:
-        """World pose of a camera's optical frame at the measured joint state."""
-        spec = self.spec.camera(name)
-        return self.frame_pose(spec.link) @ spec.optical_in_link()
-
-    def frame_pose(self, frame: str, relative_to: str = "world") -> np.ndarray:
-        """Pose of any link, fixed frame or task frame at the measured joint state."""
-        self._sync_kin()
-        return self.kin.frame_pose(frame, relative_to)
-
     def fixtures(self) -> list:
         """The cell's fixtures at their declared pose (planning obstacles)."""
         from contactflow.embodiments.control.planning import fixtures_from_world
@@ -514,16 +481,6 @@ class SimRobot:
         """A named frame at ``T`` (4x4) relative to ``parent``, usable in every ``frame=`` argument."""
         self.kin.add_task_frame(name, parent, T)
         self._ctl_kin.add_task_frame(name, parent, T)
-
-    @property
-    def spherical(self):
-        from contactflow.embodiments.spherical import SphericalModel
-
-        if not hasattr(self, "_spherical"):
-            self._spherical = SphericalModel.from_robot(self.kin, self.art)
-        self._sync_kin()
-        self._spherical.update(self.kin)
-        return self._spherical
 
     # -- control and faults ----------------------------------------------------------------
     def _event(self, event: Event, detail: str) -> None:

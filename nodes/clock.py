@@ -46,9 +46,15 @@ class SimClock:
             self.rejected += 1
             return
         with self._cond:
-            if msg.t > self._t:
-                self._t = msg.t
+            if self._advance(msg):
                 self._cond.notify_all()
+
+    def _advance(self, msg: Clock) -> bool:
+        """Take the time of ``msg`` (under the lock); whether the clock moved."""
+        if msg.t > self._t:
+            self._t = msg.t
+            return True
+        return False
 
     def now(self) -> float:
         return self._t
@@ -87,16 +93,11 @@ class LockstepClock(SimClock):
         self._seq = 0
         self._token: Handle = transport.token(ks.alive_lockstep(node, cell))
 
-    def _on_clock(self, key: str, payload: bytes) -> None:
-        try:
-            msg = decode(payload, Clock, key)
-        except WireError:
-            self.rejected += 1
-            return
-        with self._cond:
-            if msg.tick > self._tick:
-                self._tick, self._t = msg.tick, max(self._t, msg.t)
-                self._cond.notify_all()
+    def _advance(self, msg: Clock) -> bool:
+        if msg.tick > self._tick:
+            self._tick, self._t = msg.tick, max(self._t, msg.t)
+            return True
+        return False
 
     def wait_tick(self, stop: threading.Event) -> int | None:
         """Block until the world publishes a tick this node has not stepped; None when ``stop`` is set."""
