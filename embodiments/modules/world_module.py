@@ -101,6 +101,7 @@ class WorldModule(Module):
         rate_hz: float = 1000.0  # Hz the host calls step; each call runs the ticks that are due
         scene_file: str = ""  # path of the scene file (YAML: robots with base poses, objects)
         clock: str = "lockstep"  # lockstep | realtime
+        max_rtf: float = 0.0  # lockstep: never faster than this many times real time (0: as fast as the nodes answer)
         control_rate: float = 200.0  # Hz, one tick: joint control, state messages, the clock (§6.3.1)
         settle: float = 0.3  # s of physics before the first tick (objects come to rest)
         deadline: float = 10.0  # s of wall time a lockstep node has to answer a tick (a plan may take seconds)
@@ -152,8 +153,8 @@ class WorldModule(Module):
             raise ValueError(f"{where}.clock: {p.clock!r} is not lockstep or realtime")
         if not p.scene_file:
             raise ValueError(f"{where}.scene_file: a world needs a scene file")
-        if p.control_rate <= 0 or p.deadline <= 0 or p.slice <= 0:
-            raise ValueError(f"{where}: control_rate, deadline and slice must be positive")
+        if p.control_rate <= 0 or p.deadline <= 0 or p.slice <= 0 or p.max_rtf < 0:
+            raise ValueError(f"{where}: control_rate, deadline and slice must be positive, max_rtf not negative")
         scene = load_scene(p.scene_file)
         transport = io.transport  # the world is infrastructure: its streams are per robot, not per port
         self.ks = ks = io.keyspace
@@ -261,6 +262,8 @@ class WorldModule(Module):
             return Status.RUNNING
         end = time.monotonic() + p.slice
         while time.monotonic() < end:
+            if p.max_rtf > 0 and self.world.time - self._t0_sim > p.max_rtf * (time.monotonic() - self._t0_wall):
+                break  # ahead of the pace: the host calls again within a millisecond
             self._await_acks()
             self._tick()
         return Status.RUNNING

@@ -61,7 +61,7 @@ def test_the_default_manifest_comes_up_locally_with_its_robots_and_broker(tmp_pa
     cli = CliRunner()
     try:
         res = cli.invoke(app, [str(manifest), "--local", "--run-dir", str(run), "--detach", "--wait", "60"])
-        assert res.exit_code == 0 and "5/5 nodes alive" in res.output, res.output
+        assert res.exit_code == 0 and "8/8 nodes alive" in res.output, res.output
         ks = KeySpace(m.site)
         obs = open_observer(m, local=True)
         try:
@@ -70,7 +70,7 @@ def test_the_default_manifest_comes_up_locally_with_its_robots_and_broker(tmp_pa
         finally:
             obs.close()
         assert robots == {"tombatossals", "melfa", "baxter"}, robots
-        assert {"broker", "agent", "cloud", "plane", "roi", "objects", "shape"} <= modules, modules
+        assert {"broker", "agent", "world", "robust_grasp", "cloud", "plane", "roi", "objects", "shape"} <= modules, modules
         logs = "".join(f.read_text() for f in (run / "local" / "logs").glob("*.log"))
         assert "Traceback" not in logs, logs[-3000:]
     finally:
