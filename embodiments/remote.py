@@ -357,7 +357,7 @@ class RemoteRobot(RobotFacade):
         self.link = link
         self.name = link.robot
         self.info = link.info()
-        seed_ompl(self.info.seed)  # the process's planners draw from the run's seed (the first robot's, once)
+        seed_ompl(self.info.seed + 1)  # the process's planners draw from the run's seed (OMPL refuses 0)
         self.spec = registry.get(self.info.embodiment)
         self.base = np.asarray(self.info.base, dtype=np.float64).reshape(4, 4)
         self.kin = Kinematics(self.spec.urdf(), self.base)

@@ -253,14 +253,14 @@ class WorldModule(Module):
 
     def step(self) -> Status:
         p = self.params
+        end = time.monotonic() + p.slice
         if p.clock == "realtime":
             target = self._t0_sim + (time.monotonic() - self._t0_wall)
             dt = 1.0 / p.control_rate
-            while self.world.time + dt <= target + 1e-9:
+            while self.world.time + dt <= target + 1e-9 and time.monotonic() < end:
                 self._tick()
             self._serve_requests()
             return Status.RUNNING
-        end = time.monotonic() + p.slice
         while time.monotonic() < end:
             if p.max_rtf > 0 and self.world.time - self._t0_sim > p.max_rtf * (time.monotonic() - self._t0_wall):
                 break  # ahead of the pace: the host calls again within a millisecond

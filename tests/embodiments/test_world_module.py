@@ -216,3 +216,30 @@ def test_a_camera_request_is_answered_with_a_frame_of_that_tick(tmp_path):
     finally:
         c.close()
         node.stop()
+
+
+def test_a_realtime_world_follows_the_wall_clock_and_counts_late_commands(tmp_path):
+    scene = tmp_path / "cell.yaml"
+    scene.write_text(SCENE)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    site = f"w{free_port()}"
+    node = Node(parse_node_config(YamlDoc.parse(
+        __import__("yaml").safe_dump(world_node(site, scene, clock="realtime", listen=endpoint)), "world.yaml")))
+    node.start()
+    c = Client(site, endpoint)
+    try:
+        assert wait_for(lambda: len(c.states) > 5, 30)
+        t0, w0 = c.state.t, time.monotonic()
+        time.sleep(1.5)
+        rate = (c.state.t - t0) / (time.monotonic() - w0)
+        assert rate == pytest.approx(1.0, abs=0.15)
+        # a command answering a state a second old arrives long after the tick it was meant for
+        assert c.state.late == 0
+        late = arm_cmd(ArmCommandKind.STOP, seq=1)
+        late.hdr.t_sim = c.state.t - 1.0
+        c.send(late)
+        assert wait_for(lambda: c.state.arms[0].applied == 1, 5)
+        assert c.state.late == 1
+    finally:
+        c.close()
+        node.stop()
