@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
 
 
-class RobotFacade:
+class RobotFacade(ABC):
     """Arm and hand handles by name, and frames at the measured joints of the facade's ``kin`` model.
 
     A subclass sets ``name``, ``spec``, ``kin``, ``_arms`` and ``_hands`` and brings ``kin`` to
@@ -20,8 +21,9 @@ class RobotFacade:
     _arms: dict[str, Any]
     _hands: dict[str, Any]
 
+    @abstractmethod
     def _sync_kin(self) -> None:
-        raise NotImplementedError
+        """Bring ``kin`` to the measured joints."""
 
     def arm(self, name: str):
         try:

@@ -107,7 +107,7 @@ def test_a_held_object_is_placed_by_where_it_sits_in_that_grasp():
             self.started.append((instance, type, params))
 
         def stop(self, instance):
-            pass
+            self.started.append((instance, "stop", {}))
 
         def poll(self):
             out, self.events = self.events, []

@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 
 from contactflow.embodiments.layout import world_node
 from contactflow.embodiments.messages import (
@@ -95,17 +96,23 @@ class Client:
         self.t.close()
 
 
-@pytest.fixture
-def world(tmp_path):
+def start_world(tmp_path, scene_text: str = SCENE, robot: str = "melfa", **params) -> tuple[Node, Client]:
+    """A world node on a free port with ``scene_text``, and a controller session on it that got states."""
     scene = tmp_path / "cell.yaml"
-    scene.write_text(SCENE)
+    scene.write_text(scene_text)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     site = f"w{free_port()}"
     node = Node(parse_node_config(YamlDoc.parse(
-        __import__("yaml").safe_dump(world_node(site, scene, listen=endpoint)), "world.yaml")))
+        yaml.safe_dump(world_node(site, scene, listen=endpoint, **params)), "world.yaml")))
     node.start()
-    client = Client(site, endpoint)
+    client = Client(site, endpoint, robot)
     assert wait_for(lambda: len(client.states) > 5, 30)
+    return node, client
+
+
+@pytest.fixture
+def world(tmp_path):
+    node, client = start_world(tmp_path)
     yield node.host.modules[("site", "world")].module, client
     client.close()
     node.stop()
@@ -192,16 +199,9 @@ def test_the_world_holds_a_robot_whose_controller_is_gone_and_raises_hardware_fa
 
 
 def test_a_camera_request_is_answered_with_a_frame_of_that_tick(tmp_path):
-    scene = tmp_path / "cell.yaml"
-    scene.write_text(SCENE.replace("{name: melfa}", "{name: tombatossals}"))
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    site = f"w{free_port()}"
-    node = Node(parse_node_config(YamlDoc.parse(__import__("yaml").safe_dump(
-        world_node(site, scene, listen=endpoint, camera_backend="raycast")), "world.yaml")))
-    node.start()
-    c = Client(site, endpoint, robot="tombatossals")
+    node, c = start_world(tmp_path, SCENE.replace("{name: melfa}", "{name: tombatossals}"), "tombatossals",
+                          camera_backend="raycast")
     try:
-        assert wait_for(lambda: len(c.states) > 2, 30)
         c.send(CameraRequest(robot="tombatossals", camera="kinect", request=42))
         c.send(CameraRequest(robot="tombatossals", camera="eye", request=43))  # no such camera: refused
         assert wait_for(lambda: c.frames, 30)
@@ -219,16 +219,8 @@ def test_a_camera_request_is_answered_with_a_frame_of_that_tick(tmp_path):
 
 
 def test_a_realtime_world_follows_the_wall_clock_and_counts_late_commands(tmp_path):
-    scene = tmp_path / "cell.yaml"
-    scene.write_text(SCENE)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    site = f"w{free_port()}"
-    node = Node(parse_node_config(YamlDoc.parse(
-        __import__("yaml").safe_dump(world_node(site, scene, clock="realtime", listen=endpoint)), "world.yaml")))
-    node.start()
-    c = Client(site, endpoint)
+    node, c = start_world(tmp_path, clock="realtime")
     try:
-        assert wait_for(lambda: len(c.states) > 5, 30)
         t0, w0 = c.state.t, time.monotonic()
         time.sleep(1.5)
         rate = (c.state.t - t0) / (time.monotonic() - w0)
