@@ -102,3 +102,54 @@ def test_cli_run_refuses_an_invalid_atd_without_dispatching(site, tmp_path):
                          env={"COLUMNS": "250", "PATH": ""})
     assert out.returncode == 2
     assert "not dispatched" in out.stdout and "bad.xml:" in out.stdout
+
+
+def test_on_the_runtime_a_killed_control_node_leaves_its_robot_held_and_the_task_fails_over(tmp_path):
+    """Each robot a world node and a lockstep control node (agent + primitive modules); kill one mid-push."""
+    from contactflow.embodiments.layout import primitive_modules, world_node
+    from contactflow.nodes.messages import EventMsg
+    from contactflow.nodes.wire import decode
+
+    site = "brokerrt"
+    ks = KeySpace(site)
+    hub = free_port()
+    procs = {"broker": spawn_node(write_config(tmp_path / "broker.yaml", {
+        "site": site, "node": "broker_node", "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{hub}"]},
+        "modules": [{"name": "broker", "type": "broker"}]}), tmp_path / "broker.log")}
+    connect = (f"tcp/127.0.0.1:{hub}",)
+    for robot in ROBOTS:
+        # the first robot's cell runs at real time, so it is still mid-push when its control node dies
+        world = world_node(site, f"fig7_4_{robot}", node=f"{robot}_world", connect=connect, cell=robot,
+                           wait_for=(f"{robot}_control",), max_rtf=1.0 if robot == FIRST else 0.0)
+        control = {"site": site, "node": f"{robot}_control", "clock": "lockstep", "cell": robot,
+                   "zenoh": {"mode": "peer", "connect": list(connect)},
+                   "modules": [{"name": "agent", "type": "robot_agent", "robot": robot, "params": {"robot": robot}},
+                               *primitive_modules(robot)]}
+        for name, cfg in ((f"{robot}_world", world), (robot, control)):
+            procs[name] = spawn_node(write_config(tmp_path / f"{name}.yaml", cfg), tmp_path / f"{name}.log")
+    tool = ZenohTransport(ZenohSettings(connect=connect)).open()
+    held: list[EventMsg] = []
+    sub = tool.subscribe(ks.events("site", f"{FIRST}_world", "world"), lambda k, p: held.append(decode(p, EventMsg, k)))
+    try:
+        ready = wait_for(lambda: len(tool.alive(ks.alive_robot(), timeout=0.5)) == 2, timeout=60)
+        assert ready, "\n".join(p.read_text()[-1500:] for p in tmp_path.glob("*.log"))
+        follow = dispatch(tool, ks, PUSH, "push_away.xml", target="any")
+        assert follow.reply.ok and follow.reply.robots[0] == FIRST, follow.reply
+        assert wait_for(lambda: any(m.kind == "edge" and m.robot == FIRST for m in follow.progress), timeout=60)
+        assert not any(m.final and m.robot == FIRST for m in follow.progress)  # still mid-task
+        procs[FIRST].kill()
+        assert follow.done.wait(120), [(m.robot, m.kind, m.state, m.detail) for m in follow.progress]
+        assert follow.outcome == "success"
+        failover = [m for m in follow.progress if m.kind == "failover"]
+        assert failover and FIRST in failover[0].detail
+        other = next(r for r in ROBOTS if r != FIRST)
+        assert wait_for(lambda: any(m.final and m.robot == other for m in follow.progress), timeout=10)
+        close(follow)
+        # the dead node's robot stands held in its world, which raised the fault naming it
+        assert wait_for(lambda: any(e.event.value == "hardware_failure" and e.detail.startswith(f"{FIRST}: held")
+                                    for e in held), timeout=10), held
+    finally:
+        sub.close()
+        tool.close()
+        for p in procs.values():
+            stop_process(p)
