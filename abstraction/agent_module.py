@@ -32,6 +32,18 @@ class _Job:
     done: threading.Event = field(default_factory=threading.Event)
 
 
+@dataclass
+class _Running:
+    """The task under way in the module's step: its engine and run, the runner fed with events."""
+
+    job: _Job
+    engine: Any  # TaskEngine
+    run_id: str
+    inner: Any  # ControlRunner
+    monitor: Any  # StationFusion, or None without fusion
+    t0: float  # s on the node's clock when it started
+
+
 class RobotAgentModule(Module):
     """Advertises the robot, bids on ATDs and runs the ESTDs it is given.
 
@@ -80,7 +92,7 @@ class RobotAgentModule(Module):
         self._truth_seq = 0
         self._truth_pub = None
         self._jobs: queue.Queue[_Job] = queue.Queue()
-        self._run: Any = None  # (job, engine, run id, control runner, monitor, t0) of the task under way
+        self._run: _Running | None = None  # the task under way
 
     def _executor(self):
         if self.params.executor == "runtime":
@@ -138,9 +150,7 @@ class RobotAgentModule(Module):
                 return
             state["next"] = r.time + period
             frame = r.camera(camera)
-            self.io.publish("depth", DepthImage(camera=camera, depth=NDArray.of(frame.depth.astype("float32")),
-                                                K=[float(v) for v in frame.K.ravel()],
-                                                T_world_cam=[float(v) for v in frame.T_world_cam.ravel()]))
+            self.io.publish("depth", DepthImage.of(frame.depth, frame.K, frame.T_world_cam, camera))
 
         return publish
 
@@ -183,45 +193,36 @@ class RobotAgentModule(Module):
 
         return run
 
-    def _begin(self, job: _Job) -> None:
-        from contactflow.abstraction.concrete import ConcreteRunner, HandGeometry
-        from contactflow.abstraction.execution import bound_params
-        from contactflow.embodiments.primitives.hands import held_center
-        from contactflow.embodiments.primitives.profiles import GRASP_CENTER
+    def _begin(self, job: _Job) -> _Running:
+        from contactflow.abstraction.execution import bound_params, robot_runner
         from contactflow.embodiments.remote import connect
         from contactflow.nodes.task_module import ControlRunner
         from contactflow.nodes.taskengine import TaskEngine
 
         io, p = self.io, self.params
         robot = connect(io.transport, io.keyspace, io.robot, io.node)
-        hands = {arm: HandGeometry(robot.hand_points(arm), grasp_center=GRASP_CENTER.get(p.robot, (0.0, 0.0, 0.0)))
-                 for arm in robot.arms if robot.spec.arm(arm).hand}
         inner = ControlRunner(io, io.robot, p.pool)
-        runner = ConcreteRunner(inner, robot.arms, PROFILES[p.robot].max_opening,
-                                hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=hands,
-                                held_at=lambda arm: held_center(robot, arm))
         tr = job.translation
-        engine = TaskEngine(runner, lambda: io.now, on_progress=lambda pr: job.report(tr.abstract(pr)))
+        engine = TaskEngine(robot_runner(inner, robot, p.robot, robot.hand_points), lambda: io.now,
+                            on_progress=lambda pr: job.report(tr.abstract(pr)))
         run_id = engine.launch(tr.estd, bound_params(tr, job.params))
-        monitor = self._contact_monitor(robot) if p.fusion else None
-        self._run = (job, engine, run_id, inner, monitor, io.now)
+        return _Running(job, engine, run_id, inner, self._contact_monitor(robot) if p.fusion else None, io.now)
 
-    def _advance(self) -> None:
-        job, engine, run_id, inner, monitor, t0 = self._run
-        inner.feed([m for m in self.io.take("events") if isinstance(m, EventMsg)])
-        engine.tick()
-        if monitor is not None:
-            monitor(monitor.robot)
-        if not engine.done(run_id):
-            if job.cancel.is_set():
-                engine.cancel(run_id, "cancelled")
-            elif self.io.now - t0 >= self.params.max_time:
-                engine.cancel(run_id, f"gave up after {self.params.max_time:g} s")
-        if engine.done(run_id):
-            result = engine.result(run_id)
-            job.outcome = result.event if result is not None else Event.ERROR
+    def _advance(self, r: _Running) -> None:
+        r.inner.feed([m for m in self.io.take("events") if isinstance(m, EventMsg)])
+        r.engine.tick()
+        if r.monitor is not None:
+            r.monitor(r.monitor.robot)
+        if not r.engine.done(r.run_id):
+            if r.job.cancel.is_set():
+                r.engine.cancel(r.run_id, "cancelled")
+            elif self.io.now - r.t0 >= self.params.max_time:
+                r.engine.cancel(r.run_id, f"gave up after {self.params.max_time:g} s")
+        if r.engine.done(r.run_id):
+            result = r.engine.result(r.run_id)
+            r.job.outcome = result.event if result is not None else Event.ERROR
             self._run = None
-            job.done.set()
+            r.job.done.set()
 
     def step(self) -> Status:
         if self.params.executor != "runtime":
@@ -233,22 +234,21 @@ class RobotAgentModule(Module):
                 self.io.take("events")  # nothing runs: old events belong to nobody
                 return Status.RUNNING
             try:
-                self._begin(job)
+                self._run = self._begin(job)
             except Exception as exc:  # the robot does not answer, a hand was not measured...
                 self.io.log(f"task not started: {type(exc).__name__}: {exc}")
                 job.outcome = Event.HARDWARE_FAILURE
                 job.done.set()
                 return Status.RUNNING
-        self._advance()
+        self._advance(self._run)
         return Status.RUNNING
 
     def stop(self) -> None:
         if self._run is not None:
-            job, engine, run_id, *_ = self._run
-            engine.cancel(run_id, "agent stopped")
-            job.outcome = Event.ERROR
-            job.done.set()
-            self._run = None
+            r, self._run = self._run, None
+            r.engine.cancel(r.run_id, "agent stopped")
+            r.job.outcome = Event.ERROR
+            r.job.done.set()
         if self._agent is not None:
             self._agent.stop()
             self._agent = None

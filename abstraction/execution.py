@@ -8,6 +8,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from contactflow.abstraction.concrete import ConcreteRunner, HandGeometry
 from contactflow.abstraction.frames import TaskFrame, params_to_world
 from contactflow.abstraction.translator import AbstractProgress, Translation
 from contactflow.nodes.status import Event
@@ -25,6 +26,25 @@ def bound_params(translation: Translation, params: Mapping[str, Any] | None) -> 
     """The dispatch's parameters the ESTD declares, in world coordinates."""
     declared = translation.estd.params
     return params_to_world({k: v for k, v in (params or {}).items() if k in declared}, frame_of(translation))
+
+
+def robot_runner(inner: PrimitiveRunner, robot: Any, embodiment: str,
+                 hand_points: Callable[[str], Any]) -> ConcreteRunner:
+    """The factory's last step for ``robot`` (a simulated or remote facade) over ``inner``.
+
+    Each hand's geometry comes from ``hand_points(arm)`` with the embodiment's usual grasp
+    centre; while a hand holds what a grasp took, objects are placed by where they sit in it.
+    """
+    from contactflow.abstraction.profiles import PROFILES
+    from contactflow.embodiments.primitives.hands import held_center
+    from contactflow.embodiments.primitives.profiles import GRASP_CENTER
+
+    centre = GRASP_CENTER.get(embodiment, (0.0, 0.0, 0.0))
+    hands = {arm: HandGeometry(hand_points(arm), grasp_center=centre) for arm in robot.arms if robot.spec.arm(arm).hand}
+    profile = PROFILES.get(embodiment)
+    return ConcreteRunner(inner, robot.arms, profile.max_opening if profile else 0.1,
+                          hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=hands,
+                          held_at=lambda arm: held_center(robot, arm))
 
 
 @dataclass
@@ -51,7 +71,6 @@ class EngineExecutor:
         self.dt = dt
         self.max_time = max_time
         self.realtime = realtime
-
 
     def __call__(self, translation: Translation, report: Callable[[AbstractProgress], None],
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:

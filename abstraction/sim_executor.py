@@ -11,7 +11,7 @@ import threading
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-from contactflow.abstraction.execution import EngineExecutor, SimTime
+from contactflow.abstraction.execution import EngineExecutor, SimTime, robot_runner
 from contactflow.abstraction.translator import AbstractProgress, Translation
 from contactflow.nodes.status import Event
 
@@ -34,15 +34,13 @@ class SimExecutor:
         self.max_time = max_time
         self.monitor_factory = monitor_factory
         self.robot: Any = None
-        self.hands: dict[str, Any] = {}
+        self.hand_points: dict[str, Any] = {}  # arm -> its hand's points, measured as the robot was built
         self.monitor: ContactMonitor | None = None
         self._lock = threading.Lock()
 
     def build(self) -> Any:
         """Create the world, its scene and the robot (once; SAPIEN is imported only here)."""
-        from contactflow.abstraction.concrete import HandGeometry
         from contactflow.embodiments.hand_geometry import hand_points
-        from contactflow.embodiments.primitives.profiles import GRASP_CENTER
         from contactflow.embodiments.scenes import SCENES
         from contactflow.embodiments.sim_robot import SimRobot
         from contactflow.embodiments.world import World, WorldParams
@@ -53,8 +51,7 @@ class SimExecutor:
             world = World(WorldParams())
             SCENES[self.scene](world)
             self.robot = SimRobot(world, self.robot_name)
-            self.hands = {arm: HandGeometry(hand_points(self.robot, arm), grasp_center=GRASP_CENTER.get(self.robot_name, (0.0, 0.0, 0.0)))
-                          for arm in self.robot.arms}
+            self.hand_points = {arm: hand_points(self.robot, arm) for arm in self.robot.arms}
             self.robot.step(0.3)  # let objects settle on the table
             if self.monitor_factory is not None:
                 self.monitor = self.monitor_factory(self.robot)
@@ -62,18 +59,12 @@ class SimExecutor:
 
     def __call__(self, translation: Translation, report: Callable[[AbstractProgress], None],
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
-        from contactflow.abstraction.concrete import ConcreteRunner
-        from contactflow.abstraction.profiles import PROFILES
-        from contactflow.embodiments.primitives.hands import held_center
         from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
 
         with self._lock:
             robot = self.build()
             runner = LocalPrimitiveRunner(robot)
-            profile = PROFILES.get(self.robot_name)
-            concrete = ConcreteRunner(runner, robot.arms, profile.max_opening if profile else 0.1,
-                                      hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=self.hands,
-                                      held_at=lambda arm: held_center(robot, arm))
+            concrete = robot_runner(runner, robot, self.robot_name, self.hand_points.__getitem__)
 
             def advance(dt: float) -> None:
                 runner.advance()

@@ -88,7 +88,7 @@ def zenoh(listen: str = "", connect: tuple[str, ...] = ()) -> dict[str, Any]:
 def world_node(site: str, scene_file: str | Path, node: str = "world", clock: str = "lockstep",
                listen: str = "", connect: tuple[str, ...] = (), **params: Any) -> dict[str, Any]:
     """The world node: one ``world`` module building the cell of ``scene_file`` (``params``: its Params)."""
-    params = {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
+    params = {k: _plain(v) for k, v in params.items()}
     return {"site": site, "node": node, "clock": "wall", "zenoh": zenoh(listen, connect),
             "modules": [{"name": "world", "type": "world",
                          "params": {"scene_file": str(scene_file), "clock": clock, **params}}]}
@@ -109,7 +109,6 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
     name = task or main
     modules = primitive_modules(robot, embodiment, primitive_types(tasks, name), pool)
     modules.append({"name": "task", "type": "task", "robot": robot, "autostart": autostart,
-                    "inputs": {"events": f"cf/{site}/m/{robot}/*/*/evt"},
                     "params": {"task_file": str(task_file), "task": name, "robot": robot,
                                "plan": yaml.safe_dump(dict(plan or {}), default_flow_style=True).strip(),
                                "pool": pool}})
@@ -171,7 +170,6 @@ class CellRun:
     events: list[tuple[float, str, str]]
     sim_s: float  # simulated s from tick 1 to the last outcome
     wall_s: float  # wall s over the same span
-    world: Any = None  # the world module, when it ran in this process
 
     @property
     def rtf(self) -> float:
@@ -193,6 +191,7 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
     folder.mkdir(parents=True, exist_ok=True)
     paths = [write_config(folder / f"{c['node']}.yaml", c) for c in (world, *controls)]
     robots = [next(m["robot"] for m in c["modules"] if m["name"] == "task") for c in controls]
+    names = [f"{r}/{c['node']}/task" for r, c in zip(robots, controls, strict=True)]
     started: list[Any] = []
     watch: SiteWatch | None = None
     try:
@@ -205,17 +204,15 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
                 started.append(node)
             if k == 0:
                 watch = SiteWatch(world["site"], endpoint)
-        names = [f"{r}/control_{r}/task" for r in robots]
         if not wait_for(lambda: all(watch.outcome(n) for n in names), timeout):
             logs = "".join((folder / f"{p.stem}.log").read_text()[-2000:] for p in paths if (folder / f"{p.stem}.log").exists())
             raise TimeoutError(f"tasks still running after {timeout:g} s: {watch.sequence()[-10:]} {logs}")
         outcomes = {r: watch.outcome(n) for r, n in zip(robots, names, strict=True)}
         end = max(outcomes.values(), key=lambda e: e.hdr.t_sim)
         t0_sim, t0_wall = watch.first_tick
-        world_module = None if processes else started[0].host.modules[("site", "world")].module
-        if keep is not None and world_module is not None:
-            keep(world_module)
-        return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, world_module)
+        if keep is not None and not processes:
+            keep(started[0].host.modules[("site", "world")].module)
+        return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall)
     finally:
         for s in reversed(started):
             if processes:
@@ -237,7 +234,7 @@ def _pose(xyz: tuple[float, float, float]) -> list[float]:
     return [p[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
 
 
-def table_cell(site: str, endpoint: str, melfa: bool = False, **world: Any) -> tuple[dict, list[dict]]:
+def table_cell(site: str, endpoint: str, melfa: bool = False) -> tuple[dict, list[dict]]:
     """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3);
     with ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube.
 
@@ -252,5 +249,5 @@ def table_cell(site: str, endpoint: str, melfa: bool = False, **world: Any) -> t
         controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE)},
                                      connect=(endpoint,), autostart=True))
     cell = CELLS / ("shared_table.yaml" if melfa else "pick_place.yaml")
-    w = world_node(site, cell, listen=endpoint, wait_for=tuple(c["node"] for c in controls), **world)
+    w = world_node(site, cell, listen=endpoint, wait_for=tuple(c["node"] for c in controls))
     return w, controls

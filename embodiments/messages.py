@@ -5,6 +5,7 @@ from __future__ import annotations
 from enum import StrEnum
 
 import msgspec
+import numpy as np
 
 from contactflow.nodes.wire import Message, NDArray
 
@@ -66,6 +67,12 @@ class DepthImage(Message, tag="depth_image"):
     depth: NDArray  # (H, W) float32
     K: list[float]  # 3x3 row-major
     T_world_cam: list[float]  # 4x4 row-major, optical frame
+
+    @classmethod
+    def of(cls, depth: np.ndarray, K: np.ndarray, world_T_cam: np.ndarray, camera: str = "camera") -> DepthImage:
+        """The message of a frame's depth (m), intrinsics and optical-frame pose."""
+        return cls(camera=camera, depth=NDArray.of(np.ascontiguousarray(depth, dtype=np.float32)),
+                   K=[float(v) for v in np.ravel(K)], T_world_cam=[float(v) for v in np.ravel(world_T_cam)])
 
 
 class PointCloud(Message, tag="point_cloud"):

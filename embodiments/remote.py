@@ -35,6 +35,7 @@ from contactflow.embodiments.messages import (
     HeadCommand,
     RobotInfo,
     RobotState,
+    WrenchSample,
 )
 from contactflow.embodiments.sensors.camera import DepthFrame
 from contactflow.embodiments.sensors.ft import WrenchReading
@@ -54,12 +55,14 @@ class RobotLink:
     """One node's subscriptions to a world's robot, and its command publisher."""
 
     def __init__(self, transport: Transport, ks: KeySpace, robot: str, node: str) -> None:
-        self.transport, self.ks, self.robot, self.node = transport, ks, robot, node
+        # weakly: the registry of links is keyed by the transport, which a strong reference would keep alive
+        self._transport = weakref.ref(transport)
+        self.ks, self.robot, self.node = ks, robot, node
         self._lock = threading.Condition()
         self.state: RobotState | None = None
         self.first_tick = 0  # the tick of the first state this node received
         self.rejected = 0
-        self._frames: dict[int, CameraFrame] = {}
+        self._frames: dict[int, CameraFrame | None] = {}  # the requests this node waits for
         self._seq = 0
         self._info: RobotInfo | None = None
         self.facade: RemoteRobot | None = None
@@ -90,20 +93,24 @@ class RobotLink:
             self.rejected += 1
             return
         with self._lock:
-            self._frames[msg.request] = msg
-            self._lock.notify_all()
+            if msg.request in self._frames:  # another node's frame, or one given up on, is not kept
+                self._frames[msg.request] = msg
+                self._lock.notify_all()
 
     def info(self, timeout: float = 5.0) -> RobotInfo:
         """The robot's description, asked once of its world."""
         if self._info is None:
             key = self.ks.robot(self.robot, "info")
             end = time.monotonic() + timeout
-            while self._info is None:
-                replies = self.transport.query(key, b"", timeout=min(1.0, timeout))
+            transport = self._transport()
+            while self._info is None and transport is not None:
+                replies = transport.query(key, b"", timeout=min(1.0, timeout))
                 for rkey, payload in replies:
                     self._info = decode(payload, RobotInfo, rkey)
                 if self._info is None and time.monotonic() > end:
-                    raise RemoteError(f"no world answers for robot {self.robot!r} on {key}")
+                    break
+            if self._info is None:
+                raise RemoteError(f"no world answers for robot {self.robot!r} on {key}")
         return self._info
 
     def wait_state(self, timeout: float = 5.0) -> RobotState:
@@ -124,10 +131,12 @@ class RobotLink:
         """Ask the world for a frame now and wait for it (the world answers within the current tick)."""
         self._requests += 1
         request = self._request_base + self._requests  # unique across the nodes asking one world
+        with self._lock:
+            self._frames[request] = None
         self.send(CameraRequest(robot=self.robot, camera=camera, request=request))
         with self._lock:
-            self._lock.wait_for(lambda: request in self._frames, timeout)
-            msg = self._frames.pop(request, None)
+            self._lock.wait_for(lambda: self._frames[request] is not None, timeout)
+            msg = self._frames.pop(request)
         if msg is None:
             raise RemoteError(f"robot {self.robot}: no frame of camera {camera!r} within {timeout:g} s")
         return msg
@@ -176,7 +185,6 @@ class RemoteArm:
     def __init__(self, robot: RemoteRobot, spec: Any) -> None:
         self.robot, self.spec = robot, spec
         self.name, self.joints, self.home = spec.name, spec.joints, spec.home
-        self._idx: np.ndarray | None = None
         self._sent = 0
         self._stop_sent = 0
 
@@ -410,29 +418,28 @@ class RemoteRobot(RobotFacade):
         return s.failure or ("held by the world" if s.held else "")
 
     # -- sensors ------------------------------------------------------------------------------
-    def ft(self, arm: str) -> WrenchReading:
+    def _wrench(self, arm: str) -> tuple[WrenchSample, np.ndarray]:
+        """The arm's wrist sample as the world sent it, and its force and torque as one vector."""
         for w in self.state.wrenches:
             if w.arm == arm:
-                f, tq = np.asarray(w.force, dtype=np.float64), np.asarray(w.torque, dtype=np.float64)
-                pending = self._tare.get(arm)
-                if pending is not None:
-                    seq, offset = pending
-                    if self.arm(arm)._state().applied >= seq:
-                        del self._tare[arm]
-                    else:  # the world tares at its next tick: read as if it had
-                        f, tq = f - offset[:3], tq - offset[3:]
-                return WrenchReading(self.time, f, tq, w.frame, np.asarray(w.rotation).reshape(3, 3), w.estimated)
+                return w, np.asarray([*w.force, *w.torque], dtype=np.float64)
         raise KeyError(f"robot {self.name}: arm {arm!r} has no F/T sensor")
 
+    def ft(self, arm: str) -> WrenchReading:
+        w, v = self._wrench(arm)
+        pending = self._tare.get(arm)
+        if pending is not None:
+            seq, at_tare = pending
+            if self.arm(arm)._state().applied >= seq:
+                del self._tare[arm]
+            else:  # the world tares at its next tick: read as if it had
+                v = v - at_tare
+        return WrenchReading(self.time, v[:3], v[3:], w.frame, np.asarray(w.rotation).reshape(3, 3), w.estimated)
+
     def tare_ft(self, arm: str) -> None:
-        reading = self.ft(arm)
         a = self.arm(arm)
         a.tare()
-        self._tare[arm] = (a._sent, np.concatenate([reading.force, reading.torque]) + self._tare_offset(arm))
-
-    def _tare_offset(self, arm: str) -> np.ndarray:
-        pending = self._tare.get(arm)
-        return np.zeros(6) if pending is None else pending[1]
+        self._tare[arm] = (a._sent, self._wrench(arm)[1])  # what the world will subtract
 
     def tactile(self, hand: str) -> dict[str, np.ndarray]:
         for t in self.state.tactile:

@@ -197,11 +197,11 @@ class ModuleHost:
         self.config = config
         self.ks: KeySpace = config.keyspace
         self.transport = transport
-        if clock is None:
-            clock = {"sim": lambda: SimClock(transport, self.ks, config.cell),
-                     "lockstep": lambda: LockstepClock(transport, self.ks, config.node, config.cell),
-                     }.get(config.clock, WallClock)()
-        self.clock = clock
+        if clock is None and config.clock == "lockstep":
+            clock = LockstepClock(transport, self.ks, config.node, config.cell)
+        elif clock is None and config.clock == "sim":
+            clock = SimClock(transport, self.ks, config.cell)
+        self.clock = clock or WallClock()
         self.log = logging.getLogger(f"contactflow.node.{config.node}")
         self.modules: dict[tuple[str, str], HostedModule] = {}
         self._lock = threading.RLock()

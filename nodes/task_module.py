@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from contactflow.nodes.keys import ANY, KeySpace
 from contactflow.nodes.messages import Command, EventMsg, ParamValue
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
 from contactflow.nodes.status import STATUS_EVENT, Event, Status
@@ -144,6 +145,11 @@ class TaskModule(Module):
         robot: str = ""  # robot whose primitive modules the task commands (default: own)
         plan: str = ""  # YAML mapping binding the task's parameters, e.g. "{x: [0, 0, 1]}"
         pool: int = 3  # modules per primitive type the node hosts (T, T_2, ... T_pool)
+
+    @classmethod
+    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        """Without wiring, the events of every module of the robot it commands, wherever they run."""
+        return {"events": ks.events(params.robot or robot, ANY, ANY)}
 
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)

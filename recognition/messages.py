@@ -31,8 +31,7 @@ def nd(array: np.ndarray) -> NDArray:
 
 def depth_image(depth: np.ndarray, K: np.ndarray, world_T_cam: np.ndarray, camera: str = "camera") -> DepthImage:
     """The camera's wire message (``embodiments.messages.DepthImage``) from plain arrays."""
-    return DepthImage(camera=camera, depth=nd(np.asarray(depth, np.float32)),
-                      K=[float(v) for v in np.ravel(K)], T_world_cam=[float(v) for v in np.ravel(world_T_cam)])
+    return DepthImage.of(depth, K, world_T_cam, camera)
 
 
 def depth_arrays(msg: DepthImage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

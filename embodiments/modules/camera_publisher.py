@@ -31,8 +31,7 @@ class CameraPublisher(Module):
 
     def step(self) -> Status:
         f = self.robot.camera(self.params.camera)
-        self.io.publish("depth", DepthImage(camera=self.params.camera, depth=NDArray.of(f.depth),
-                                            K=[float(x) for x in f.K.ravel()], T_world_cam=[float(x) for x in f.T_world_cam.ravel()]))
+        self.io.publish("depth", DepthImage.of(f.depth, f.K, f.T_world_cam, self.params.camera))
         pts = np.ascontiguousarray(f.points[:: max(1, self.params.stride)], dtype=np.float32)
         self.io.publish("cloud", PointCloud(points=NDArray.of(pts), origin=[float(x) for x in f.T_world_cam[:3, 3]],
                                             sensor=self.params.camera))

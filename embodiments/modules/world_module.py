@@ -431,10 +431,11 @@ class WorldModule(Module):
         idx = sim.art.indices(joints)
         lo, hi = sim.art.lower[idx], sim.art.upper[idx]
         tol = 1e-6
-        bad = np.nonzero((values < lo - tol) | (values > hi + tol))
-        if len(bad[-1]):
-            j = int(bad[-1][0])
-            raise CommandError(f"{what}: joint {joints[j]!r} target {float(values.reshape(-1, len(joints))[0, j]):.4f} "
+        rows = values.reshape(-1, len(joints))  # one target, or a path of them
+        bad = np.argwhere((rows < lo - tol) | (rows > hi + tol))
+        if len(bad):
+            i, j = (int(x) for x in bad[0])
+            raise CommandError(f"{what}: joint {joints[j]!r} target {rows[i, j]:.4f} "
                                f"outside its limits [{lo[j]:.4f}, {hi[j]:.4f}]")
         return values
 
@@ -504,9 +505,7 @@ class WorldModule(Module):
             self.log.warning("%s: camera %s: %s", r.sim.name, camera, exc)
             return
         r.depth_seq += 1
-        msg = DepthImage(camera=camera, depth=NDArray.of(np.asarray(frame.depth, dtype=np.float32)),
-                         K=[float(v) for v in np.asarray(frame.K).ravel()],
-                         T_world_cam=[float(v) for v in np.asarray(frame.T_world_cam).ravel()])
+        msg = DepthImage.of(frame.depth, frame.K, frame.T_world_cam, camera)
         r.depth_pub(encode(stamp(msg, f"{self.source}/{r.sim.name}/depth", r.depth_seq, self.world.time)))
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:
