@@ -1,16 +1,17 @@
-"""The last step of translation: the factory's parameters in each primitive's own vocabulary.
+"""The last step of translation: a node's goal, in task terms, turned into hand poses when it starts.
 
-Factories speak in ATD terms (a target point, an approach direction, a standoff, a motion
-type, grasp forces in N); the simulated primitives take poses ``[x, y, z, roll, pitch,
-yaw]`` of the hand's grasp frame, an arm name, thresholds named as in thesis ch. 3. This
-runner wraps a primitive runner and converts a node's parameters once they are bound (task
-parameters such as an object location are only known when the node is entered).
+A factory gives each primitive its typed ``Params`` and a :class:`Goal` in ATD terms (a
+target point, an approach direction, a standoff, the object's size, waypoints, obstacles).
+Where the hand must go depends on what is only known when the node is entered: the bound
+object location, the hand's current pose, where a held object sits in the hand. This runner
+wraps a primitive runner and turns the goal into the primitive's pose fields (``[x, y, z,
+roll, pitch, yaw]`` of the hand's grasp frame, the arm, a push direction and distance).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -18,15 +19,64 @@ from scipy.spatial.transform import Rotation
 
 from contactflow.nodes.status import Event
 from contactflow.nodes.taskengine import PrimitiveRunner, RunnerEvent
+from contactflow.nodes.taskgraph import NodeKind, TaskGraph
 
 DOWN = (0.0, 0.0, -1.0)
 LINE_SPEED = 0.05  # m/s, guarded straight-line moves
 LINE_TURN = 0.5  # rad/s
-CARRY_FORCE = 10.0  # N, least unexpected-contact threshold of a guarded path
 SIDE_CLEARANCE = 0.03  # m, gap between the hand and an object it approaches from the side
 PUSH_HEIGHT = 0.02  # m, the hand's lowest point above the pushed object's bottom
 GRASPS = ("robust_grasp", "naive_grasp", "close_until_force", "close_until_stall")
 """Primitives after whose success the hand holds an object (until a release)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Goal:
+    """Where a primitive goes, in task terms (the ESTD node's ``goal``; references bound when it starts)."""
+
+    target: str | tuple[float, ...] = ()  # m, world point, or a ${params.X} reference to one
+    approach: str | tuple[float, ...] = ()  # unit world direction toward the target, or a reference (): none
+    standoff: float = 0.0  # m, the hand stops this far back along ``approach``
+    size: tuple[float, ...] = ()  # m, world extents of the object: how close the hand may come
+    waypoints: tuple[float, ...] = ()  # m, flat [x, y, z, ...] points passed through before the target
+    obstacles: tuple[float, ...] = ()  # m, flat boxes [cx, cy, cz, sx, sy, sz, ...] a free path avoids
+    pushes: bool = False  # the hand pushes the object ahead of it to the target
+
+    def to_fields(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def to_params(self) -> dict[str, Any]:
+        """The fields that differ from the defaults, as plain values."""
+        default = Goal()
+        return {f.name: list(v) if isinstance(v, tuple) else v for f in fields(self)
+                if (v := getattr(self, f.name)) != getattr(default, f.name)}
+
+    @classmethod
+    def of(cls, value: Any, where: str) -> Goal:
+        """A goal from an ESTD node's bound ``goal`` map; ValueError naming ``where`` and the field."""
+        if not isinstance(value, Mapping):
+            raise ValueError(f"{where}: goal must be a map, got {type(value).__name__}")
+        known = {f.name for f in fields(cls)}
+        out: dict[str, Any] = {}
+        for k, v in value.items():
+            if k not in known:
+                raise ValueError(f"{where}: goal.{k}: unknown field (known: {', '.join(sorted(known))})")
+            if k == "pushes":
+                if not isinstance(v, bool):
+                    raise ValueError(f"{where}: goal.pushes: expected a bool, got {v!r}")
+                out[k] = v
+            elif k == "standoff":
+                if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
+                    raise ValueError(f"{where}: goal.standoff: expected a finite number, got {v!r}")
+                out[k] = float(v)
+            elif isinstance(v, str) and k in ("target", "approach"):
+                out[k] = v
+            elif isinstance(v, list | tuple) and all(isinstance(c, int | float) and not isinstance(c, bool)
+                                                     and np.isfinite(c) for c in v):
+                out[k] = tuple(float(c) for c in v)
+            else:
+                raise ValueError(f"{where}: goal.{k}: expected a list of finite numbers, got {v!r}")
+        return cls(**out)
 
 
 def top_down(yaw: float) -> np.ndarray:
@@ -181,62 +231,34 @@ def _explicit_goal(target: np.ndarray, size: np.ndarray | None, hand: HandGeomet
             return pose_list(goal, R)
     return pose_list(hand.frame_for_center(target, R), R)
 
-def concretize(type_: str, params: Mapping[str, Any], arms: list[str], max_opening: float = 0.1,
-               last_arm: str = "", hand_at: Callable[[str], np.ndarray] | None = None,
+def concretize(type_: str, params: Mapping[str, Any], arms: list[str], last_arm: str = "",
+               hand_at: Callable[[str], np.ndarray] | None = None,
                hands: Mapping[str, HandGeometry] | None = None) -> dict[str, Any]:
-    """Primitive parameters for ``type_`` from a factory's parameter set.
+    """A started node's primitive parameters: its ``Params`` fields, and its bound ``goal`` as hand poses.
 
     ``hand_at(arm)`` gives the controlled frame's current pose (4x4): a push goes from there to
     the target. ``hands`` gives each arm's hand geometry: approach poses keep the hand off the object.
     """
-    p = dict(params)
-    target = _vec(p.get("target"))
-    approach = _vec(p.get("approach"))
+    out = {k: v for k, v in params.items() if k != "goal"}
+    goal = Goal.of(params["goal"], type_) if "goal" in params else Goal()
+    target = _vec(goal.target)
+    approach = _vec(goal.approach)
     approach = approach / np.linalg.norm(approach) if approach is not None and np.linalg.norm(approach) > 0 else None
-    size = _vec(p.get("size"))
-    out: dict[str, Any] = {"arm": p.pop("arm", "") or last_arm or choose_arm(arms, target)}
+    size = _vec(goal.size)
+    out["arm"] = out.get("arm") or last_arm or choose_arm(arms, target)
     hand = (hands or {}).get(out["arm"])
-    standoff = float(p.get("standoff", 0.0) or 0.0)
-    line = p.get("motion") == "line"
     if type_ in ("move_to", "transport"):
         current = np.asarray(hand_at(out["arm"]), dtype=np.float64) if hand_at is not None else None
         if target is not None and approach is not None:
-            out["target"] = _approach_goal(target, approach, standoff, size, hand, current)
+            out["target"] = _approach_goal(target, approach, goal.standoff, size, hand, current)
         elif target is not None:
-            out["target"] = _explicit_goal(target, size, hand, current, bool(p.get("pushes")))
-        waypoints = p.get("waypoints") or []
-        if type_ == "transport" and len(waypoints) >= 6:
-            pts = np.asarray(waypoints, dtype=np.float64).reshape(-1, 3)[:-1]
+            out["target"] = _explicit_goal(target, size, hand, current, goal.pushes)
+        if type_ == "transport" and len(goal.waypoints) >= 6:
+            pts = np.asarray(goal.waypoints, dtype=np.float64).reshape(-1, 3)[:-1]
             out["waypoints"] = [v for q in pts for v in grasp_pose(q)]
-        if type_ == "transport" and p.get("obstacles"):
-            boxes = np.asarray(p["obstacles"], dtype=np.float64).reshape(-1, 6)
+        if type_ == "transport" and goal.obstacles:
+            boxes = np.asarray(goal.obstacles, dtype=np.float64).reshape(-1, 6)
             out["obstacles"] = [float(v) for b in boxes for v in b[:3]]
-        if type_ == "transport" and line:
-            out["velocity_limits"] = [LINE_SPEED] * 3 + [LINE_TURN] * 3  # straight and slow: no planner
-        if type_ == "move_to":
-            out["planning"] = p.get("motion", "free") == "free"
-        if line and "stop_force" in p and not p.get("pushes"):
-            # a guarded move stops on contact (the wrist F/T tells it; tactile stops use it too). Going to
-            # an object or down onto a surface, the contact is the goal; on a free path it is a fault,
-            # judged above the jolts a carried load gives
-            until_contact = approach is not None or bool(p.get("until_contact"))
-            force = float(p["stop_force"]) if p.get("stop_sensor") == "wrist_ft" else max(3.0, float(p["stop_force"]))
-            out["guarded"] = until_contact
-            out["force_threshold" if type_ == "transport" else "abort_force"] = (
-                force if until_contact else max(force, CARRY_FORCE))
-        if p.get("hand_shape"):
-            out["preshape"] = str(p["hand_shape"])
-    elif type_ in ("robust_grasp", "naive_grasp"):
-        corrections = set(p.get("corrections") or [])
-        out["pregrasp_type"] = "open"
-        if type_ == "robust_grasp" and "pregrasp_size" in p:
-            out["pregrasp_size"] = float(min(1.0, max(0.0, float(p["pregrasp_size"]) / max_opening)))
-        if type_ == "robust_grasp" and corrections:
-            out.update(alignment="alignment" in corrections, sliding="sliding" in corrections,
-                       finger_lost="finger_lost" in corrections)
-    elif type_ == "close_until_force":
-        if "grasp_force" in p:
-            out["grip_force"] = float(p["grasp_force"]) / 2.0  # the factory's force is the total of two pads
     elif type_ == "push" and target is not None and hand_at is not None:
         T = np.asarray(hand_at(out["arm"]), dtype=np.float64)
         d = target - T[:3, 3]
@@ -249,28 +271,47 @@ def concretize(type_: str, params: Mapping[str, Any], arms: list[str], max_openi
                 below = target[2] + size[2] / 2 - T[2, 3]
                 dist -= hand.reach(T[:3, :3], d, below) + float(np.abs(d) @ size) / 2
             out.update(direction=[float(v) for v in d], distance=max(dist, 0.01))
-    elif type_ == "place":
-        if "contact_threshold" in p:
-            out["force_threshold"] = float(p["contact_threshold"])
-        if "filter_hz" in p:
-            out["filter_hz"] = float(p["filter_hz"])
-    elif type_ == "slide":
-        if target is not None:
-            out["target"] = [float(v) for v in target]
-    elif type_ == "release":
-        out["hand_target"] = 1.0
-    elif type_ == "wait_event":
-        out.update({k: p[k] for k in ("event",) if k in p})
-        out["finish"] = False
-    elif type_ == "hold":
-        out["effort"] = 1.0
+    elif type_ == "slide" and target is not None:
+        out["target"] = [float(v) for v in target]
     return out
+
+
+def _bound_later(v: Any) -> bool:
+    return isinstance(v, str) and "${" in v
+
+
+def check_params(task: TaskGraph) -> list[str]:
+    """Issues with the primitive parameters of ``task``'s nodes and helpers: each key a field of the
+    primitive's ``Params`` with a value of its type (``goal`` a :class:`Goal`), naming node and field.
+
+    Values that are ``${...}`` references are bound when the node starts, and checked there.
+    """
+    from contactflow.nodes.params import ParamError, replace_params
+    from contactflow.nodes.registry import UnknownModuleType, resolve
+
+    issues: list[str] = []
+    for node in task.nodes.values():
+        if node.kind is not NodeKind.PRIMITIVE:
+            continue
+        label = node.label or node.id
+        for who, type_, params in ((f"state {label!r}", node.type, node.params),
+                                   *((f"state {label!r}: helper {h.name!r}", h.type, h.params) for h in node.helpers)):
+            where = f"{node.where}: {who}"
+            try:
+                cls = resolve(type_).Params
+                if "goal" in params:
+                    Goal.of(params["goal"], f"{where}: {type_}.params")
+                replace_params(cls(), {k: v for k, v in params.items() if k != "goal" and not _bound_later(v)},
+                               where=f"{where}: {type_}.params.")
+            except (UnknownModuleType, ParamError, ValueError) as exc:
+                issues.append(str(exc))
+    return issues
 
 
 class ConcreteRunner:
     """A :class:`PrimitiveRunner` that converts bound factory parameters, then delegates."""
 
-    def __init__(self, inner: PrimitiveRunner, arms: list[str], max_opening: float = 0.1,
+    def __init__(self, inner: PrimitiveRunner, arms: list[str],
                  hand_at: Callable[[str], np.ndarray] | None = None,
                  log: Callable[[str], None] | None = None,
                  hands: Mapping[str, HandGeometry] | None = None,
@@ -280,11 +321,11 @@ class ConcreteRunner:
         self.hands = dict(hands or {})
         self.held_at = held_at
         self.arms = arms
-        self.max_opening = max_opening
         self.log = log
         self._arm = ""  # the arm of the last arm primitive: grasps and releases follow it
         self._started: dict[str, tuple[str, str]] = {}  # instance -> (type, arm)
         self._holding: set[str] = set()  # arms whose last grasp succeeded and that released nothing since
+        self._failed: list[RunnerEvent] = []  # nodes whose goal could not be turned into poses
 
     def start(self, instance: str, type: str, params: Mapping[str, Any]) -> None:
         hands = self.hands
@@ -294,8 +335,11 @@ class ConcreteRunner:
             if center is not None:  # across the approach axis; along it the place primitive finds the surface
                 xy = (float(center[0]), float(center[1]), float(hands[arm].grasp_center[2]))
                 hands = {**hands, arm: replace(hands[arm], grasp_center=xy)}
-        concrete = concretize(type, params, self.arms, self.max_opening, last_arm=self._arm, hand_at=self.hand_at,
-                              hands=hands)
+        try:
+            concrete = concretize(type, params, self.arms, last_arm=self._arm, hand_at=self.hand_at, hands=hands)
+        except ValueError as exc:
+            self._failed.append(RunnerEvent(instance, Event.ERROR, {}, f"{type}: {exc}"))
+            return
         if type in ("move_to", "transport") and "target" in concrete:
             self._arm = concrete["arm"]
         if type in ("release", *GRASPS):
@@ -309,7 +353,7 @@ class ConcreteRunner:
         self.inner.stop(instance)
 
     def poll(self) -> list[RunnerEvent]:
-        events = self.inner.poll()
+        events, self._failed = [*self._failed, *self.inner.poll()], []
         for e in events:
             type_, arm = self._started.get(e.instance, ("", ""))
             if type_ in GRASPS and e.event is Event.SUCCESS:

@@ -8,6 +8,7 @@ does not match the task's edges.
 
 from __future__ import annotations
 
+from contactflow.abstraction.concrete import check_params
 from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.messages import EdgeEvents, Estd
 from contactflow.abstraction.profiles import RobotProfile
@@ -49,6 +50,9 @@ def received(msg: Estd, profile: RobotProfile, where: str) -> Translation:
         validate(estd, primitives=profile.capabilities)
     except TaskError as exc:
         raise EstdError(where, exc.issues) from None
+    issues = check_params(estd)
+    if issues:
+        raise EstdError(where, issues)
     edges = {e.id: e for e in estd.edges}
     reasons: list[str] = []
     labels: dict[str, dict[AbstractEvent, tuple[frozenset[Trigger], ...]]] = {e: {} for e in edges}

@@ -35,15 +35,12 @@ def robot_runner(inner: PrimitiveRunner, robot: Any, embodiment: str,
     Each hand's geometry comes from ``hand_points(arm)`` with the embodiment's usual grasp
     centre; while a hand holds what a grasp took, objects are placed by where they sit in it.
     """
-    from contactflow.abstraction.profiles import PROFILES
+    from contactflow.embodiments import registry
     from contactflow.embodiments.primitives.hands import held_center
-    from contactflow.embodiments.primitives.profiles import GRASP_CENTER
 
-    centre = GRASP_CENTER.get(embodiment, (0.0, 0.0, 0.0))
+    centre = registry.home(embodiment).grasp_center
     hands = {arm: HandGeometry(hand_points(arm), grasp_center=centre) for arm in robot.arms if robot.spec.arm(arm).hand}
-    profile = PROFILES.get(embodiment)
-    return ConcreteRunner(inner, robot.arms, profile.max_opening if profile else 0.1,
-                          hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=hands,
+    return ConcreteRunner(inner, robot.arms, hand_at=lambda arm: robot.arm(arm).ee_pose(), hands=hands,
                           held_at=lambda arm: held_center(robot, arm))
 
 

@@ -1,22 +1,15 @@
-"""Per-embodiment factories (thesis §7.2.2, Tables 7.3-7.4): abstract -> concrete primitives.
+"""The translation factory (thesis §7.2.2, Tables 7.3-7.4): abstract -> concrete primitives.
 
 A factory sees one abstract state (or one abstract event of a transition) at a time, with
-the ATD's object and environment information, and returns the concrete primitive type, its
-parameters and the event detectors that the robot's sensors allow. It refuses with a
+the ATD's object and environment information, and returns the concrete primitive type with
+its typed ``Params`` (the primitive's own dataclass, the robot's overrides applied), where
+it goes (a :class:`~contactflow.abstraction.concrete.Goal`, bound when the node starts) and
+the event detectors that the robot's sensors allow. A parameter the primitive does not
+declare, or a value of the wrong type, is an error naming the ATD state. It refuses with a
 reason (:class:`MappingRefused`) when the robot lacks the primitive, the sensors, the reach
-or the payload. Factories are pure: their input is a :class:`RobotProfile`.
-
-Concrete parameters passed to primitives (units in brackets):
-  arm motions  target [m, xyz], approach [unit xyz], standoff [m], waypoints [m, flat xyz],
-               motion (free|line|constrained), keep_orientation, obstacles [m, flat 6 per box:
-               centre xyz, size xyz], hand_shape, stop_force [N], stop_sensor, filter_hz [Hz]
-  grasps       target, approach, preshape, pregrasp_size [m], corrections (robust_grasp),
-               grasp_force [N], max_width [m] (close_until_force)
-  place        target, contact_threshold [N], filter_hz [Hz]
-  slide        target, slide_force [N], filter_hz [Hz]
-  release      hand_position [m]
-  hold         force [N]
-  wait_event   event, sensor, threshold, filter_hz [Hz], min_contacts
+or the payload. Factories are pure: their input is a :class:`RobotProfile`. This module is
+the base every robot shares; each robot's own factory (its table and detectors) lives in
+its home, ``embodiments/robots/<name>/factory.py``.
 """
 
 from __future__ import annotations
@@ -26,9 +19,13 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from contactflow.abstraction.atd import Atd, AtdEvent, AtdObject, AtdState
+from contactflow.abstraction.concrete import LINE_SPEED, LINE_TURN, Goal
 from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.primitives import AbstractPrimitive, Movement
-from contactflow.abstraction.profiles import HandKind, RobotProfile, Sensor
+from contactflow.abstraction.profiles import RobotProfile, Sensor
+from contactflow.embodiments.registry import HandKind
+from contactflow.nodes.params import ParamError, replace_params
+from contactflow.nodes.registry import UnknownModuleType, resolve
 from contactflow.nodes.status import Event
 from contactflow.nodes.taskgraph import ANY_SOURCE, REQUIRED, Helper, Trigger
 
@@ -36,6 +33,9 @@ GRAVITY = 9.81  # m/s^2
 FRICTION = 0.5  # assumed finger-object friction coefficient for grasp force
 DEFAULT_OBJECT = "object"
 DEFAULT_APPROACH = [0.0, 0.0, -1.0]  # from above
+
+
+CARRY_FORCE = 10.0  # N, least unexpected-contact threshold of a guarded path that does not end on contact
 
 
 class MappingRefused(Exception):
@@ -46,15 +46,40 @@ class MappingRefused(Exception):
         super().__init__(reason)
 
 
+def params_class(type_: str) -> type:
+    """The ``Params`` dataclass of concrete primitive ``type_``."""
+    try:
+        return resolve(type_).Params
+    except UnknownModuleType as exc:
+        raise MappingRefused(str(exc)) from None
+
+
+def changed(params: Any, keep: Sequence[str] = ()) -> dict[str, Any]:
+    """The fields of ``params`` that differ from its class defaults, and those in ``keep``, as plain values."""
+    from contactflow.nodes.params import params_dict
+
+    default = params_dict(type(params)())
+    return {k: v for k, v in params_dict(params).items() if v != default[k] or k in keep}
+
+
 @dataclass(frozen=True, slots=True)
 class PrimitiveChoice:
-    """The concrete node for one abstract state."""
+    """The concrete node for one abstract state: its type, typed ``Params`` and goal."""
 
     type: str
-    params: Mapping[str, Any]
+    params: Any  # the primitive's own Params dataclass
+    goal: Goal | None = None
+    explicit: tuple[str, ...] = ()  # fields the ESTD states even at their class default (the robot's overrides, changes)
     helpers: tuple[Helper, ...] = ()
     timeout: float | None = None
     notes: tuple[str, ...] = ()
+
+    def node_params(self) -> dict[str, Any]:
+        """The ESTD node's parameters: the changed ``Params`` fields and the goal."""
+        out = changed(self.params, self.explicit)
+        if self.goal is not None:
+            out["goal"] = self.goal.to_params()
+        return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,13 +96,17 @@ def _param_name(obj: str, what: str) -> str:
     return f"{obj}_{what}"
 
 
+def _ref(obj: str, what: str) -> str:
+    return f"${{params.{_param_name(obj, what)}}}"
+
+
 def _flat(points: Sequence[Sequence[float]]) -> list[float]:
     return [float(c) for p in points for c in p]
 
 
 @dataclass
 class Factory:
-    """Base factory: the mappings every embodiment shares; subclasses fill the tables.
+    """Base factory: the mappings every embodiment shares; each robot's subclass fills the tables.
 
     ``TABLE`` maps each abstract primitive to the concrete types the robot prefers, best
     first (empty: the robot cannot do it, with ``WHY_NOT`` as the reason).
@@ -100,6 +129,25 @@ class Factory:
     def begin(self, atd: Atd) -> None:
         """Start translating ``atd`` (forgets the parameters of a previous translation)."""
         self._params_used = {}
+
+    # -- typed parameters ------------------------------------------------------------------
+    def params(self, type_: str, where: str, **changes: Any) -> Any:
+        """``type_``'s typed ``Params``: the robot's overrides, then ``changes``; a bad field names ``where``."""
+        cls = params_class(type_)
+        try:
+            base = replace_params(cls(), dict(self.robot.overrides.get(type_, {})),
+                                  where=f"{self.robot.name}'s overrides of {type_}: ")
+            return replace_params(base, changes, where=f"{where}: {type_}.params." if where else f"{type_}.params.")
+        except ParamError as exc:
+            raise MappingRefused(str(exc)) from None
+
+    def explicit(self, type_: str, changes: Mapping[str, Any]) -> tuple[str, ...]:
+        """The fields an ESTD states for ``type_`` whatever their value: what the robot overrides or the factory set."""
+        return tuple(sorted({*self.robot.overrides.get(type_, {}), *changes}))
+
+    def helper(self, name: str, type_: str, where: str, **changes: Any) -> Helper:
+        """A helper primitive with typed parameters (the fields set or overridden travel)."""
+        return Helper(name, type_, changed(self.params(type_, where, **changes), self.explicit(type_, changes)))
 
     # -- task parameters (objects) -------------------------------------------------------
     def task_params(self, atd: Atd) -> dict[str, Any]:
@@ -164,7 +212,7 @@ class Factory:
             return ""
         if shape in self.robot.hand_shapes:
             return self.robot.hand_shapes[shape]
-        if self.robot.hand is HandKind.PARALLEL_GRIPPER:
+        if self.robot.hand is HandKind.PARALLEL:
             mapped = "open" if (shape.endswith("preshape") or shape == "open") else "closed"
             notes.append(f"hand shape {shape!r} approximated by {mapped!r} on the gripper")
             return mapped
@@ -179,51 +227,45 @@ class Factory:
         contact = (AbstractPrimitive.PLACE, AbstractPrimitive.PUSH, AbstractPrimitive.SLIDE)
         return Movement.GUARDED if state.type in contact else Movement.FREE
 
-    def _motion(self, state: AtdState, notes: list[str]) -> dict[str, Any]:
-        movement = self.movement(state)
-        p: dict[str, Any] = {
-            "motion": {"free": "free", "guarded": "line", "constrained": "constrained"}[movement],
-            "keep_orientation": movement is Movement.CONSTRAINED,
-        }
-        if movement is Movement.GUARDED:
-            if self.robot.has(Sensor.WRIST_FT):
-                p.update(stop_force=self.stop_force(), stop_sensor="wrist_ft",
-                         filter_hz=self.filter_hz())
-            elif self.robot.has(Sensor.TACTILE):
-                p.update(stop_force=1.0, stop_sensor="tactile")
-                notes.append("guarded motion stops on tactile contact (no wrist F/T sensor)")
-            else:
-                raise MappingRefused("a guarded motion needs a wrist F/T or tactile sensor to "
-                                     "stop on contact")
-        shape = self.hand_shape(state.hand_shape, notes)
-        if shape:
-            p["hand_shape"] = shape
-        return p
+    def guard(self, concrete: str, until_contact: bool, notes: list[str], tactile: bool = False) -> dict[str, Any]:
+        """A guarded move/transport's contact stop: on the contact it goes to, or on an unexpected one.
 
-    def _goal(self, atd: Atd, state: AtdState, p: dict[str, Any], standoff: float) -> None:
-        """Fill target/approach/waypoints: an explicit goal, or the state's object."""
+        Going to an object or down onto a surface the contact is the goal (``guarded``); on a
+        free path it is a fault, judged above the jolts a carried load gives.
+        """
+        if tactile or not self.robot.has(Sensor.WRIST_FT):
+            if not self.robot.has(Sensor.TACTILE):
+                raise MappingRefused("a guarded motion needs a wrist F/T or tactile sensor to stop on contact")
+            force = 3.0
+            notes.append("the guarded motion stops on a 3 N contact: the arm primitives sense contact at the wrist")
+        else:
+            force = self.stop_force()
+        key = "force_threshold" if concrete == "transport" else "abort_force"
+        return {"guarded": until_contact, key: force if until_contact else max(force, CARRY_FORCE)}
+
+    def _goal(self, atd: Atd, state: AtdState, standoff: float, pushes: bool = False) -> Goal:
+        """Where an arm motion goes: an explicit goal, or the state's object (approached from its side)."""
+        approach: str | tuple[float, ...] = ()
         if state.target_object:
             oname, obj = self._object_ref(atd, state, state.target_object)
-            p["target"] = f"${{params.{_param_name(oname, 'location')}}}"
+            target: str | tuple[float, ...] = _ref(oname, "location")
+            standoff = 0.0
             if obj is not None and obj.location is not None:
                 self._reach(obj.location, f"state {state.name!r}: target object {oname!r} at")
         elif state.goal is not None:
-            p["target"] = list(state.goal)
+            target, standoff = tuple(state.goal), 0.0
             for i, w in enumerate(state.path or (state.goal,)):
                 self._reach(w, f"state {state.name!r}: position {i + 1}")
         else:
             oname, obj = self._object_ref(atd, state)
-            p["target"] = f"${{params.{_param_name(oname, 'location')}}}"
-            p["approach"] = f"${{params.{_param_name(oname, 'approach')}}}"
-            p["standoff"] = standoff
+            target, approach = _ref(oname, "location"), _ref(oname, "approach")
             if obj is not None and obj.location is not None:
                 self._reach(obj.location, f"state {state.name!r}: object {oname!r} at")
-        if len(state.path) > 1:
-            p["waypoints"] = _flat(state.path)
         obj = atd.objects.get(state.target_object) if state.target_object else atd.object_of(state)
         size = state.object_size or (obj.size if obj is not None else None)
-        if size is not None:
-            p["size"] = list(size)  # m, world extents: how close the hand may come
+        return Goal(target=target, approach=approach, standoff=standoff if approach else 0.0,
+                    size=tuple(size) if size is not None else (),
+                    waypoints=tuple(_flat(state.path)) if len(state.path) > 1 else (), pushes=pushes)
 
     # -- the abstract primitives -----------------------------------------------------------
     def node(self, state: AtdState, atd: Atd) -> PrimitiveChoice:
@@ -236,25 +278,42 @@ class Factory:
             AbstractPrimitive.GRASP: self.grasp,
             AbstractPrimitive.RELEASE: self.release,
         }.get(kind, self.arm_motion)
-        params, helpers = handler(kind, concrete, state, atd, notes)
-        return PrimitiveChoice(concrete, params, tuple(helpers), state.timeout, tuple(notes))
+        changes, goal, helpers = handler(kind, concrete, state, atd, notes)
+        return PrimitiveChoice(concrete, self.params(concrete, "", **changes), goal,
+                               self.explicit(concrete, changes), tuple(helpers), state.timeout, tuple(notes))
 
     def arm_motion(self, kind: AbstractPrimitive, concrete: str, state: AtdState, atd: Atd,
-                   notes: list[str]) -> tuple[dict[str, Any], list[Helper]]:
-        p = self._motion(state, notes)
-        free = self.movement(state) is Movement.FREE
-        self._goal(atd, state, p, standoff=0.10 if free else 0.0)
+                   notes: list[str]) -> tuple[dict[str, Any], Goal, list[Helper]]:
+        movement = self.movement(state)
+        free = movement is Movement.FREE
+        pushes = kind is AbstractPrimitive.PUSH and concrete != "push"  # an arm motion moving the object ahead of the hand
+        goal = self._goal(atd, state, standoff=0.10 if free else 0.0, pushes=pushes)
         if free and atd.obstacles:
-            p["obstacles"] = self._obstacles(atd)
-        if kind is AbstractPrimitive.PUSH and concrete != "push":
-            p["pushes"] = True  # an arm motion that moves the object to the target ahead of the hand
+            goal = Goal(**{**goal.to_fields(), "obstacles": tuple(self._obstacles(atd))})
+        p: dict[str, Any] = {}
+        shape = self.hand_shape(state.hand_shape, notes)
+        if concrete in ("move_to", "transport"):
+            if shape:
+                p["preshape"] = shape
+            if concrete == "move_to":
+                p["planning"] = free
+            elif movement is Movement.GUARDED:
+                p["velocity_limits"] = [LINE_SPEED] * 3 + [LINE_TURN] * 3  # straight and slow: no planner
+            if movement is Movement.GUARDED and not pushes:
+                p.update(self.guard(concrete, until_contact=bool(goal.approach), notes=notes))
+        elif shape:
+            notes.append(f"hand shape {state.hand_shape!r} ignored: {concrete} keeps its own hand posture")
+        if movement is Movement.CONSTRAINED:
+            notes.append("constrained motion: the hand keeps its orientation along the path")
         if concrete == "place":
+            p.update(force_threshold=self.stop_force(), filter_hz=self.filter_hz())
+        elif concrete == "slide":
+            slide = round(max(5.0, 3.0 * self.stop_force()), 3)
+            # the thesis's 9 N / 5 N band (§3.3.3), scaled to the wrist's noise
+            p.update(upper_force_threshold=slide, lower_force_threshold=round(slide * 5.0 / 9.0, 3))
+        elif concrete == "push":
             p["contact_threshold"] = self.stop_force()
-            p["filter_hz"] = self.filter_hz()
-        if concrete == "slide":
-            p["slide_force"] = round(max(5.0, 3.0 * self.stop_force()), 3)
-            p["filter_hz"] = self.filter_hz()
-        return p, []
+        return p, goal, []
 
     def grasp_object(self, state: AtdState, atd: Atd) -> tuple[str, AtdObject | None]:
         oname, obj = self._object_ref(atd, state)
@@ -281,34 +340,31 @@ class Factory:
         return round(min(40.0, max(5.0, 2.0 * obj.mass * GRAVITY / (2.0 * FRICTION))), 3)
 
     def grasp(self, kind: AbstractPrimitive, concrete: str, state: AtdState, atd: Atd,
-              notes: list[str]) -> tuple[dict[str, Any], list[Helper]]:
+              notes: list[str]) -> tuple[dict[str, Any], Goal, list[Helper]]:
         oname, obj = self.grasp_object(state, atd)
-        p: dict[str, Any] = {
-            "target": f"${{params.{_param_name(oname, 'location')}}}",
-            "approach": f"${{params.{_param_name(oname, 'approach')}}}",
-        }
+        goal = Goal(target=_ref(oname, "location"), approach=_ref(oname, "approach"))
         width = self.object_width(state, obj)
+        p: dict[str, Any] = {}
+        if state.hand_shape:
+            notes.append(f"hand shape {state.hand_shape!r}: {concrete} closes every finger on what it touches")
         if concrete in ("robust_grasp", "naive_grasp"):
-            shape = self.hand_shape(state.hand_shape, notes)
-            if shape:
-                p["preshape"] = shape
-            p["pregrasp_size"] = round(min(self.robot.max_opening,
-                                           (width if width is not None else 0.06) + 0.04), 4)
-            if concrete == "robust_grasp":
-                p["corrections"] = list(self.corrections())
-        else:
-            if state.hand_shape:
-                notes.append(f"hand shape {state.hand_shape!r} ignored: the gripper closes its jaws")
-            p["grasp_force"] = self.grasp_force(obj)
-            p["max_width"] = self.robot.max_opening
-        return p, []
+            p["pregrasp_type"] = "open"
+        if concrete == "robust_grasp":
+            size = (width if width is not None else 0.06) + 0.04  # m, the object and a margin
+            corrections = self.corrections()
+            p.update(pregrasp_size=round(min(1.0, size / self.robot.max_opening), 4),
+                     alignment="alignment" in corrections, sliding="sliding" in corrections,
+                     finger_lost="finger_lost" in corrections)
+        elif concrete == "close_until_force":
+            p["grip_force"] = round(self.grasp_force(obj) / 2.0, 3)  # per pad: two pads share the squeeze
+        return p, goal, []
 
     def corrections(self) -> tuple[str, ...]:
         """Robust-grasp corrections the hand allows (§3.4: eq. 3.1, 3.2, finger lost, force): its capabilities."""
         return self.robot.grasp_corrections
 
     def release(self, kind: AbstractPrimitive, concrete: str, state: AtdState, atd: Atd,
-                notes: list[str]) -> tuple[dict[str, Any], list[Helper]]:
+                notes: list[str]) -> tuple[dict[str, Any], None, list[Helper]]:
         opening = state.hand_opening
         if opening is None:
             obj = atd.object_of(state)
@@ -317,7 +373,7 @@ class Factory:
         if opening > self.robot.max_opening:
             notes.append(f"hand opening {opening:.3f} m clipped to {self.robot.max_opening:.3f} m")
             opening = self.robot.max_opening
-        return {"hand_position": round(opening, 4)}, []
+        return {"hand_target": round(opening / self.robot.max_opening, 4)}, None, []
 
     # -- abstract events -------------------------------------------------------------------
     def event(self, ev: AtdEvent, state: AtdState, node: PrimitiveChoice, atd: Atd) -> EventChoice:
@@ -338,114 +394,20 @@ class Factory:
     def grasp_event(self, e: AbstractEvent, state: AtdState, atd: Atd) -> EventChoice:
         raise MappingRefused(f"{self.robot.name} cannot detect {e}: no grasp sensing")
 
-    @staticmethod
-    def watcher(e: AbstractEvent, name: str, **params: Any) -> tuple[Helper, Trigger]:
+    def watcher(self, e: AbstractEvent, name: str, state: AtdState, **params: Any) -> tuple[Helper, Trigger]:
+        """A ``wait_event`` helper that keeps watching for ``e`` (its sensor and thresholds in ``params``)."""
         concrete = Event(e.value)
-        return (Helper(name, "wait_event", {"event": concrete.value, **params}),
+        return (self.helper(name, "wait_event", f"state {state.name!r}: detector {name!r}", event=concrete.value,
+                            finish=False, **params),
                 Trigger(concrete, name))
 
 
-class TombatossalsFactory(Factory):
-    """Table 7.3: robust grasp with corrections, Cartesian transport for all arm motions."""
-
-    TABLE: ClassVar[dict[AbstractPrimitive, tuple[str, ...]]] = {
-        AbstractPrimitive.GRASP: ("robust_grasp", "naive_grasp"),
-        AbstractPrimitive.MOVE: ("transport",),
-        AbstractPrimitive.PUSH: ("transport",),
-        AbstractPrimitive.TRANSPORT: ("transport",),
-        AbstractPrimitive.PLACE: ("place",),
-        AbstractPrimitive.SLIDE: ("slide",),
-        AbstractPrimitive.RELEASE: ("release",),
-    }
-
-    def grasp_event(self, e: AbstractEvent, state: AtdState, atd: Atd) -> EventChoice:
-        if not self.robot.has(Sensor.TACTILE):
-            return super().grasp_event(e, state, atd)
-        helper, trig = self.watcher(e, e.value, sensor="tactile", min_contacts=2, threshold=0.5)
-        return EventChoice((frozenset({trig}),), (helper,))
-
-
-class MelfaFactory(Factory):
-    """Table 7.4: close-until-force grasp, move/transport without F/T, no slide."""
-
-    TABLE: ClassVar[dict[AbstractPrimitive, tuple[str, ...]]] = {
-        AbstractPrimitive.GRASP: ("close_until_force",),
-        AbstractPrimitive.MOVE: ("move_to",),
-        AbstractPrimitive.PUSH: ("move_to",),
-        AbstractPrimitive.TRANSPORT: ("transport",),
-        AbstractPrimitive.PLACE: ("transport",),
-        AbstractPrimitive.SLIDE: (),
-        AbstractPrimitive.RELEASE: ("release",),
-    }
-    WHY_NOT: ClassVar[dict[AbstractPrimitive, str]] = {
-        AbstractPrimitive.SLIDE: "melfa cannot slide: keeping a sliding force needs a wrist "
-                                 "force-torque sensor it does not have (Table 7.4)",
-    }
-
-    def arm_motion(self, kind: AbstractPrimitive, concrete: str, state: AtdState, atd: Atd,
-                   notes: list[str]) -> tuple[dict[str, Any], list[Helper]]:
-        p, helpers = super().arm_motion(kind, concrete, state, atd, notes)
-        if kind in (AbstractPrimitive.TRANSPORT, AbstractPrimitive.PLACE):
-            # §7.3: transport keeps squeezing, else the gripper loosens the item
-            obj = atd.object_of(state)
-            helpers.append(Helper("grip", "hold", {"force": self.grasp_force(obj)}))
-        if kind is AbstractPrimitive.PLACE:
-            p.update(motion="line", stop_sensor="tactile", stop_force=1.0, until_contact=True)
-            notes.append("place runs as a guarded transport stopping on tactile change (Table 7.4)")
-        return p, helpers
-
-    def grasp_event(self, e: AbstractEvent, state: AtdState, atd: Atd) -> EventChoice:
-        if not self.robot.has(Sensor.TACTILE):
-            return super().grasp_event(e, state, atd)
-        obj = atd.object_of(state)
-        helper, trig = self.watcher(e, e.value, sensor="tactile",
-                                    threshold=round(0.5 * self.grasp_force(obj), 3))
-        return EventChoice((frozenset({trig}),), (helper,))
-
-
-class BaxterFactory(Factory):
-    """Parallel gripper with a noisy wrist wrench: filtered thresholds, two grasp monitors."""
-
-    TABLE: ClassVar[dict[AbstractPrimitive, tuple[str, ...]]] = {
-        AbstractPrimitive.GRASP: ("close_until_force", "close_until_stall", "naive_grasp"),
-        AbstractPrimitive.MOVE: ("move_to",),
-        AbstractPrimitive.PUSH: ("push", "move_to"),
-        AbstractPrimitive.TRANSPORT: ("transport",),
-        AbstractPrimitive.PLACE: ("place", "transport"),
-        AbstractPrimitive.SLIDE: ("slide",),
-        AbstractPrimitive.RELEASE: ("release",),
-    }
-
-    def grasp_event(self, e: AbstractEvent, state: AtdState, atd: Atd) -> EventChoice:
-        if not self.robot.has(Sensor.GRIPPER_EFFORT):
-            return super().grasp_event(e, state, atd)
-        obj = atd.object_of(state)
-        grip, grip_t = self.watcher(e, f"{e.value}_grip", sensor="gripper_effort",
-                                    threshold=round(0.5 * self.grasp_force(obj), 3))
-        weight = obj.mass * GRAVITY if obj is not None and obj.mass is not None else 0.0
-        if not self.robot.has(Sensor.WRIST_FT) or weight < 2.0 * self.robot.wrench_noise:
-            return EventChoice((frozenset({grip_t}),), (grip,),
-                               notes=(f"{e} from the gripper only: the object's weight is "
-                                      "below the wrist wrench noise",))
-        load, load_t = self.watcher(e, f"{e.value}_load", sensor="wrist_ft",
-                                    threshold=round(0.5 * weight, 3), filter_hz=self.filter_hz())
-        if e is AbstractEvent.GRASP_STABLE:
-            # stable only when the jaws hold and the wrist carries the weight
-            return EventChoice((frozenset({grip_t}), frozenset({load_t})), (grip, load))
-        return EventChoice((frozenset({grip_t, load_t}),), (grip, load))
-
-
-FACTORIES: dict[str, type[Factory]] = {
-    "tombatossals": TombatossalsFactory,
-    "melfa": MelfaFactory,
-    "baxter": BaxterFactory,
-}
-
-
 def factory_for(robot: RobotProfile) -> Factory:
-    """The factory of a robot (by ``robot.factory`` or its name)."""
+    """The factory of a robot (``robot.factory`` or its name): the one its home registers."""
+    from contactflow.embodiments import registry
+
     key = robot.factory or robot.name
-    if key not in FACTORIES:
+    if key not in registry.names():
         raise MappingRefused(f"no translation factory for robot {robot.name!r} (factories: "
-                             f"{', '.join(sorted(FACTORIES))})")
-    return FACTORIES[key](robot)
+                             f"{', '.join(registry.names())})")
+    return registry.home(key).factory(robot)

@@ -1,25 +1,21 @@
-"""What a factory knows about a robot: hand kind, sensors, primitive types and workspace.
+"""What a factory knows about a robot: hand kind, sensors, primitive types, workspace and overrides.
 
-Sensors, hand kind, payload and the workspace box come from the embodiment registry
-(``contactflow.embodiments.registry``); the primitive set, hand shapes and speeds the
-factories choose between are the translation extras of each robot below.
+Everything comes from the robot's home (``contactflow.embodiments.registry``): sensors and
+hand kind from its spec, the primitive set, workspace, payload, hand shapes and speed from
+its capabilities, the primitive parameter overrides from its registration.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Any
 
 from contactflow.abstraction.frames import WORKCELL, TaskFrame
 from contactflow.embodiments import registry
-from contactflow.embodiments.registry import RobotSpec
-
-
-class HandKind(StrEnum):
-    MULTI_FINGER = "multi_finger"  # e.g. Schunk SDH2 / Barrett: preshapes, finger corrections
-    PARALLEL_GRIPPER = "parallel_gripper"  # 1-DOF jaws: width and force only
+from contactflow.embodiments.registry import HandKind, RobotHome
 
 
 class Sensor(StrEnum):
@@ -73,48 +69,15 @@ class RobotProfile:
     factory: str = ""  # name of the factory to use (default: the robot's name)
     grasp_corrections: tuple[str, ...] = ()  # robust-grasp corrections the hand allows (registry capabilities)
     task_frame: TaskFrame = WORKCELL  # where the ATD's coordinates sit in this robot's world
+    overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)  # primitive type -> Params overrides
 
     def has(self, *sensors: Sensor) -> bool:
         return all(s in self.sensors for s in sensors)
 
 
-_ARM = frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event",
-                  "detect_objects", "place_location"})
-
-
-@dataclass(frozen=True, slots=True)
-class _Extras:
-    """What translation needs beyond the embodiment registry (thesis Tables 7.3-7.4)."""
-
-    capabilities: frozenset[str]
-    hand_shapes: Mapping[str, str]  # ATD hand shape -> the hand's own preshape
-    max_opening: float  # m
-    wrench_noise: float  # N
-    speed: float  # m/s
-
-
-_EXTRAS = {
-    "tombatossals": _Extras(
-        _ARM | {"robust_grasp", "naive_grasp", "place", "slide", "explore", "unscrew", "push", "pull", "touch"},
-        {"open": "open", "closed": "closed", "pinch_grasp_preshape": "open", "pinch_grasp": "pinch",
-         "cylindrical_preshape": "open", "cylindrical": "cylindrical", "spherical_preshape": "open",
-         "spherical": "spherical"},
-        max_opening=0.14, wrench_noise=0.2, speed=0.1),
-    "melfa": _Extras(_ARM | {"close_until_force"}, {"open": "open", "closed": "closed"},
-                     max_opening=0.08, wrench_noise=0.05, speed=0.25),
-    "baxter": _Extras(
-        _ARM | {"close_until_force", "close_until_stall", "naive_grasp", "place", "slide", "push", "pull", "touch",
-                "explore"},
-        {"open": "open", "closed": "closed"},
-        max_opening=0.055, wrench_noise=2.0, speed=0.2),  # wrist wrench estimated from efforts: noisy
-}
-
-
-def profile_of(spec: RobotSpec) -> RobotProfile:
-    """The translation profile of an embodiment: sensors and workspace from its registry entry."""
-    extras = _EXTRAS.get(spec.name)
-    if extras is None:
-        raise KeyError(f"no translation profile for embodiment {spec.name!r} (known: {sorted(_EXTRAS)})")
+def profile_of(home: RobotHome) -> RobotProfile:
+    """The translation profile of a robot: sensors from its spec, the rest from its capabilities."""
+    spec = home.spec
     sensors = {Sensor.JOINT_STATE}
     if spec.fts:
         sensors.add(Sensor.WRIST_FT)
@@ -122,20 +85,40 @@ def profile_of(spec: RobotSpec) -> RobotProfile:
         sensors.add(Sensor.TACTILE)
     if spec.cameras:
         sensors |= {Sensor.CAMERA, Sensor.DEPTH}
-    multi = any(h.kind == "multi_finger" for h in spec.hands)
+    multi = any(h.kind is HandKind.MULTI_FINGER for h in spec.hands)
     if not multi:
         sensors.add(Sensor.GRIPPER_EFFORT)
     caps = spec.capabilities
     if caps is None:
         raise KeyError(f"embodiment {spec.name!r} declares no capabilities")
     return RobotProfile(
-        name=spec.name, hand=HandKind.MULTI_FINGER if multi else HandKind.PARALLEL_GRIPPER,
-        sensors=frozenset(sensors), capabilities=extras.capabilities,
-        workspace=Workspace(caps.workspace_min, caps.workspace_max), hand_shapes=extras.hand_shapes,
-        max_payload=caps.payload, max_opening=extras.max_opening, wrench_noise=extras.wrench_noise,
-        speed=extras.speed, grasp_corrections=caps.grasp_corrections,
+        name=spec.name, hand=HandKind.MULTI_FINGER if multi else HandKind.PARALLEL,
+        sensors=frozenset(sensors), capabilities=caps.primitives,
+        workspace=Workspace(caps.workspace_min, caps.workspace_max), hand_shapes=caps.hand_shapes,
+        max_payload=caps.payload, max_opening=caps.max_opening, wrench_noise=caps.wrench_noise,
+        speed=caps.speed, grasp_corrections=caps.grasp_corrections, overrides=home.overrides,
     )
 
 
-PROFILES = {name: profile_of(registry.get(name)) for name in registry.names() if name in _EXTRAS}
-TOMBATOSSALS, MELFA, BAXTER = PROFILES["tombatossals"], PROFILES["melfa"], PROFILES["baxter"]
+class _Profiles(Mapping[str, RobotProfile]):
+    """Robot name -> translation profile, built from each registered home on first use."""
+
+    def __init__(self) -> None:
+        self._built: dict[str, RobotProfile] = {}
+
+    def __getitem__(self, name: str) -> RobotProfile:
+        if name not in self._built:
+            if name not in registry.names():
+                raise KeyError(name)
+            self._built[name] = profile_of(registry.home(name))
+        return self._built[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(registry.names())
+
+    def __len__(self) -> int:
+        return len(registry.names())
+
+
+PROFILES: Mapping[str, RobotProfile] = _Profiles()
+"""Every registered robot's translation profile."""

@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from contactflow.abstraction.atd import Atd
+from contactflow.abstraction.concrete import check_params
 from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.factory import Factory, MappingRefused, PrimitiveChoice
 from contactflow.abstraction.frames import to_world
@@ -188,7 +189,7 @@ def translate(atd: Atd, factory: Factory) -> Translation:
         c = choices[s.name]
         timeout = min(x for x in (c.timeout, timeouts.get(s.name)) if x is not None) \
             if (c.timeout is not None or s.name in timeouts) else None
-        nodes[nid] = Node(nid, NodeKind.PRIMITIVE, type=c.type, params=dict(c.params),
+        nodes[nid] = Node(nid, NodeKind.PRIMITIVE, type=c.type, params=c.node_params(),
                           helpers=tuple(helpers[s.name].values()), timeout=timeout,
                           label=s.name, where=s.where)
     estd = TaskGraph(
@@ -209,6 +210,7 @@ def translate(atd: Atd, factory: Factory) -> Translation:
         validate(estd, primitives=factory.robot.capabilities)
     except TaskError as exc:
         reasons += [f"ESTD invalid: {i}" for i in exc.issues]
+    reasons += [f"ESTD invalid: {i}" for i in check_params(estd)]
     if reasons:
         raise TranslationError(robot, reasons)
     return Translation(atd=atd, robot=robot, estd=estd,

@@ -17,6 +17,8 @@ Example (``deploy/manifests/default.yaml`` is the full thesis layout)::
             clock: lockstep                      # wall | sim | lockstep (the world waits for it each tick)
             cell: tombatossals                   # with sim/lockstep: the world it follows (a site may run several)
             primitives: 2                        # 2 modules of each primitive type the robot's tasks may run
+            primitive_inputs:                    # inputs of those modules, per type: [robot/]module.port or cf/...
+              detect_objects: {objects: objects.objects, plane: plane.plane}
             modules:                             # same schema as a node configuration
               - {name: source, type: signal_source, params: {rate_hz: 50}}
     robots:
@@ -43,7 +45,7 @@ _TOP = {"site", "zenoh", "security", "hosts", "robots"}
 _ZENOH = {"topology", "routers", "port", "lease_ms"}
 _SECURITY = {"transport", "auth", "certs", "broker", "dispatch_clients", "observers"}
 _HOST = {"address", "roles", "nodes"}
-_NODE = {"robot", "clock", "cell", "port", "sensors", "primitives", "modules"}
+_NODE = {"robot", "clock", "cell", "port", "sensors", "primitives", "primitive_inputs", "modules"}
 _ROBOT = {"control", "command_ports", "sensors"}
 TRANSPORTS = ("tcp", "tls", "mtls")
 AUTHS = ("none", "usrpwd")
@@ -186,6 +188,24 @@ def _check_node_modules(doc: YamlDoc, path: PathKey, site: str, host: str, node:
         raise ConfigError(f"{where}{sep}{dotted}.{rest}") from None
 
 
+def _wire_primitives(doc: YamlDoc, path: PathKey, modules: list[dict[str, Any]]) -> None:
+    """Give the generated primitive ``modules`` the inputs of the node's ``primitive_inputs`` (per type), in place.
+
+    The entries are checked with the node's other modules (ports, sources).
+    """
+    wp = path + ("primitive_inputs",)
+    wiring = doc.get(wp, dict, {})
+    types = {m["type"] for m in modules}
+    for t in wiring:
+        if t not in types:
+            raise doc.error(wp + (t,), f"the node's `primitives` host no {t!r} module "
+                            f"(they host: {', '.join(sorted(types)) or 'none'})")
+        inputs = {port: doc.get(wp + (t, port), str) for port in doc.get(wp + (t,), dict)}
+        for m in modules:
+            if m["type"] == t:
+                m["inputs"] = dict(inputs)
+
+
 def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, port: int) -> NodeSpec:
     doc.mapping(path, _NODE)
     robot = _name(doc, path + ("robot",), doc.get(path + ("robot",), str, "site"), "robot")
@@ -196,6 +216,7 @@ def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, po
     port = _port(doc, path + ("port",), port)
     modules = list(doc.get(path + ("modules",), list, []))
     pool = doc.get(path + ("primitives",), int, 0)
+    generated: list[dict[str, Any]] = []
     if pool:
         # every primitive the robot's translations may run, ``pool`` modules of each (parallel branches, helpers)
         from contactflow.embodiments.layout import primitive_modules
@@ -203,9 +224,11 @@ def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, po
         if not 1 <= pool <= 8:
             raise doc.error(path + ("primitives",), f"{pool} modules per primitive type is not in 1..8")
         try:
-            modules += primitive_modules(robot, pool=pool)
+            generated = primitive_modules(robot, pool=pool)
         except KeyError as exc:
             raise doc.error(path + ("robot",), str(exc).strip("'\"")) from None
+    _wire_primitives(doc, path, generated)
+    modules += generated
     _check_node_modules(doc, path, site, host, name, robot, clock, modules)
     return NodeSpec(host, name, robot, clock, port, _strs(doc, path + ("sensors",)), tuple(modules), doc.line(path),
                     cell=cell)

@@ -41,8 +41,7 @@ class Outcome(StrEnum):
 def trial(name: str, dx: float, dy: float, yaw: float = box.YAW, at: tuple[float, float] = (0.0, 0.0)) -> dict:
     """One top grasp of ``yaw`` rad of the empty-box attempt (approach, grasp, lift) with its grasp centre at
     ``(dx, dy)`` m (world) from ``name``, alone in the box ``at`` m (world x, y) from its centre."""
-    from contactflow.embodiments.primitives.base import top_grasp_pose
-    from contactflow.embodiments.primitives.profiles import hand_pose_for
+    from contactflow.embodiments.primitives.base import hand_pose_for, top_grasp_pose
     from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
     from contactflow.embodiments.tasks import load
     from contactflow.nodes.taskengine import TaskEngine

@@ -43,7 +43,7 @@ def show(robot: str) -> None:
         console.print(f"  arm {a.name}: {len(a.joints)} joints, controlled frame {a.ee_frame}, hand {a.hand or '-'}, F/T {a.ft or '-'}")
     if s.capabilities:
         c = s.capabilities
-        console.print(f"  primitives: {', '.join(c.primitives)}")
+        console.print(f"  primitives: {', '.join(sorted(c.primitives))}")
         console.print(f"  workspace: {c.workspace_min} .. {c.workspace_max} m, payload {c.payload} kg")
     for comp in s.computers:
         console.print(f"  computer {comp.name} ({comp.role}): {', '.join(comp.modules)}")

@@ -3,7 +3,9 @@
 The world node hosts the ``world`` module (the cell: robots, table, objects). A robot's
 control node hosts, with the node's clock in lockstep with the world, the task module and
 one module per primitive type its tasks use (a small pool of each, so parallel branches and
-helpers run side by side), each configured with the robot's embodiment profile. The
+helpers run side by side), each configured with the robot's embodiment profile. A robot's
+vision node segments the depth stream its world publishes into the objects its control
+node's ``detect_objects`` modules select among (``inputs=VISION_INPUTS``). The
 configurations are plain node documents (``nodes.procs.write_config`` writes one): the same
 document runs in a process of its own (``contactflow node``) or beside others in one.
 """
@@ -49,19 +51,16 @@ def primitive_types(tasks: Mapping[str, TaskGraph], main: str) -> list[str]:
 
 def primitive_modules(robot: str, embodiment: str = "", types: list[str] | None = None, pool: int = 2) -> list[dict]:
     """Module entries hosting ``pool`` modules of each primitive type (``T``, ``T_2``, ...) for ``robot``,
-    configured with the embodiment's profile; ``types`` defaults to every primitive type its
-    translations may run (its translation profile's capabilities)."""
-    from contactflow.abstraction.profiles import PROFILES
-    from contactflow.embodiments.primitives.profiles import profile
+    configured with its home's overrides; ``types`` defaults to every primitive type its
+    translations may run (its capabilities)."""
+    from contactflow.embodiments import registry
     from contactflow.nodes.module import Layer
     from contactflow.nodes.registry import layer_types
 
-    embodiment = embodiment or robot
+    home = registry.home(embodiment or robot)
     if types is None:
-        if embodiment not in PROFILES:
-            raise KeyError(f"robot {embodiment!r} has no translation profile (known: {sorted(PROFILES)})")
-        types = sorted(PROFILES[embodiment].capabilities & layer_types(Layer.PRIMITIVE))
-    defaults = profile(embodiment)
+        types = sorted(home.spec.capabilities.primitives & layer_types(Layer.PRIMITIVE))
+    defaults = home.overrides
     out = []
     for t in types:
         params = {k: _plain(v) for k, v in defaults.get(t, {}).items()}
@@ -97,23 +96,51 @@ def world_node(site: str, scene_file: str | Path, node: str = "world", clock: st
 def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, task: str = "",
                  plan: Mapping[str, Any] | None = None, node: str = "", clock: str = "lockstep",
                  listen: str = "", connect: tuple[str, ...] = (), pool: int = 2,
-                 autostart: bool = False) -> dict[str, Any]:
+                 autostart: bool = False, inputs: Mapping[str, Mapping[str, str]] | None = None) -> dict[str, Any]:
     """A robot's control node: the task module and the primitive modules of its task, in lockstep.
 
     With ``autostart`` the task starts with the node, at the first tick it steps (a world
-    that waits for the node makes that tick 0); else on a RUN control message.
+    that waits for the node makes that tick 0); else on a RUN control message. ``inputs``
+    wires the primitive modules by type, as a manifest's ``primitive_inputs``: port ->
+    ``[robot/]module.port`` or a key expression.
     """
     from contactflow.nodes.taskfile import load_tasks
 
     tasks, main = load_tasks(str(task_file))
     name = task or main
     modules = primitive_modules(robot, embodiment, primitive_types(tasks, name), pool)
+    for m in modules:
+        if m["type"] in (inputs or {}):
+            m["inputs"] = dict(inputs[m["type"]])
     modules.append({"name": "task", "type": "task", "robot": robot, "autostart": autostart,
                     "params": {"task_file": str(task_file), "task": name, "robot": robot,
                                "plan": yaml.safe_dump(dict(plan or {}), default_flow_style=True).strip(),
                                "pool": pool}})
     return {"site": site, "node": node or f"control_{robot}", "clock": clock, "zenoh": zenoh(listen, connect),
             "modules": modules}
+
+
+VISION_INPUTS = {"detect_objects": {"objects": "objects.objects", "plane": "plane.plane"}}
+"""A control node's inputs (``control_node(inputs=...)``) that make its detect_objects read the robot's vision node."""
+
+
+def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A robot's vision3d node (thesis §6.3.3): cloud -> plane -> ROI -> objects, fed by the depth stream its world publishes.
+
+    The world streams depth frames only with its ``camera_hz`` param set.
+    """
+    from contactflow.nodes.keys import KeySpace
+
+    svc = "contactflow.recognition.services"
+    modules = [
+        {"name": "cloud", "type": f"{svc}.cloud_builder:CloudBuilder", "inputs": {"depth": KeySpace(site).robot(robot, "depth")}},
+        {"name": "plane", "type": f"{svc}.plane_detector:PlaneDetector", "inputs": {"cloud": "cloud.cloud"}},
+        {"name": "roi", "type": f"{svc}.roi_filter:RoiFilter", "inputs": {"cloud": "cloud.cloud", "roi": "plane.roi"}},
+        {"name": "objects", "type": f"{svc}.cluster_extractor:ClusterExtractor",
+         "inputs": {"cloud": "roi.cloud", "plane": "plane.plane"}},
+    ]
+    return {"site": site, "node": node or f"vision3d_{robot}", "robot": robot, "clock": "wall",
+            "zenoh": zenoh(listen, connect), "modules": modules}
 
 
 class SiteWatch:
@@ -151,6 +178,11 @@ class SiteWatch:
         with self._lock:
             return next((e for e in self.events if e.module.endswith(module) and e.event in self.FINAL), None)
 
+    def messages(self) -> list[EventMsg]:
+        """Every event so far, as it came."""
+        with self._lock:
+            return list(self.events)
+
     def sequence(self) -> list[tuple[float, str, str]]:
         """(sim time, module, event) of every event, in simulated-time order."""
         with self._lock:
@@ -170,6 +202,7 @@ class CellRun:
     events: list[tuple[float, str, str]]
     sim_s: float  # simulated s from tick 1 to the last outcome
     wall_s: float  # wall s over the same span
+    messages: list[EventMsg]  # every event as it came, with its detail and values
 
     @property
     def rtf(self) -> float:
@@ -177,19 +210,21 @@ class CellRun:
 
 
 def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str, Any]], endpoint: str,
-             processes: bool = False, timeout: float = 300.0, keep: Callable[[Any], None] | None = None) -> CellRun:
+             processes: bool = False, timeout: float = 300.0, keep: Callable[[Any], None] | None = None,
+             services: tuple[Mapping[str, Any], ...] = ()) -> CellRun:
     """Run a world node and control nodes until every control node's task ended.
 
     ``processes``: each node a process of its own (``contactflow node``); else all of them in
     this process, a zenoh session each. ``keep`` is called with the world module (in-process
-    runs) before the nodes stop, to read what only the simulation knows.
+    runs) before the nodes stop, to read what only the simulation knows. ``services`` are
+    nodes the control nodes read (a vision node), started before them.
     """
     from contactflow.nodes.config import load_node_config
     from contactflow.nodes.node import Node
     from contactflow.nodes.procs import spawn_node, stop_process, wait_for, write_config
 
     folder.mkdir(parents=True, exist_ok=True)
-    paths = [write_config(folder / f"{c['node']}.yaml", c) for c in (world, *controls)]
+    paths = [write_config(folder / f"{c['node']}.yaml", c) for c in (world, *services, *controls)]
     robots = [next(m["robot"] for m in c["modules"] if m["name"] == "task") for c in controls]
     names = [f"{r}/{c['node']}/task" for r, c in zip(robots, controls, strict=True)]
     started: list[Any] = []
@@ -212,7 +247,7 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         t0_sim, t0_wall = watch.first_tick
         if keep is not None and not processes:
             keep(started[0].host.modules[("site", "world")].module)
-        return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall)
+        return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, watch.messages())
     finally:
         for s in reversed(started):
             if processes:

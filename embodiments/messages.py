@@ -154,6 +154,7 @@ class HandState(msgspec.Struct, kw_only=True):
     name: str
     positions: NDArray  # (n,) float64, rad or m: finger encoders
     status: str
+    effort: float = 1.0  # 0..1, the finger drives' force limit in force (a gripper's motor effort)
     applied: int = 0
 
 

@@ -1,17 +1,25 @@
-"""Embodiments as data: the spec dataclasses and the one registry of robots.
+"""Embodiments as data: the spec dataclasses, each robot's home and the registry that finds them.
 
-Each robot is one data module under ``embodiments/robots/`` defining ``SPEC``. A spec says
-where the URDF comes from (a composition of example-robot-data parts), its arms (chain,
-controlled frame, home pose, gains), hands (kind, preshapes, finger joints, tactile pads),
-sensors (wrist F/T, cameras), head, capabilities (abstract primitives, workspace) and the
-computers its modules run on (thesis App. A).
+Each robot has one home, a package under ``embodiments/robots/<name>/``: ``spec.py`` (its
+``SPEC``: where the URDF comes from, a composition of example-robot-data parts; arms with
+chain, controlled frame, home pose and gains; hands with kind, preshapes, finger joints and
+tactile pads; wrist F/T and cameras; head; capabilities; the computers its modules run on,
+thesis App. A), ``factory.py`` (its translation factory, thesis Tables 7.3-7.4) and
+``__init__.py``, which registers it as ``HOME`` (:class:`RobotHome`: the spec, the primitive
+parameter overrides its hardware needs, grasp centre and wall side). A new robot is a new
+package; nothing else names it.
 """
 
 from __future__ import annotations
 
 import importlib
 import pathlib
+import pkgutil
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from enum import StrEnum
+from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +32,13 @@ class RegistryError(KeyError):
 
     def __str__(self) -> str:
         return str(self.args[0])
+
+
+class HandKind(StrEnum):
+    """What a hand is, for the primitives and for translation (one vocabulary)."""
+
+    MULTI_FINGER = "multi_finger"  # e.g. Schunk SDH2 / Allegro: preshapes, finger corrections
+    PARALLEL = "parallel"  # 1-DOF jaws: width and force only
 
 
 @dataclass(frozen=True)
@@ -66,7 +81,7 @@ class HandSpec:
     """A hand: its actuated joints, preshapes and tactile pads."""
 
     name: str
-    kind: str  # "multi_finger" | "parallel"
+    kind: HandKind
     joints: tuple[str, ...]  # actuated finger joints
     preshapes: dict[str, tuple[float, ...]]  # name -> positions of ``joints`` (must hold open/closed)
     mimic: tuple[tuple[str, str, float], ...] = ()  # (joint, master joint, multiplier)
@@ -124,14 +139,19 @@ GRASP_CORRECTIONS = ("alignment", "sliding", "finger_lost", "force_adaptation")
 
 @dataclass(frozen=True)
 class Capabilities:
-    """What the embodiment can do: abstract primitives and a reachable workspace box."""
+    """What the embodiment can do, as translation sees it: its primitives, reach, payload and hand."""
 
-    primitives: tuple[str, ...]
+    primitives: frozenset[str]  # concrete primitive types (module types) this robot runs
     workspace_min: tuple[float, float, float]  # m, world frame
     workspace_max: tuple[float, float, float]
     payload: float = 1.0  # kg
     grasp_corrections: tuple[str, ...] = GRASP_CORRECTIONS
     """Robust-grasp corrections the hands allow (thesis Fig. 3.2); ``finger_lost`` needs a multi-finger hand."""
+    hand_shapes: Mapping[str, str] = field(default_factory=lambda: {"open": "open", "closed": "closed"})
+    """ATD hand shape -> the hand's own preshape."""
+    max_opening: float = 0.1  # m, widest object the hand takes
+    wrench_noise: float = 0.2  # N, standard deviation of the wrist force reading
+    speed: float = 0.1  # m/s, nominal Cartesian speed of the end effector
 
 
 @dataclass(frozen=True)
@@ -232,16 +252,48 @@ class RobotSpec:
             if unknown:
                 raise RegistryError(f"{self.name}.capabilities.grasp_corrections: unknown {unknown} "
                                     f"(known: {list(GRASP_CORRECTIONS)})")
-            if "finger_lost" in corrections and not any(h.kind == "multi_finger" for h in self.hands):
+            if "finger_lost" in corrections and not any(h.kind is HandKind.MULTI_FINGER for h in self.hands):
                 raise RegistryError(f"{self.name}.capabilities.grasp_corrections: finger_lost needs a multi-finger "
                                     "hand (a parallel gripper has no external finger to lose)")
 
 
-_ROBOTS = {
-    "tombatossals": "contactflow.embodiments.robots.tombatossals",
-    "melfa": "contactflow.embodiments.robots.melfa",
-    "baxter": "contactflow.embodiments.robots.baxter",
-}
+@dataclass(frozen=True)
+class RobotHome:
+    """Everything one robot is, registered in its package: spec, translation factory, primitive overrides."""
+
+    spec: RobotSpec
+    overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    """Primitive type -> ``Params`` field -> value: thesis parameters set "depending on" the hardware (§3.3)."""
+    grasp_center: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """m, where an object sits in a closing hand, in the controlled (grasp) frame."""
+    wall_side: tuple[float, float] = (1.0, 0.0)
+    """Hand-frame (x, y) side put toward a container wall when grasping beside one."""
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def factory(self) -> type:
+        """The robot's translation factory class (``FACTORY`` of its package's ``factory`` module)."""
+        return importlib.import_module(f"{ROBOTS_PACKAGE}.{self.name}.factory").FACTORY
+
+    def params(self, type_: str) -> dict[str, Any]:
+        """The overrides of primitive ``type_`` (a copy; empty when the hardware needs none)."""
+        return dict(self.overrides.get(type_, {}))
+
+
+ROBOTS_PACKAGE = "contactflow.embodiments.robots"
+
+
+def _discover() -> Mapping[str, str]:
+    from contactflow.embodiments import robots
+
+    return MappingProxyType({m.name: f"{ROBOTS_PACKAGE}.{m.name}" for m in pkgutil.iter_modules(robots.__path__)
+                             if m.ispkg})
+
+
+_ROBOTS = _discover()
 
 
 def names() -> list[str]:
@@ -256,10 +308,17 @@ def configured(name: str, where: str) -> RobotSpec:
     return get(name)
 
 
-def get(name: str) -> RobotSpec:
-    """The spec of robot ``name`` (validated)."""
+def home(name: str) -> RobotHome:
+    """The home of robot ``name``: its spec (validated), factory and primitive overrides."""
     if name not in _ROBOTS:
         raise RegistryError(f"unknown robot {name!r} (known: {names()})")
-    spec = importlib.import_module(_ROBOTS[name]).SPEC
-    spec.validate()
-    return spec
+    h = importlib.import_module(_ROBOTS[name]).HOME
+    if h.name != name:
+        raise RegistryError(f"{_ROBOTS[name]}.HOME is robot {h.name!r}, not {name!r}")
+    h.spec.validate()
+    return h
+
+
+def get(name: str) -> RobotSpec:
+    """The spec of robot ``name`` (validated)."""
+    return home(name).spec

@@ -299,6 +299,11 @@ class RemoteHand:
         return self._state().positions.numpy().copy()
 
     @property
+    def effort(self) -> float:
+        """0..1, the finger drives' force limit in force (the last effort the world applied)."""
+        return self._state().effort
+
+    @property
     def status(self) -> Status:
         s = self._state()
         return _pending(self._sent, s.applied, s.status)

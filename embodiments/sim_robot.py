@@ -245,6 +245,7 @@ class HandHandle(_Commanded):
         self._still = 0.0
         self._submit = False
         self._lim = robot.art.force_limit[self._sidx].copy()
+        self.effort = 1.0  # 0..1, the finger drives' force limit last commanded (a gripper's motor effort)
         self._tol = robot.params.hand_tolerance * (robot.art.upper[self._sidx] - robot.art.lower[self._sidx])
 
     def positions(self) -> np.ndarray:
@@ -257,6 +258,7 @@ class HandHandle(_Commanded):
         if not 0.0 < effort <= 1.0:
             raise ValueError(f"hand {self.name}: effort must be in (0, 1], got {effort}")
         art = self.robot.art
+        self.effort = float(effort)
         lim = self._lim * effort
         for k, i in enumerate(self._sidx):
             art.force_limit[i] = lim[k]

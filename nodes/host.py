@@ -133,6 +133,9 @@ class HostedIO:
             q.clear()
             return out
 
+    def wired(self, port: str) -> bool:
+        return port in self._hm.wired
+
     def next_seq(self, stream: str) -> int:
         n = self._seqs.get(stream, 0) + 1
         self._seqs[stream] = n
@@ -179,6 +182,7 @@ class HostedModule:
     claims: list[Handle] = field(default_factory=list)
     claimed: dict[str, str] = field(default_factory=dict)  # resource -> claim mode (excl | mix)
     weights: dict[str, float] = field(default_factory=dict)  # output port -> mixing weight
+    wired: set[str] = field(default_factory=set)  # input ports subscribed to a source
     counters: Counters = field(default_factory=Counters)
     next_due: float = 0.0
     last_status: float = -1e9
@@ -236,6 +240,7 @@ class ModuleHost:
             if key is None:
                 continue
             hm.handles.append(t.subscribe(key, self._input_callback(hm, port.name, port.type)))
+            hm.wired.add(port.name)
         hm.handles.append(t.queryable(self.ks.control(*self._a(addr)), self._control_callback(hm)))
         hm.handles.append(t.token(self.ks.alive_module(*self._a(addr))))
         module.setup(hm.io)

@@ -69,6 +69,10 @@ class ModuleIO(Protocol):
         """Every message received on an input port since the last call, oldest first."""
         ...
 
+    def wired(self, port: str) -> bool:
+        """Whether an input port reads from a source (an unwired port never receives)."""
+        ...
+
     def publish(self, port: str, msg: Message, inputs: list[MsgId] | None = None) -> None:
         """Send on an output port; ``inputs`` defaults to the ids of the newest inputs."""
         ...

@@ -17,7 +17,8 @@ class FakeIO:
 
     Feed inputs with :meth:`feed`; read ``published``, ``events`` and ``commands``. Every
     message is round-tripped through the wire codec so tests catch unencodable messages.
-    ``replies`` maps a command target to the reply it gets (default: ok).
+    ``replies`` maps a command target to the reply it gets (default: ok); ``wired_ports``
+    are the input ports a configuration would wire.
     """
 
     module: Module | None = None
@@ -27,6 +28,7 @@ class FakeIO:
     commands: list[tuple[str, Command, dict[str, ParamValue]]] = field(default_factory=list)
     replies: dict[str, ControlReply] = field(default_factory=dict)
     logs: list[str] = field(default_factory=list)
+    wired_ports: set[str] = field(default_factory=set)
     _latest: dict[str, Message] = field(default_factory=dict)
     _queue: dict[str, list[Message]] = field(default_factory=lambda: defaultdict(list))
     _seq: int = 0
@@ -46,6 +48,9 @@ class FakeIO:
     def take(self, port: str) -> list[Message]:
         out, self._queue[port] = self._queue[port], []
         return out
+
+    def wired(self, port: str) -> bool:
+        return port in self.wired_ports
 
     def _source(self) -> str:
         return self.module.name if self.module else "fake"

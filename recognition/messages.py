@@ -5,7 +5,9 @@ metres along the optical axis, 0 = no return, intrinsics ``K`` and ``T_world_cam
 
 Every message derived from a depth frame names that frame in ``depth_frame`` and lists it
 in its header provenance (``hdr.inputs``), so a segmented object can be traced back to the
-image it was cut from (thesis §6.6).
+image it was cut from (thesis §6.6). Clouds and objects also carry the frame's stamp
+(``depth_t``): the services run on their node's clock, the camera on the world's, and a
+reader asks when the scene looked like this, not when a service got to it.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ class PointCloud(Message, tag="vision_cloud"):
     max_bytes = 32 << 20
     points: NDArray
     depth_frame: MsgId = NO_FRAME
+    depth_t: float | None = None  # s, the depth frame's stamp on its camera's clock (None: unknown)
     frame: str = "world"
 
     def xyz(self) -> np.ndarray:
@@ -63,8 +66,8 @@ class PointCloud(Message, tag="vision_cloud"):
         return p.astype(np.float64)
 
     @classmethod
-    def of(cls, points: np.ndarray, depth_frame: MsgId = NO_FRAME) -> PointCloud:
-        return cls(points=nd(np.asarray(points, np.float32).reshape(-1, 3)), depth_frame=depth_frame)
+    def of(cls, points: np.ndarray, depth_frame: MsgId = NO_FRAME, depth_t: float | None = None) -> PointCloud:
+        return cls(points=nd(np.asarray(points, np.float32).reshape(-1, 3)), depth_frame=depth_frame, depth_t=depth_t)
 
 
 class PlaneMsg(Message, tag="vision_plane"):
@@ -134,20 +137,21 @@ class SegmentedObject(msgspec.Struct, kw_only=True):
 
 
 class SegmentedObjects(Message, tag="vision_objects"):
-    """One segmented cloud per object found in the region of interest, largest first."""
+    """One segmented cloud per object found in the region of interest (world frame), largest first."""
 
     max_bytes = 32 << 20
     objects: list[SegmentedObject]
     depth_frame: MsgId = NO_FRAME
+    depth_t: float | None = None  # s, the depth frame's stamp on its camera's clock (None: unknown)
 
     def clusters(self) -> list[Cluster]:
         return [o.cluster() for o in self.objects]
 
     @classmethod
-    def of(cls, clusters: list[Cluster], depth_frame: MsgId = NO_FRAME) -> SegmentedObjects:
+    def of(cls, clusters: list[Cluster], depth_frame: MsgId = NO_FRAME, depth_t: float | None = None) -> SegmentedObjects:
         objs = [SegmentedObject(points=nd(c.points.astype(np.float32)), centroid=c.centroid.tolist(),
                                 box=BoxMsg.of(c.box)) for c in clusters]
-        return cls(objects=objs, depth_frame=depth_frame)
+        return cls(objects=objs, depth_frame=depth_frame, depth_t=depth_t)
 
 
 class ApproachVectors(Message, tag="vision_approach_vectors"):

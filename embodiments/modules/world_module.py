@@ -366,7 +366,7 @@ class WorldModule(Module):
                          status=str(sim.arm(a).status), abort_reason=sim.arm(a).abort_reason,
                          applied=r.arm_seq.get(a, 0)) for a in sim.arms]
         hands = [HandState(name=h, positions=NDArray.of(sim.hand(h).positions()), status=str(sim.hand(h).status),
-                           applied=r.hand_seq.get(h, 0)) for h in sim.hands]
+                           effort=sim.hand(h).effort, applied=r.hand_seq.get(h, 0)) for h in sim.hands]
         wrenches = []
         for a in sim.spec.arms:
             if a.ft:

@@ -47,6 +47,9 @@ class HandLike(Protocol):
     def positions(self) -> np.ndarray: ...
     def done(self) -> bool: ...
 
+    @property
+    def effort(self) -> float: ...
+
 
 class Robot(Protocol):
     """What primitives use of a robot; :class:`~contactflow.embodiments.sim_robot.SimRobot` satisfies it."""
@@ -307,8 +310,18 @@ class Primitive(Module):
             return []
         return [k for k, v in self.r.tactile(self.hand_name).items() if float(v.max(initial=0.0)) > TACTILE_CONTACT]
 
-    def holding(self, min_fingers: int = 2) -> bool:
-        """Something is in the hand: a pad touches, or ``min_fingers`` fingers are held open by an object.
+    def grip_force(self) -> float:
+        """N, the gripper's motor effort sensing: held open by an object, the jaws push with their effort limit.
+
+        A stalled drive gives its force limit (effort x the finger joint's limit); jaws that
+        closed on nothing push on nothing.
+        """
+        if not self.hand_name or not self.holding():
+            return 0.0
+        return float(self.hand.effort) * self.r.spec.hand(self.hand_name).force_limit
+
+    def holding(self, min_fingers: int = 2, min_pads: int = 1) -> bool:
+        """Something is in the hand: ``min_pads`` pads touch, or ``min_fingers`` fingers are held open by an object.
 
         The pads cover the fingertips only, so a power grasp on the inner phalanxes is told
         by the joint configuration (thesis §3.3.1: "joint configuration or contact information").
@@ -317,7 +330,7 @@ class Primitive(Module):
 
         if not self.hand_name:
             return False
-        if self.pads_in_contact():
+        if len(self.pads_in_contact()) >= max(min_pads, 1):
             return True
         spec = self.r.spec.hand(self.hand_name)
         groups = finger_groups(spec)
@@ -406,6 +419,15 @@ def matrix6(v: tuple[float, ...] | list[float], where: str) -> np.ndarray:
     T[:3, :3] = Rotation.from_euler("xyz", a[3:]).as_matrix()
     T[:3, 3] = a[:3]
     return T
+
+
+def hand_pose_for(robot: str, T_center: np.ndarray) -> np.ndarray:
+    """The controlled-frame pose that puts robot ``robot``'s grasp centre (its home's) at ``T_center`` (4x4, world)."""
+    from contactflow.embodiments import registry
+
+    off = np.eye(4)
+    off[:3, 3] = registry.home(robot).grasp_center
+    return T_center @ np.linalg.inv(off)
 
 
 def top_grasp_pose(xyz: np.ndarray | tuple[float, ...], yaw: float = np.pi / 2) -> np.ndarray:

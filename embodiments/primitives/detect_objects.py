@@ -1,34 +1,52 @@
-"""Detect objects (§6.3.3, §3.4.1): segment the camera point cloud in a region into object clusters and give a filtered approach vector (§6.3.5)."""
+"""Detect objects (§6.3.3, §3.4.1): object clusters in a region, of the vision chain or of its own camera frame, and a filtered approach vector (§6.3.5)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from contactflow.embodiments.primitives.base import (
     Capability,
     Primitive,
+    hand_pose_for,
     pose6,
     top_grasp_pose,
     wall_yaws,
 )
-from contactflow.embodiments.primitives.profiles import hand_pose_for
+from contactflow.nodes.module import Port
 from contactflow.nodes.status import Event
+from contactflow.recognition.messages import PlaneMsg, SegmentedObjects
+
+if TYPE_CHECKING:
+    from contactflow.recognition.pipeline import Cluster, Plane
 
 VERTICAL_TOL_DEG = 1.0
 """deg: an approach this close to straight down is the top grasp (hand z exactly down)."""
+MIN_HEIGHT = 0.01
+"""m: points this close to the support are the support's."""
+CLUSTER_EPS = 0.015
+"""m: DBSCAN neighbourhood of the objects' points."""
+
+
+def support_plane(region: np.ndarray, z: float) -> Plane:
+    """The horizontal plane at height ``z`` (m) under the middle of ``region``: a known support, e.g. a box bottom."""
+    from contactflow.recognition.pipeline import Plane
+
+    origin = np.array([(region[0] + region[3]) / 2, (region[1] + region[4]) / 2, z])
+    return Plane(np.array([0.0, 0.0, 1.0]), -float(z), origin, np.eye(3), 0)
 
 
 def segment_scene(points: np.ndarray, region: np.ndarray, support_z: float | None = None,
-                  min_height: float = 0.01, eps: float = 0.015, min_size: int = 30):
+                  min_height: float = MIN_HEIGHT, eps: float = CLUSTER_EPS, min_size: int = 30):
     """(support plane, object clusters largest first) of a world-frame cloud inside ``region``.
 
     The support is the RANSAC plane of the region (or the horizontal plane at ``support_z``
     when given, e.g. a known box bottom); points ``min_height`` above it are clustered with
     DBSCAN, each cluster with an upright box standing on the support.
     """
-    from contactflow.recognition.pipeline import Plane, detect_plane, extract_clusters
+    from contactflow.recognition.pipeline import detect_plane, extract_clusters
 
     lo, hi = region[:3], region[3:]
     pts = points[np.all((points >= lo) & (points <= hi), axis=1)]
@@ -40,8 +58,7 @@ def segment_scene(points: np.ndarray, region: np.ndarray, support_z: float | Non
             return None, []
         above = pts[(plane.height(pts) > min_height) & ~inliers]
     else:
-        origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, support_z])
-        plane = Plane(np.array([0.0, 0.0, 1.0]), -float(support_z), origin, np.eye(3), 0)
+        plane = support_plane(region, support_z)
         above = pts[pts[:, 2] > support_z + min_height]
     return plane, extract_clusters(above, eps=eps, min_size=min_size, plane=plane)
 
@@ -78,9 +95,19 @@ def top_centred(av, points: np.ndarray, band: float):
 
 
 def segment_objects(points: np.ndarray, region: np.ndarray, support_z: float | None = None,
-                    min_height: float = 0.01, eps: float = 0.015, min_size: int = 30) -> list[np.ndarray]:
+                    min_height: float = MIN_HEIGHT, eps: float = CLUSTER_EPS, min_size: int = 30) -> list[np.ndarray]:
     """Object clusters (largest first) of a world-frame cloud inside ``region`` [xmin, ymin, zmin, xmax, ymax, zmax]."""
     return [c.points for c in segment_scene(points, region, support_z, min_height, eps, min_size)[1]]
+
+
+@dataclass(frozen=True)
+class View:
+    """One look at the region: the support plane, the object clusters (largest first) and where they came from."""
+
+    plane: Plane | None
+    clusters: list[Cluster]  # world frame
+    points: np.ndarray | None  # the region's points (a camera frame's); None: only the objects are known
+    source: str
 
 
 class DetectObjects(Primitive):
@@ -100,10 +127,22 @@ class DetectObjects(Primitive):
     no object in the region it ends with OBJECT_NOT_FOUND (the "no objects left" edge),
     unless less than ``min_observed`` of the region's ground was seen (an arm in the view):
     then FAILURE, as the region is not known to be empty.
+
+    Where the objects come from: on a node whose configuration wires the ``objects`` port
+    (the vision3d chain's clusters, thesis §6.3.3), from the newest message of a depth frame
+    taken ``settle`` s or more after the start, each cluster cut to the region and off the
+    robot (a cut cluster is clustered again: what joined it may have been cut away), on the
+    support of ``support_z`` or else of the ``plane`` port; no such message within
+    ``timeout`` is FAILURE. The clusters do not show how much of an empty-looking region was
+    in view, so with ``min_observed`` that case is judged on a camera frame. Unwired
+    (in-process runs, benches) the primitive segments a camera frame of its own. The
+    OBJECT_DETECTED and outcome details name the source.
     """
 
     requires = Capability(camera=True)
     commands_arm = False
+    inputs = (Port("objects", SegmentedObjects, "the vision chain's object clusters, world frame (unwired: the camera)"),
+              Port("plane", PlaneMsg, "the vision chain's support plane (collision filter)"))
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.OBJECT_DETECTED, Event.OBJECT_NOT_FOUND)
 
     @dataclass(frozen=True)
@@ -123,7 +162,8 @@ class DetectObjects(Primitive):
         camera: str = "kinect"
         min_size: int = 30  # points per object
         seed: int = 0  # for select=random
-        settle: float = 0.1  # s waited before the snapshot
+        settle: float = 0.1  # s waited before the snapshot (wired: the depth frame is taken this long after the start, or later)
+        timeout: float = 5.0  # s after settle a wired objects port has to deliver, else FAILURE
         self_margin: float = 0.02  # m, points this close to the robot model are removed
         walls: tuple[float, ...] = ()  # m, [xmin, ymin, xmax, ymax] inner sides of a container the objects are in (none: no walls)
         wall_margin: float = 0.055  # m, an object centre this close to a wall is grasped with ``wall_side`` toward it
@@ -143,6 +183,7 @@ class DetectObjects(Primitive):
         if not 0.0 <= p.min_observed <= 1.0:
             raise ValueError(f"{self.name}: params.min_observed must be a fraction in [0, 1], got {p.min_observed}")
         self.region = region
+        self.from_vision = self.io.wired("objects")  # unwired (an in-process runner wires none): the camera
 
     def _order(self, clusters: list, rng: np.random.Generator) -> list:
         p = self.params
@@ -205,22 +246,24 @@ class DetectObjects(Primitive):
         p = self.params
         if self.elapsed < p.settle:
             return
-        frame = self.r.camera(p.camera)
-        support = p.support_z if p.support_z >= 0 else None
-        pts = np.asarray(frame.points)
-        lo, hi = self.region[:3], self.region[3:]
-        pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
-        model = getattr(self.r, "spherical", None)
-        if model is not None and len(pts):
-            pts = pts[model.distance(pts) > p.self_margin]  # the robot's own arms are not objects
-        plane, clusters = segment_scene(pts, self.region, support, min_size=p.min_size)
+        view = self._vision_view() if self.from_vision else None
+        if self.from_vision and view is None:
+            if self.elapsed >= p.settle + p.timeout:
+                self.fail(f"the vision chain sent no objects of a depth frame taken {p.settle:g} s or more after "
+                          f"the start within {p.timeout:g} s", count=0)
+            return
+        if view is None or (not view.clusters and p.min_observed > 0.0):
+            # the clusters do not show how much of an empty-looking region was in view: a camera frame does
+            view = self._camera_view()
+        plane, clusters = view.plane, view.clusters
         if not clusters:
-            seen = observed_fraction(pts, self.region)
-            if seen < p.min_observed:
+            seen = None if view.points is None else observed_fraction(view.points, self.region)
+            if seen is not None and seen < p.min_observed:
                 self.fail(f"no object seen, but only {100 * seen:.0f} % of the region was in view "
                           f"(min_observed {100 * p.min_observed:.0f} %)", count=0, observed=seen)
                 return
-            self.fail("no object in the region", event=Event.OBJECT_NOT_FOUND, count=0, observed=seen)
+            self.fail(f"no object in the region ({view.source})", event=Event.OBJECT_NOT_FOUND, count=0,
+                      **({} if seen is None else {"observed": seen}))
             return
         # a fresh draw per detection (the seed alone would repeat it): the run's seed and the time
         rng = np.random.default_rng([p.seed, int(self.r.time * 1000)])
@@ -245,11 +288,56 @@ class DetectObjects(Primitive):
                 reached = avs if ik is None else reachability_filter(
                     avs, ik, pose=lambda av, yaw=yaw: self.hand_pose(av, yaw), first=True)
                 if reached:
-                    self._detected(pick, reached[0], len(clusters), yaw)
+                    self._detected(pick, reached[0], len(clusters), yaw, view.source)
                     return
-        self.fail(f"no approach vector of the {len(clusters)} objects passes the filters", count=len(clusters))
+        self.fail(f"no approach vector of the {len(clusters)} objects passes the filters ({view.source})",
+                  count=len(clusters))
 
-    def _detected(self, pick, av, count: int, yaw: float) -> None:
+    def _camera_view(self) -> View:
+        """The objects of a camera frame of the region, off the robot."""
+        p = self.params
+        frame = self.r.camera(p.camera)
+        pts = np.asarray(frame.points)
+        lo, hi = self.region[:3], self.region[3:]
+        pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+        model = getattr(self.r, "spherical", None)
+        if model is not None and len(pts):
+            pts = pts[model.distance(pts) > p.self_margin]  # the robot's own arms are not objects
+        plane, clusters = segment_scene(pts, self.region, p.support_z if p.support_z >= 0 else None,
+                                        min_size=p.min_size)
+        return View(plane, clusters, pts, f"camera {p.camera} at {frame.t:.2f} s")
+
+    def _vision_view(self) -> View | None:
+        """The objects of the wired vision chain's newest message, if its depth frame was taken after the settle."""
+        from contactflow.recognition.pipeline import extract_clusters
+
+        p = self.params
+        msg = self.io.latest("objects")
+        if msg is None or msg.depth_t is None or msg.depth_t < self.t0 + p.settle:
+            return None
+        if p.support_z >= 0:
+            plane = support_plane(self.region, p.support_z)
+        else:
+            plane_msg = self.io.latest("plane")
+            plane = plane_msg.plane() if plane_msg is not None else None
+        lo, hi = self.region[:3], self.region[3:]
+        model = getattr(self.r, "spherical", None)
+        clusters = []
+        for c in msg.clusters():
+            keep = np.all((c.points >= lo) & (c.points <= hi), axis=1)
+            if p.support_z >= 0:
+                keep &= c.points[:, 2] > p.support_z + MIN_HEIGHT
+            if model is not None and keep.any():
+                keep[keep] = model.distance(c.points[keep]) > p.self_margin  # the robot's own arms are not objects
+            if keep.all():
+                clusters.append(c)
+            else:  # the parts of a cut cluster: the chain may have joined objects through what was cut away
+                clusters += extract_clusters(c.points[keep], eps=CLUSTER_EPS, min_size=p.min_size, plane=plane)
+        clusters = sorted((c for c in clusters if len(c.points) >= p.min_size), key=lambda c: -len(c.points))
+        f = msg.depth_frame
+        return View(plane, clusters, None, f"vision chain, depth frame {f.source}#{f.seq} at {msg.depth_t:.2f} s")
+
+    def _detected(self, pick, av, count: int, yaw: float, source: str) -> None:
         p = self.params
         pts = pick.points
         c = pick.centroid
@@ -263,5 +351,5 @@ class DetectObjects(Primitive):
                     size_x=float(size[0]), size_y=float(size[1]), size_z=float(top - bottom),
                     grasp_z=float(grasp_z), dx=float(d[0]), dy=float(d[1]), dz=float(d[2]),
                     d1=float(dims[0]), d2=float(dims[1]), d3=float(dims[2]), **pose6(approach))
-        self.emit_once(Event.OBJECT_DETECTED, f"{count} objects", vals)
-        self.succeed(**vals)
+        self.emit_once(Event.OBJECT_DETECTED, f"{count} objects ({source})", vals)
+        self.succeed(f"{count} objects ({source})", **vals)

@@ -6,8 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
-from contactflow.embodiments.primitives.profiles import hand_pose_for
+from contactflow.embodiments.primitives.base import Capability, Primitive, hand_pose_for, pose6
 from contactflow.nodes.status import Event
 
 

@@ -19,14 +19,17 @@ class Hold(Primitive):
 
     @dataclass(frozen=True)
     class Params(Primitive.Params):
-        effort: float = 1.0  # 0..1 finger force limit
+        effort: float = 1.0  # 0..1 finger force limit (when ``force`` is 0)
+        force: float = 0.0  # N, squeeze each finger drive gives (0: ``effort``); sets the effort to give it
         duration: float = 0.0  # s, 0 = until stopped
         min_contacts: int = 1  # pads that must stay in contact (or fingers held open by the object)
         grace: float = 0.2  # s a loss must last to count (debounce)
 
     def begin(self) -> None:
         spec = self.r.spec.hand(self.hand_name)
-        self.hand.set_fingers(np.asarray(spec.preshapes["closed"], dtype=np.float64), effort=self.params.effort)
+        p = self.params
+        effort = p.effort if p.force <= 0 else min(1.0, p.force / spec.force_limit)
+        self.hand.set_fingers(np.asarray(spec.preshapes["closed"], dtype=np.float64), effort=effort)
         self.lost_since: float | None = None
         self.stable_sent = False
 

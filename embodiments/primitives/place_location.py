@@ -6,8 +6,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Primitive, pose6, top_grasp_pose, wall_yaws
-from contactflow.embodiments.primitives.profiles import hand_pose_for
+from contactflow.embodiments.primitives.base import (
+    Primitive,
+    hand_pose_for,
+    pose6,
+    top_grasp_pose,
+    wall_yaws,
+)
 from contactflow.nodes.status import Event
 
 

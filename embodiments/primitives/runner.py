@@ -6,8 +6,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from contactflow.embodiments import registry
 from contactflow.embodiments.primitives.base import Primitive, PrimitiveError, Robot
-from contactflow.embodiments.primitives.profiles import profile
 from contactflow.nodes.messages import Command, ControlReply, ParamValue
 from contactflow.nodes.params import replace_params
 from contactflow.nodes.registry import resolve
@@ -37,6 +37,9 @@ class LocalIO:
         msg = self._latest.pop(port, None)
         return [msg] if msg is not None else []
 
+    def wired(self, port: str) -> bool:
+        return False  # in-process primitives read the robot, not the key space
+
     def publish(self, port: str, msg: Message, inputs: list[MsgId] | None = None) -> None:
         self._latest[port] = msg
 
@@ -64,14 +67,16 @@ class LocalPrimitiveRunner:
     Primitives are created by registered short name (``contactflow.nodes.registry``), bound
     to ``robot``, set up with a :class:`LocalIO` and stepped at their ``rate_hz`` by
     :meth:`advance` as the world advances. ``defaults`` holds per-type parameter overrides
-    (default: the embodiment profile of :mod:`~contactflow.embodiments.primitives.profiles`);
+    (default: the overrides of the robot's home, :mod:`~contactflow.embodiments.registry`);
     task parameters override them.
     """
 
     def __init__(self, robot: Robot, defaults: Mapping[str, Mapping[str, Any]] | None = None,
                  factory: Callable[[str], type[Primitive]] | None = None) -> None:
         self.robot = robot
-        self.defaults = profile(robot.spec.name) if defaults is None else {k: dict(v) for k, v in defaults.items()}
+        if defaults is None:
+            defaults = registry.home(robot.spec.name).overrides
+        self.defaults = {k: dict(v) for k, v in defaults.items()}
         self._factory = factory or _resolve_primitive
         self.active: dict[str, _Active] = {}
         self.started: list[tuple[str, str, dict[str, Any]]] = []

@@ -9,9 +9,13 @@ import numpy as np
 from contactflow.embodiments.primitives.base import Primitive
 from contactflow.nodes.status import Event
 
+SENSORS = ("hand", "tactile", "gripper_effort", "wrist_ft")
+"""How a grasp is told (thesis Tables 7.3-7.4, one per robot): the hand's contact information or joint
+configuration (§3.3.1), tactile pad pressure, the gripper's motor effort, the load on the wrist."""
+
 
 class WaitEvent(Primitive):
-    """Emits ``event`` when its condition holds: grasp_lost / grasp_stable (pads and finger joints), contact (F/T), or after ``delay``.
+    """Emits ``event`` when its condition holds: grasp_lost / grasp_stable (by ``sensor``), contact (F/T), or after ``delay``.
 
     Used as a helper next to another primitive (e.g. watch for GRASP_LOST while transporting)
     or alone as a delay (``event: success``). ``finish`` ends the primitive with SUCCESS when the
@@ -28,6 +32,14 @@ class WaitEvent(Primitive):
         force_threshold: float = 5.0  # N, for "contact"
         finish: bool = True  # end with SUCCESS after the event
         grace: float = 0.2  # s a tactile condition must hold
+        sensor: str = "hand"  # grasp sensing: hand (pads touching or fingers held open) | tactile | gripper_effort | wrist_ft
+        threshold: float = 0.0  # N, a grasp holds at this total pad pressure, grip force or wrist load (not "hand")
+        min_contacts: int = 1  # pads in contact for a hand or tactile grasp
+        filter_hz: float = 0.0  # Hz, low-pass cut-off of the wrist load (0: none; for noisy estimated wrenches)
+
+        def validate(self) -> None:
+            if self.sensor not in SENSORS:
+                raise ValueError(f"sensor: {self.sensor!r} is not one of {list(SENSORS)}")
 
     def begin(self) -> None:
         try:
@@ -39,13 +51,30 @@ class WaitEvent(Primitive):
         self.f0 = self.wrench_in("world")[:3] if self.event is Event.CONTACT else np.zeros(3)
         self.since: float | None = None
         self.fired = False
+        self.load: float | None = None  # N, the low-passed wrist load
+        if self.params.sensor == "wrist_ft" and not self.r.spec.arm(self.arm_name).ft:
+            raise ValueError(f"{self.name}: params.sensor wrist_ft: arm {self.arm_name!r} has no wrist F/T")
+
+    def grasped(self) -> bool:
+        """The grasp holds, as this robot senses it (``sensor``)."""
+        p = self.params
+        if p.sensor == "tactile":
+            return sum(self.pad_forces().values()) >= p.threshold and len(self.pads_in_contact()) >= p.min_contacts
+        if p.sensor == "gripper_effort":
+            return self.grip_force() >= max(p.threshold, 1e-9)
+        if p.sensor == "wrist_ft":
+            f = float(np.linalg.norm(self.wrench_in("world")[:3]))
+            a = 1.0 if p.filter_hz <= 0 else 1.0 - float(np.exp(-2.0 * np.pi * p.filter_hz / p.rate_hz))
+            self.load = f if self.load is None else self.load + a * (f - self.load)
+            return self.load >= p.threshold
+        return self.holding(min_pads=p.min_contacts)
 
     def holds(self) -> bool:
         if self.event is Event.SUCCESS:
             return True
         if self.event is Event.CONTACT:
             return bool(np.linalg.norm(self.wrench_in("world")[:3] - self.f0) > self.params.force_threshold)
-        held = self.holding()
+        held = self.grasped()
         return not held if self.event is Event.GRASP_LOST else held
 
     def update(self) -> None:

@@ -1,1 +1,1 @@
-"""One data module per robot, each defining ``SPEC`` (see ``contactflow.embodiments.registry``)."""
+"""The robots: one package per robot (its home: ``spec``, ``factory``, ``HOME``), found by the registry."""

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from contactflow.embodiments.registry import HandSpec, PadSpec
+from contactflow.embodiments.registry import HandKind, HandSpec, PadSpec
 from contactflow.embodiments.urdf_compose import ExtraLink, Mount, Part
 
 PANDA = "panda_description/urdf/panda.urdf"
@@ -51,7 +51,7 @@ def allegro_hand(name: str, prefix: str) -> HandSpec:
     finger_open = (0.0, 0.0, 0.0, 0.0)
     return HandSpec(
         name=name,
-        kind="multi_finger",
+        kind=HandKind.MULTI_FINGER,
         joints=tuple(prefix + j for j in ALLEGRO_JOINTS),
         preshapes={
             "open": finger_open * 3 + (0.5, 0.0, 0.0, 0.0),
@@ -87,7 +87,7 @@ def panda_gripper(name: str, prefix: str) -> HandSpec:
     )
     return HandSpec(
         name=name,
-        kind="parallel",
+        kind=HandKind.PARALLEL,
         joints=(f"{prefix}panda_finger_joint1",),
         mimic=((f"{prefix}panda_finger_joint2", f"{prefix}panda_finger_joint1", 1.0),),
         preshapes={"open": (0.04,), "closed": (0.0,)},

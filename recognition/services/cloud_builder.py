@@ -34,5 +34,5 @@ class CloudBuilder(Module):
         depth, K, T = depth_arrays(frame)
         p = self.params
         pts = voxel_downsample(depth_to_points(depth, K, T, p.stride, p.min_range, p.max_range), p.voxel)
-        self.io.publish("cloud", PointCloud.of(pts, frame.hdr.id), inputs=provenance(frame.hdr.id, frame))
+        self.io.publish("cloud", PointCloud.of(pts, frame.hdr.id, frame.hdr.t_sim), inputs=provenance(frame.hdr.id, frame))
         return Status.RUNNING

@@ -35,6 +35,6 @@ class ClusterExtractor(Module):
         p = self.params
         clusters = extract_clusters(cloud.xyz(), p.eps, p.min_points, p.min_size, p.max_size,
                                     plane_msg.plane() if plane_msg is not None else None)
-        self.io.publish("objects", SegmentedObjects.of(clusters, cloud.depth_frame),
+        self.io.publish("objects", SegmentedObjects.of(clusters, cloud.depth_frame, cloud.depth_t),
                         inputs=provenance(cloud.depth_frame, cloud, plane_msg))
         return Status.RUNNING

@@ -11,7 +11,11 @@ from contactflow.recognition.pipeline import roi_filter
 
 
 class RoiFilter(Module):
-    """Applies the newest ROI to every new cloud; without a ROI nothing passes."""
+    """Applies the newest ROI to every new cloud; before the first ROI the newest cloud waits for it.
+
+    An empty cloud would tell the cluster extractor, and the primitives reading its objects,
+    that the region is empty, when the plane detector (1 Hz) has only not fitted it yet.
+    """
 
     layer = Layer.SERVICE
     inputs = (Port("cloud", PointCloud, "world-frame cloud"),
@@ -22,13 +26,22 @@ class RoiFilter(Module):
     class Params:
         rate_hz: float = 30.0  # Hz
 
+    def __init__(self, name: str, params: Params | None = None) -> None:
+        super().__init__(name, params)
+        self.waiting: PointCloud | None = None  # the newest cloud not filtered yet
+
+    def reset(self) -> None:
+        self.waiting = None
+
     def step(self) -> Status:
         clouds = self.io.take("cloud")
-        if not clouds:
-            return Status.RUNNING
-        cloud = clouds[-1]
+        if clouds:
+            self.waiting = clouds[-1]
         roi = self.io.latest("roi")
-        inside = roi_filter(cloud.xyz(), roi.box.box() if roi is not None else None)
-        self.io.publish("cloud", PointCloud.of(inside, cloud.depth_frame),
+        if self.waiting is None or roi is None:
+            return Status.RUNNING
+        cloud, self.waiting = self.waiting, None
+        inside = roi_filter(cloud.xyz(), roi.box.box())
+        self.io.publish("cloud", PointCloud.of(inside, cloud.depth_frame, cloud.depth_t),
                         inputs=provenance(cloud.depth_frame, cloud, roi))
         return Status.RUNNING

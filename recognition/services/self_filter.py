@@ -99,6 +99,6 @@ class SelfFilter(Module):
                 fn = sphere_distance(spheres.centers.numpy(), spheres.radii.numpy(), cutoff=self.params.margin)
                 used = spheres
         kept = self_filter(cloud.xyz(), fn, self.params.margin)
-        self.io.publish("cloud", PointCloud.of(kept, cloud.depth_frame),
+        self.io.publish("cloud", PointCloud.of(kept, cloud.depth_frame, cloud.depth_t),
                         inputs=provenance(cloud.depth_frame, cloud, used))
         return Status.RUNNING

@@ -7,7 +7,9 @@ import math
 from contactflow.abstraction.atd import load_atd, parse_atd
 from contactflow.abstraction.bid import bid
 from contactflow.abstraction.examples import path
-from contactflow.abstraction.profiles import MELFA, PROFILES, TOMBATOSSALS
+from contactflow.abstraction.profiles import PROFILES
+
+MELFA, TOMBATOSSALS = PROFILES["melfa"], PROFILES["tombatossals"]
 
 
 def test_bids_for_pick_and_place():

@@ -91,7 +91,7 @@ def test_named_robot_and_capabilities(site_factory):
     assert follow.reply.robots == ["melfa"] and follow.outcome == "success"
     caps = robots(site.t, KS)
     assert [c.robot for c in caps] == ["melfa", "tombatossals"]
-    assert "robust_grasp" in caps[1].primitives and caps[0].hand == "parallel_gripper"
+    assert "robust_grasp" in caps[1].primitives and caps[0].hand == "parallel"
 
 
 def test_refused_with_reasons_per_robot_when_none_can_translate(site_factory):

@@ -29,7 +29,7 @@ def hand_parts(params: dict, hand: HandGeometry) -> np.ndarray:
 
 
 def test_side_approach_keeps_the_hand_off_the_object_and_its_low_parts_in_front_of_it():
-    out = concretize("move_to", {"target": BOX_AT, "approach": [0.0, -1.0, 0.0], "standoff": 0.1, "size": BOX},
+    out = concretize("move_to", {"goal": {"target": BOX_AT, "approach": [0.0, -1.0, 0.0], "standoff": 0.1, "size": BOX}},
                      ["arm"], hands={"arm": GRIPPER})
     pts = hand_parts(out, GRIPPER)
     lo, hi = np.array(BOX_AT) - np.array(BOX) / 2, np.array(BOX_AT) + np.array(BOX) / 2
@@ -42,13 +42,13 @@ def test_side_approach_keeps_the_hand_off_the_object_and_its_low_parts_in_front_
 
 
 def test_without_hand_geometry_the_approach_is_the_plain_standoff():
-    out = concretize("move_to", {"target": BOX_AT, "approach": [0.0, -1.0, 0.0], "standoff": 0.1}, ["arm"])
+    out = concretize("move_to", {"goal": {"target": BOX_AT, "approach": [0.0, -1.0, 0.0], "standoff": 0.1}}, ["arm"])
     assert out["target"][:3] == pytest.approx([0.5, 0.1, 0.78])
 
 
 def test_top_approach_puts_the_grasp_centre_over_the_object():
     hand = HandGeometry(GRIPPER.points, grasp_center=(-0.05, 0.02, 0.0))
-    out = concretize("transport", {"target": [0.6, 0.0, 0.81], "approach": [0, 0, -1], "standoff": 0.1},
+    out = concretize("transport", {"goal": {"target": [0.6, 0.0, 0.81], "approach": [0, 0, -1], "standoff": 0.1}},
                      ["left", "right"], hands={"left": hand})
     T = xyz_rpy_to_matrix(out["target"][:3], out["target"][3:])
     centre = T[:3, :3] @ np.array(hand.grasp_center) + T[:3, 3]
@@ -61,26 +61,20 @@ def test_push_target_is_where_the_object_ends_not_the_hand():
     current = np.eye(4)
     current[:3, :3] = R
     current[:3, 3] = (0.5, 0.1, 0.8)
-    out = concretize("transport", {"target": [0.5, -0.15, 0.78], "size": BOX, "pushes": True, "motion": "line",
-                                   "stop_force": 3.0, "stop_sensor": "wrist_ft"},
+    out = concretize("transport", {"goal": {"target": [0.5, -0.15, 0.78], "size": BOX, "pushes": True}},
                      ["arm"], hand_at=lambda arm: current, hands={"arm": GRIPPER})
     reach = GRIPPER.reach(R, np.array([0.0, -1.0, 0.0]), 0.78 + 0.03 - 0.8)
     assert out["target"][1] == pytest.approx(-0.15 + 0.04 + reach)
     assert out["target"][2] == pytest.approx(0.8)  # the hand keeps its height and heading
-    assert "guarded" not in out  # contact is what a push is made of
 
 
-def test_guarded_moves_end_on_contact_only_when_contact_is_the_goal():
-    to_object = concretize("transport", {"target": BOX_AT, "approach": [0, 0, -1], "motion": "line",
-                                         "stop_force": 3.0, "stop_sensor": "wrist_ft"}, ["arm"])
-    assert to_object["guarded"] is True and to_object["force_threshold"] == 3.0
-    lift = concretize("transport", {"target": [0.5, 0.0, 1.0], "motion": "line", "stop_force": 3.0,
-                                    "stop_sensor": "wrist_ft"}, ["arm"])
-    assert lift["guarded"] is False and lift["force_threshold"] >= 10.0
-    assert lift["velocity_limits"][:3] == [0.05] * 3  # straight and slow, no planner
-    place = concretize("transport", {"target": [0.5, 0.0, 0.8], "motion": "line", "stop_force": 1.0,
-                                     "stop_sensor": "tactile", "until_contact": True}, ["arm"])
-    assert place["guarded"] is True
+def test_the_primitive_params_pass_through_and_a_bad_goal_is_refused():
+    out = concretize("transport", {"force_threshold": 3.0, "guarded": True, "goal": {"target": BOX_AT}}, ["arm"])
+    assert out["force_threshold"] == 3.0 and out["guarded"] is True and len(out["target"]) == 6
+    with pytest.raises(ValueError, match=r"goal\.stanoff: unknown field"):
+        concretize("transport", {"goal": {"target": BOX_AT, "stanoff": 0.1}}, ["arm"])
+    with pytest.raises(ValueError, match=r"goal\.target: expected a list of finite numbers"):
+        concretize("transport", {"goal": {"target": [0.5, float("nan"), 0.8]}}, ["arm"])
 
 
 def test_pusher_refuses_postures_whose_low_parts_miss_the_object():
@@ -117,7 +111,7 @@ def test_a_held_object_is_placed_by_where_it_sits_in_that_grasp():
     measured = np.array([-0.02, -0.01, 0.03])  # where the object sits in this grasp (z ignored)
     inner = Inner()
     runner = ConcreteRunner(inner, ["left"], hands={"left": hand}, held_at=lambda arm: measured)
-    place = {"arm": "left", "target": [0.55, 0.15, 0.81]}
+    place = {"arm": "left", "goal": {"target": [0.55, 0.15, 0.81]}}
 
     def centre_at(params: dict, c) -> np.ndarray:
         T = xyz_rpy_to_matrix(params["target"][:3], params["target"][3:])

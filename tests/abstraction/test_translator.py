@@ -9,9 +9,10 @@ import pytest
 from contactflow.abstraction.atd import load_atd, parse_atd
 from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.examples import path
-from contactflow.abstraction.factory import EventChoice, TombatossalsFactory, factory_for
-from contactflow.abstraction.profiles import BAXTER, MELFA, PROFILES, TOMBATOSSALS, Sensor
+from contactflow.abstraction.factory import EventChoice, factory_for
+from contactflow.abstraction.profiles import PROFILES, Sensor
 from contactflow.abstraction.translator import TranslationError, translate
+from contactflow.embodiments.robots.tombatossals.factory import TombatossalsFactory
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.taskengine import ProgressKind, TaskEngine
 from contactflow.nodes.taskfile import load_tasks
@@ -20,6 +21,7 @@ from contactflow.nodes.testing_tasks import FakeClock, FakeRunner, Step, run_unt
 
 EXAMPLES = ["fig7_2.xml", "fig7_2.yaml", "push_away.xml", "pick_place_behind.xml", "grasp_retry.xml"]
 ROBOTS = sorted(PROFILES)
+TOMBATOSSALS, MELFA, BAXTER = (PROFILES[r] for r in ("tombatossals", "melfa", "baxter"))
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
@@ -52,9 +54,11 @@ def test_factories_choose_their_own_primitives_and_parameters():
     baxter = translate(atd, factory_for(BAXTER)).estd.nodes
     # Table 7.3 / 7.4 mappings
     assert tomb["grasp_object"].type == "robust_grasp"
-    assert "finger_lost" in tomb["grasp_object"].params["corrections"]
+    # the corrections the hand's capabilities allow (a parallel gripper has no finger to lose), as the
+    # robust grasp's own typed parameters: an ATD's grasp turns on every one its hand allows
     assert factory_for(MELFA).corrections() == factory_for(BAXTER).corrections() == (
-        "alignment", "sliding", "force_adaptation")  # their capabilities: parallel grippers
+        "alignment", "sliding", "force_adaptation")
+    assert tomb["grasp_object"].params["finger_lost"] is True and tomb["grasp_object"].params["alignment"] is True
     assert tomb["approach"].type == "transport" and tomb["put_down"].type == "place"
     assert melfa["grasp_object"].type == "close_until_force"
     assert melfa["approach"].type == "move_to" and melfa["put_down"].type == "transport"
@@ -62,18 +66,17 @@ def test_factories_choose_their_own_primitives_and_parameters():
     # baxter's grippers have no pads to close until a force on: they close until the jaws stall
     assert baxter["grasp_object"].type == "close_until_stall" and baxter["put_down"].type == "place"
     # the noisy wrist wrench raises baxter's contact thresholds and lowers its filter
-    assert baxter["put_down"].params["contact_threshold"] > tomb["put_down"].params["contact_threshold"]
-    assert baxter["preshape_hand"].params["filter_hz"] < tomb["preshape_hand"].params["filter_hz"]
-    # melfa carries a wrist F/T (issue 3): guarded motions stop on it; baxter filters harder
-    assert melfa["preshape_hand"].params["stop_sensor"] == "wrist_ft"
-    assert baxter["preshape_hand"].params["filter_hz"] < melfa["preshape_hand"].params["filter_hz"]
-    # grasp force from the object's mass (0.15 kg) on the grippers
-    assert 5.0 <= melfa["grasp_object"].params["grasp_force"] <= 40.0
+    assert baxter["put_down"].params["force_threshold"] > tomb["put_down"].params["force_threshold"]
+    assert baxter["put_down"].params["filter_hz"] < tomb["put_down"].params["filter_hz"]
+    assert baxter["preshape_hand"].params["abort_force"] > melfa["preshape_hand"].params["abort_force"]
+    # grasp force from the object's mass (0.15 kg) on the grippers: per pad on melfa's, held while carrying
+    assert 2.5 <= melfa["grasp_object"].params["grip_force"] <= 20.0
+    grip = {h.name: h for h in melfa["carry_behind"].helpers}["grip"]
+    assert grip.params == {"force": 2.0 * melfa["grasp_object"].params["grip_force"]}
     # hand shapes: mapped to the multi-finger hand's own preshapes, approximated on grippers
-    assert tomb["preshape_hand"].params["hand_shape"] == "open"
-    assert tomb["grasp_object"].params["preshape"] == "pinch"
-    assert melfa["preshape_hand"].params["hand_shape"] == "open"
-    assert "preshape" not in melfa["grasp_object"].params
+    assert tomb["preshape_hand"].params["preshape"] == "open"
+    assert melfa["preshape_hand"].params["preshape"] == "open"
+    assert tomb["grasp_object"].params["pregrasp_type"] == "open"
 
 
 def test_baxter_needs_gripper_and_wrist_for_stable_grasp_of_a_heavy_object():
@@ -185,7 +188,7 @@ def test_fig7_2_estd_runs_and_reports_in_atd_names(robot):
     assert [t for t, _ in edges] == [t.name for t in atd.transitions if t.destination != "fail_end"]
     assert edges[2][1] in (AbstractEvent.SUCCESS, AbstractEvent.GRASP_STABLE)
     first_move = runner.starts[0]
-    assert first_move[2]["target"] == [0.2, 0.6, 0.1] and first_move[2]["standoff"] == 0.1
+    assert first_move[2]["goal"]["target"] == [0.2, 0.6, 0.1] and first_move[2]["goal"]["standoff"] == 0.1
     assert runner.active == {}
 
 
@@ -248,3 +251,52 @@ def test_atd_names_with_spaces_keep_their_names_in_progress():
     run_until_done(eng, clock, eng.launch(tr.estd, {"object_location": [0.2, 0.6, 0.1]}))
     assert "preshape hand" in [r.state for r in seen if r.kind is ProgressKind.ENTERED]
     assert "approach->preshape hand" in [r.transition for r in seen if r.kind is ProgressKind.EDGE]
+
+
+def test_the_factory_hands_typed_params_and_a_bad_one_is_an_error_naming_the_state():
+    """Nothing is dropped on the way: per-robot detectors reach the primitive as its own fields (Tables 7.3-7.4)."""
+    from contactflow.abstraction.factory import MappingRefused
+
+    atd = load_atd(path("pick_place_behind.xml"))
+    melfa = translate(atd, factory_for(MELFA)).estd.nodes
+    watch = {h.name: h for h in melfa["lift_object"].helpers}["grasp_stable"]
+    assert watch.params == {"event": "grasp_stable", "finish": False, "sensor": "tactile",
+                            "threshold": melfa["grasp_object"].params["grip_force"]}
+    tomb = translate(atd, factory_for(TOMBATOSSALS)).estd.nodes
+    watch = {h.name: h for h in tomb["lift_object"].helpers}["grasp_stable"]
+    assert watch.params["min_contacts"] == 2 and watch.params["sensor"] == "hand"
+    baxter = translate(atd, factory_for(BAXTER)).estd.nodes
+    assert {h.params["sensor"] for h in baxter["lift_object"].helpers} == {"gripper_effort"}
+    # the robot's overrides are part of the typed Params the ESTD carries
+    assert tomb["grasp_object"].params["torque_threshold"] == 0.1
+
+    class Misspelt(TombatossalsFactory):
+        def grasp(self, kind, concrete, state, atd, notes):
+            p, goal, helpers = super().grasp(kind, concrete, state, atd, notes)
+            return {**p, "pregrasp_sise": 0.5}, goal, helpers
+
+    class Mistyped(TombatossalsFactory):
+        def release(self, kind, concrete, state, atd, notes):
+            return {"hand_target": "wide"}, None, []
+
+    with pytest.raises(TranslationError, match=r"state 'grasp_object' \(grasp\): robust_grasp\.params\."
+                                                r"pregrasp_sise: unknown parameter"):
+        translate(atd, Misspelt(TOMBATOSSALS))
+    with pytest.raises(TranslationError, match=r"state 'let_go' \(release\): release\.params\.hand_target"):
+        translate(atd, Mistyped(TOMBATOSSALS))
+    with pytest.raises(MappingRefused, match=r"wait_event\.params\.sensr: unknown parameter"):
+        factory_for(TOMBATOSSALS).helper("w", "wait_event", "state 'x'", sensr="tactile")
+
+
+def test_a_received_estd_with_a_bad_primitive_param_is_refused_naming_node_and_field():
+    from contactflow.abstraction.estd import EstdError, estd_message, received
+
+    tr = translate(load_atd(path("pick_place_behind.xml")), factory_for(MELFA))
+    msg = estd_message(tr)
+    assert received(msg, MELFA, "run").estd.nodes["grasp_object"].params["grip_force"] > 0
+    bad = msg.task.replace("grip_force:", "grip_forse:")
+    with pytest.raises(EstdError, match=r"state 'grasp_object': close_until_force\.params\.grip_forse"):
+        received(type(msg)(**{**{f: getattr(msg, f) for f in msg.__struct_fields__}, "task": bad}), MELFA, "run")
+    bad = msg.task.replace("threshold: 2.5", "threshold: lots", 1)
+    with pytest.raises(EstdError, match=r"helper 'grasp_stable': wait_event\.params\.threshold"):
+        received(type(msg)(**{**{f: getattr(msg, f) for f in msg.__struct_fields__}, "task": bad}), MELFA, "run")

@@ -67,6 +67,28 @@ def test_default_manifest_runs_the_real_modules_of_the_areas():
     assert classes[("vision2d", "shape")].__module__.endswith("classify_shape")
 
 
+def test_default_manifest_wires_tombatossals_detect_objects_to_the_vision3d_objects(tmp_path):
+    m = load_manifest(DEFAULT_MANIFEST)
+    ks = KeySpace(m.site)
+    docs = {ln.node.name: load_node_config(ln.config) for ln in render(m, tmp_path, local=True)}
+    published = {ks.output(mod.robot, node, mod.name, port.name): (node, mod.name)
+                 for node, cfg in docs.items() for mod in cfg.modules for port in mod.cls.outputs}
+
+    def source(mod, port):
+        key = mod.inputs[port].keyexpr(ks, mod.robot)
+        return [v for k, v in published.items() if zenoh.KeyExpr(key).intersects(zenoh.KeyExpr(k))]
+
+    detect = [mod for mod in docs["control"].modules if mod.type == "detect_objects"]
+    assert len(detect) == 2
+    for mod in detect:
+        assert source(mod, "objects") == [("vision3d", "objects")] and source(mod, "plane") == [("vision3d", "plane")]
+    # the vision chain is fed by the world's depth stream
+    assert docs["vision3d"].modules[0].inputs["depth"].keyexpr(ks, "tombatossals") == ks.robot("tombatossals", "depth")
+    # the other primitives, and the robots without a vision3d node, read no port
+    assert not [(node, mod.name) for node, cfg in docs.items() for mod in cfg.modules
+                if mod.cls.layer == "primitive" and mod.inputs and node != "vision2d" and mod not in detect]
+
+
 def test_render_local_writes_loadable_node_configs_with_a_loopback_mesh(tmp_path):
     m = load_manifest(DEFAULT_MANIFEST)
     launches = render(m, tmp_path, local=True)
@@ -104,6 +126,8 @@ def test_routers_topology_adds_router_nodes_and_clients(tmp_path):
     (("type: lowpass", "type: no_such_module"), "m.yaml:17: hosts.b.nodes.nb.modules[0].type", "unknown module type"),
     (("inputs: {in: s.signal}", "inputs: {nope: s.signal}"), "m.yaml:17: hosts.b.nodes.nb.modules[0].inputs.nope", "no input"),
     (("{cam: a}", "{cam: b}"), "m.yaml:8: hosts.a.nodes.na.sensors[0]", "high-bandwidth"),
+    (("        sensors: [cam]\n", "        sensors: [cam]\n        primitive_inputs: {detect_objects: {objects: o.objects}}\n"),
+     "m.yaml:9: hosts.a.nodes.na.primitive_inputs.detect_objects", "host no 'detect_objects'"),
     (("control: a,", "control: z,"), "m.yaml:19: robots.r.control", "not in hosts"),
     (("site: t\n", "site: t\nsecurity: {transport: ssl}\n"), "m.yaml:2: security.transport", "not one of"),
     (("address: 10.1.0.2", "address: 10.1.0.1"), "m.yaml:12: hosts.b.address", "already host"),

@@ -22,7 +22,26 @@ def test_every_robot_is_registered_and_consistent(name, tmp_path):
         assert set(hand.joints) <= joints
         for pad in hand.pads:
             assert model.existFrame(pad.link)
-    assert spec.capabilities is not None and "grasp" in spec.capabilities.primitives
+    assert spec.capabilities is not None and "release" in spec.capabilities.primitives
+
+
+def test_each_robot_has_one_home_found_by_its_package_and_typed_overrides():
+    from contactflow.abstraction.factory import Factory
+    from contactflow.nodes.params import replace_params
+    from contactflow.nodes.registry import resolve
+
+    assert registry.names() == ["baxter", "melfa", "tombatossals"]  # the packages under embodiments/robots/
+    for name in registry.names():
+        home = registry.home(name)
+        assert home.name == name and home.spec is registry.get(name)
+        assert issubclass(home.factory, Factory)
+        for type_, changes in home.overrides.items():
+            assert type_ in home.spec.capabilities.primitives, (name, type_)
+            replace_params(resolve(type_).Params(), dict(changes), where=f"{name}.{type_}.")  # fields and types
+    tomb = registry.home("tombatossals")
+    assert tomb.params("detect_objects")["wall_side"] == tomb.wall_side
+    assert tomb.params("detect_objects") is not tomb.params("detect_objects")  # copies: callers cannot edit the home
+    assert registry.home("melfa").grasp_center == (0.0, 0.0, 0.0)
 
 
 def test_tombatossals_composition_has_two_arms_hands_and_head(tmp_path):

@@ -168,3 +168,31 @@ def test_the_readme_world_and_control_nodes_work_as_written(tmp_path, monkeypatc
         for p in reversed(procs):
             stop_process(p)
         watch.close()
+
+
+def test_world_control_and_vision_in_three_processes_pick_and_place_the_object_the_vision_node_segmented(tmp_path):
+    from contactflow.embodiments.layout import (
+        CELLS,
+        PLACE_TARGET,
+        VISION_INPUTS,
+        control_node,
+        vision_node,
+        world_node,
+    )
+    from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+    from contactflow.embodiments.tasks import TASKS_DIR
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    target = list(pose6(top_grasp_pose(PLACE_TARGET)).values())
+    control = control_node("rtv", ROBOT, ROBOT, TASKS_DIR / "thesis.yaml", "pick_and_place", {"target": target},
+                           connect=(endpoint,), autostart=True, inputs=VISION_INPUTS)
+    vision = vision_node("rtv", ROBOT, connect=(endpoint,))
+    world = world_node("rtv", CELLS / "pick_place.yaml", listen=endpoint, wait_for=(control["node"],), camera_hz=2.0)
+    run = run_cell(tmp_path, world, [control], endpoint, processes=True, services=(vision,), timeout=120)
+    assert run.outcomes[ROBOT].event is Event.SUCCESS, run.events
+    (detected,) = [e for e in run.messages if e.event is Event.OBJECT_DETECTED]
+    # the objects came from the vision node, cut from a frame of the world's depth stream; no frame of its own
+    assert "vision chain, depth frame site/world/world/tombatossals/depth#" in detected.detail, detected.detail
+    assert (detected.values["cx"], detected.values["cy"]) == pytest.approx((0.55, -0.3), abs=0.025)  # the can (r 3 cm)
+    visited = {m for _, m, _ in run.events}
+    assert {"robust_grasp", "lift", "transport", "place", "release"} <= visited

@@ -125,6 +125,13 @@ def test_services_run_at_their_rate_and_outputs_are_traced():
     assert last.values[0] == pytest.approx(3 * lp_by_seq[last.hdr.inputs[0].seq].values[0])
 
 
+def test_a_module_knows_which_of_its_inputs_the_configuration_wired():
+    host, _, _ = make_host(PIPE.replace("  - {name: sc, type: scale, inputs: {in: lp.out}, params: {gain: 3}}",
+                                        "  - {name: sc, type: scale, params: {gain: 3}}"))
+    assert host.modules[("site", "lp")].io.wired("in")
+    assert not host.modules[("site", "sc")].io.wired("in") and not host.modules[("site", "lp")].io.wired("nope")
+
+
 def test_primitive_waits_for_run_then_emits_event_and_success():
     host, clock, seen = make_host(PIPE)
     t = run_for(host, clock, 0.5)

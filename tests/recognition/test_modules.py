@@ -7,7 +7,6 @@ import pytest
 from contactflow.nodes.module import Layer
 from contactflow.nodes.status import Event
 from contactflow.recognition.primitives.classify_shape import ClassifyShape
-from contactflow.recognition.primitives.detect_objects import DetectObjects
 from contactflow.recognition.primitives.recognize_object import RecognizeObject
 from contactflow.recognition.services.cloud_builder import CloudBuilder
 from contactflow.recognition.services.cluster_extractor import ClusterExtractor
@@ -17,7 +16,7 @@ from contactflow.recognition.services.roi_filter import RoiFilter
 from contactflow.recognition.services.self_filter import SelfFilter
 
 SERVICES = (CloudBuilder, PlaneDetector, RoiFilter, SelfFilter, ClusterExtractor, GraspGenerator)
-PRIMITIVES = (DetectObjects, ClassifyShape, RecognizeObject)
+PRIMITIVES = (ClassifyShape, RecognizeObject)
 
 
 @pytest.mark.parametrize("cls", SERVICES + PRIMITIVES)

@@ -7,8 +7,8 @@ import pytest
 
 from contactflow.nodes.testing import FakeIO, run_module
 from contactflow.nodes.wire import MsgId, stamp
-from contactflow.recognition.geometry import depth_to_points, look_at
-from contactflow.recognition.messages import RobotSpheres, depth_image, nd
+from contactflow.recognition.geometry import Box, depth_to_points, look_at
+from contactflow.recognition.messages import PointCloud, RobotSpheres, RoiMsg, depth_image, nd
 from contactflow.recognition.pipeline import (
     SegmentationPipeline,
     detect_plane,
@@ -138,7 +138,7 @@ def test_bad_intrinsics_are_named():
 
 def test_service_chain_carries_the_depth_frame_id(scene):
     s, depth = scene
-    frame = stamp(depth_image(depth, s.K, s.pose), "site/cam/camera/depth", 42, 0.0)
+    frame = stamp(depth_image(depth, s.K, s.pose), "site/cam/camera/depth", 42, 3.25)
     fid = MsgId(source="site/cam/camera/depth", seq=42)
 
     def run(module, feeds):
@@ -149,7 +149,7 @@ def test_service_chain_carries_the_depth_frame_id(scene):
         return io
 
     cloud = run(CloudBuilder("cloud"), [("depth", frame)]).published["cloud"][-1]
-    assert cloud.depth_frame == fid and cloud.hdr.inputs[0] == fid
+    assert cloud.depth_frame == fid and cloud.hdr.inputs[0] == fid and cloud.depth_t == 3.25
     io = run(PlaneDetector("plane"), [("cloud", cloud)])
     plane, roi = io.published["plane"][-1], io.published["roi"][-1]
     assert len(roi.vertices) == 24 and plane.normal[2] > 0.999
@@ -161,6 +161,7 @@ def test_service_chain_carries_the_depth_frame_id(scene):
     objs = run(ClusterExtractor("clusters"), [("cloud", free), ("plane", plane)]).published["objects"][-1]
     assert len(objs.objects) == 2
     assert objs.depth_frame == fid and objs.hdr.inputs[0] == fid
+    assert objs.depth_t == 3.25  # when the camera saw the scene, not when the services ran (FakeIO's clock: 0)
     assert all(len(c.points) >= 25 for c in objs.clusters())
 
 
@@ -188,6 +189,7 @@ def test_service_chain_on_a_nan_frame_publishes_empty_results():
     assert not io.published["plane"] and not io.published["roi"]
     io = FakeIO()
     io.feed("cloud", cloud)
+    io.feed("roi", RoiMsg.of(Box(np.array([0.6, 0.0, 0.15]), np.eye(3), np.array([0.4, 0.4, 0.3]))))
     run_module(RoiFilter("roi"), io, steps=1)
     assert io.published["cloud"][-1].xyz().shape == (0, 3)
     io = FakeIO()
@@ -195,6 +197,26 @@ def test_service_chain_on_a_nan_frame_publishes_empty_results():
     run_module(ClusterExtractor("clusters"), io, steps=1)
     objs = io.published["objects"][-1]
     assert objs.objects == [] and objs.depth_frame == frame.hdr.id
+
+
+def test_roi_filter_holds_the_newest_cloud_until_the_first_roi():
+    """No ROI yet is not an empty scene: nothing is published, then the newest cloud is filtered."""
+    pts = np.array([[0.5, 0.0, 0.1], [0.5, 0.0, 0.9], [0.6, 0.1, 0.1]])
+    mod = RoiFilter("roi")
+    io = FakeIO()
+    io.module = mod
+    mod.setup(io)
+    mod.start()
+    io.feed("cloud", PointCloud.of(pts[:1], MsgId(source="cam", seq=1), 1.0))
+    io.feed("cloud", PointCloud.of(pts, MsgId(source="cam", seq=2), 2.0))
+    mod.step()
+    assert not io.published["cloud"]
+    io.feed("roi", RoiMsg.of(Box(np.array([0.6, 0.0, 0.15]), np.eye(3), np.array([0.4, 0.4, 0.3]))))
+    mod.step()
+    mod.step()
+    (out,) = io.published["cloud"]
+    assert out.depth_frame.seq == 2 and out.depth_t == 2.0
+    assert np.allclose(out.xyz(), pts[[0, 2]], atol=1e-6)
 
 
 def test_culled_distances_are_exact_below_the_cutoff():

@@ -15,7 +15,6 @@ from contactflow.recognition.features import FEATURES, object_features
 from contactflow.recognition.messages import MeasuredWeight, SegmentedObjects, depth_image
 from contactflow.recognition.pipeline import SegmentationPipeline
 from contactflow.recognition.primitives.classify_shape import ClassifyShape
-from contactflow.recognition.primitives.detect_objects import DetectObjects
 from contactflow.recognition.primitives.recognize_object import RecognizeObject
 from contactflow.recognition.testing import Placed, TableScene, three_objects
 
@@ -32,31 +31,6 @@ def segmented():
 
 def _nearest_index(objs, xy):
     return int(np.argmin([np.linalg.norm(np.asarray(o.centroid[:2]) - xy) for o in objs.objects]))
-
-
-def test_detect_objects_succeeds_with_the_nearest_first(segmented):
-    s, _, objs = segmented
-    io = FakeIO()
-    io.feed("objects", objs)
-    mod = DetectObjects("detect", DetectObjects.Params(origin=(0.65, -0.15, 0.0)))
-    io.module = mod
-    mod.setup(io)
-    mod.start()
-    io.feed("objects", objs)
-    assert mod.step() == Status.SUCCESS
-    assert io.event_labels() == [Event.OBJECT_DETECTED]
-    target = io.published["target"][-1]
-    assert len(target.objects) == 3
-    assert np.linalg.norm(np.asarray(target.objects[0].centroid[:2]) - (0.65, -0.15)) < 0.03
-    assert target.hdr.inputs and target.depth_frame == objs.depth_frame
-
-
-def test_detect_objects_times_out_with_object_not_found():
-    io = FakeIO()
-    io.feed("objects", SegmentedObjects(objects=[]))
-    status = run_module(DetectObjects("detect", DetectObjects.Params(timeout=0.5)), io, steps=20)
-    assert status == Status.FAILURE
-    assert io.event_labels() == [Event.OBJECT_NOT_FOUND]
 
 
 @pytest.mark.parametrize(("xy", "expected"), [((0.55, 0.25), "cylinder"), ((0.65, -0.15), "box")])

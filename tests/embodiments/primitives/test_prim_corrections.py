@@ -265,3 +265,31 @@ def test_transport_plans_beyond_the_planning_distance_and_out_of_a_local_minimum
     # the planned path took the hand around the points (the straight line goes through them)
     assert min(clearance) > 0.005
     assert np.linalg.norm(robot.frame_pose("right_grasp")[:3, 3] - far[:3, 3]) < 0.006
+
+
+def test_the_factories_grasp_detectors_reach_wait_event_and_hold_squeezes_with_the_force_given() -> None:
+    """Tables 7.3-7.4: each robot's grasp sensing is wait_event's own typed parameters, none dropped."""
+    robot = melfa_around_plate(0.1)
+    runner = LocalPrimitiveRunner(robot)
+    assert outcome(run_primitive(runner, "close_until_force", {"grip_force": 2.5})).event is Event.SUCCESS
+    pressure = sum(float(v.sum()) for v in robot.tactile("gripper").values())
+    assert pressure > 2.5
+
+    def stable(params: dict) -> bool:
+        events, _ = drive(runner, "w", "wait_event", {"arm": "arm", "event": "grasp_stable", **params},
+                          max_time=0.6, **MELFA)
+        return any(e.event is Event.GRASP_STABLE for _, e in events)
+
+    assert stable({"sensor": "tactile", "threshold": 0.5 * pressure})
+    assert not stable({"sensor": "tactile", "threshold": 2.0 * pressure})  # the threshold is read, not dropped
+    assert not stable({"sensor": "tactile", "threshold": 0.5 * pressure, "min_contacts": 3})  # two pads only
+    # the jaws are held open by the plate: the gripper's motor effort tells the grip
+    assert stable({"sensor": "gripper_effort", "threshold": 1.0})
+    assert not stable({"sensor": "gripper_effort", "threshold": 1e4})
+    with pytest.raises(ValueError, match="sensor: 'skin' is not one of"):
+        runner.create("bad", "wait_event", {"sensor": "skin"})
+    force = 5.0
+    events, _ = drive(runner, "h", "hold", {"arm": "arm", "force": force, "duration": 0.3}, **MELFA)
+    limit = robot.spec.hand("gripper").force_limit
+    assert robot.hand("gripper").effort == pytest.approx(force / limit)
+    assert [e.event for _, e in events if e.instance == "h"][-1] is Event.SUCCESS  # still held at that squeeze

@@ -5,14 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from contactflow.embodiments import registry
 from contactflow.embodiments.primitives.base import matrix6, pose6, top_grasp_pose
 from contactflow.embodiments.primitives.detect_objects import observed_fraction, top_centred
 from contactflow.embodiments.primitives.explore import Explore, wrench_contact
-from contactflow.embodiments.primitives.profiles import GRASP_CENTER, WALL_SIDE
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import World, WorldParams, box, cylinder
 from contactflow.nodes.status import Event
+
+TOMB = registry.home("tombatossals")
 
 
 def vec(T: np.ndarray) -> list[float]:
@@ -111,7 +113,7 @@ def test_detect_objects_and_place_location(tomba) -> None:
     rnd = outcome(run_primitive(runner, "place_location", {"mode": "random", "region": [0.4, 0.1, 0.5, 0.2]}))
     hand = matrix6(tuple(rnd.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "random spot")
     offset = np.eye(4)
-    offset[:3, 3] = GRASP_CENTER["tombatossals"]
+    offset[:3, 3] = TOMB.grasp_center
     centre = hand @ offset  # the hand's grasp centre lands on the random spot
     assert 0.4 <= centre[0, 3] <= 0.5 and 0.1 <= centre[1, 3] <= 0.2
 
@@ -226,7 +228,7 @@ def test_explore_locates_an_off_centre_contact_and_approaches_over_it() -> None:
     contact = np.array([ev.values["contact_x"], ev.values["contact_y"]])
     assert np.hypot(*(contact - seen[0][:2])) < 0.01
     approach = matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")
-    centre = approach @ np.r_[GRASP_CENTER["tombatossals"], 1.0]
+    centre = approach @ np.r_[TOMB.grasp_center, 1.0]
     assert np.hypot(*(centre[:2] - contact)) < 1e-6  # the hand's grasp centre is put over the contact
     assert [ev.values["object_x"], ev.values["object_y"]] == pytest.approx(list(centre[:2]))  # no lead going down
     assert not robot.failed
@@ -235,7 +237,7 @@ def test_explore_locates_an_off_centre_contact_and_approaches_over_it() -> None:
 def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for_walls() -> None:
     robot, runner = _cylinder_scene()  # the cylinder where it was put (the shared scene's sweep may knock it over)
     walls = [0.4, -0.5, 0.58, -0.1]  # the cylinder at x 0.55 is 3 cm from the +x wall
-    side = np.array([*WALL_SIDE["tombatossals"], 0.0])
+    side = np.array([*TOMB.wall_side, 0.0])
     ev = outcome(run_primitive(runner, "detect_objects", {"standoff": 0.04, "walls": walls}, max_time=2.0))
     assert ev.event is Event.SUCCESS, ev.detail
     hand = matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")
@@ -248,7 +250,7 @@ def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for
 
 def test_a_given_spot_gets_the_grasp_centre_over_it_turned_for_a_near_wall(tomba) -> None:
     robot, runner = tomba
-    side = np.array([*WALL_SIDE["tombatossals"], 0.0])
+    side = np.array([*TOMB.wall_side, 0.0])
     params = {"mode": "at", "spot": [0.5, -0.3], "support_z": 0.75, "height": 0.1, "yaw": 0.0}
 
     def hand(extra: dict) -> np.ndarray:
@@ -257,10 +259,10 @@ def test_a_given_spot_gets_the_grasp_centre_over_it_turned_for_a_near_wall(tomba
         return matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "spot")
 
     free = hand({})
-    assert free @ np.r_[GRASP_CENTER["tombatossals"], 1.0] == pytest.approx([0.5, -0.3, 0.85, 1.0], abs=1e-6)
+    assert free @ np.r_[TOMB.grasp_center, 1.0] == pytest.approx([0.5, -0.3, 0.85, 1.0], abs=1e-6)
     assert free[:3, 0] == pytest.approx([1.0, 0.0, 0.0], abs=1e-6)  # the given yaw, far from every wall
     walled = hand({"walls": [0.3, -0.32, 0.7, 0.0]})  # 2 cm from the -y wall
-    assert walled @ np.r_[GRASP_CENTER["tombatossals"], 1.0] == pytest.approx([0.5, -0.3, 0.85, 1.0], abs=1e-6)
+    assert walled @ np.r_[TOMB.grasp_center, 1.0] == pytest.approx([0.5, -0.3, 0.85, 1.0], abs=1e-6)
     assert walled[:3, :3] @ side == pytest.approx([0.0, -1.0, 0.0], abs=1e-6)
     bad = outcome(run_primitive(runner, "place_location", {**params, "spot": [0.5]}))
     assert bad.event is Event.ERROR and "params.spot must be [x, y]" in bad.detail

@@ -217,8 +217,9 @@ def test_a_parallel_gripper_refuses_the_finger_lost_correction() -> None:
 
 
 def test_the_joint_configuration_tells_where_a_grasped_cylinder_sits_in_the_hand() -> None:
+    from contactflow.embodiments import registry
+    from contactflow.embodiments.primitives.base import hand_pose_for
     from contactflow.embodiments.primitives.hands import held_center
-    from contactflow.embodiments.primitives.profiles import GRASP_CENTER, hand_pose_for
 
     robot, runner = scene()
     above = hand_pose_for("tombatossals", top_grasp_pose((0.55, -0.3, 0.93)))
@@ -230,5 +231,5 @@ def test_the_joint_configuration_tells_where_a_grasped_cylinder_sits_in_the_hand
     assert est is not None
     # across the approach axis: this grasp holds the can with the middle pad against the palm, 9.9 cm
     # from where grasps usually put it; the estimate is 5.1 cm off, half of that
-    prior = np.linalg.norm(np.asarray(GRASP_CENTER["tombatossals"][:2]) - truth[:2])
+    prior = np.linalg.norm(np.asarray(registry.home("tombatossals").grasp_center[:2]) - truth[:2])
     assert np.linalg.norm(est[:2] - truth[:2]) < 0.6 * prior, (est, truth)

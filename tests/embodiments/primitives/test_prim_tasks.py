@@ -102,8 +102,8 @@ def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -
     # the fingers take the pregrasp at the approach start: the cylindrical one reaches 6.6 cm below the grasp
     # centre, and 5 cm above an object's top it came down on it and its neighbours (first attempts in the
     # 5-object box: 9/64 removed an object, 17/64 from 10 cm with the grasp centred on the object's top)
+    from contactflow.embodiments import registry
     from contactflow.embodiments.hand_geometry import hand_points
-    from contactflow.embodiments.primitives.profiles import GRASP_CENTER
 
     tasks, _ = load()
     standoff = tasks["empty_box_vision"].nodes["detect"].params["standoff"]
@@ -111,7 +111,7 @@ def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -
     robot = SimRobot(World(WorldParams()), "tombatossals")
     robot.hand(robot.spec.arm("right").hand).preshape(pregrasp)
     robot.step(1.5)
-    reach = hand_points(robot, "right")[:, 2].max() - GRASP_CENTER["tombatossals"][2]  # the hand's z points down
+    reach = hand_points(robot, "right")[:, 2].max() - registry.home("tombatossals").grasp_center[2]  # the hand's z points down
     assert reach > 0.005, "the pregrasp's fingertips were not measured below the grasp centre"
     assert reach + 0.02 < standoff  # at least 2 cm of room between the fingertips and the object's top
 

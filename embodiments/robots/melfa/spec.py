@@ -31,10 +31,14 @@ SPEC = RobotSpec(
     hands=(panda_gripper("gripper", ""),),
     fts=(FTSpec(name="wrist_ft", link="panda_hand"),),
     capabilities=Capabilities(
-        primitives=("move_arm", "grasp", "transport", "place", "push", "guarded_move", "explore_tactile"),
+        primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "detect_objects",
+                              "place_location", "close_until_force", "robust_grasp"}),
         workspace_min=(0.2, -0.5, 0.75),
         workspace_max=(0.75, 0.5, 1.3),
         payload=3.0,
+        max_opening=0.08,
+        wrench_noise=0.05,
+        speed=0.25,
         grasp_corrections=("alignment", "sliding", "force_adaptation"),  # parallel gripper: no finger to lose
     ),
     computers=(Computer("control", "arm, gripper, F/T, tactile", ("joint_state_publisher", "joint_command_subscriber", "ft", "tactile")),),

@@ -11,6 +11,7 @@ from contactflow.embodiments.registry import (
     Capabilities,
     Computer,
     FTSpec,
+    HandKind,
     HandSpec,
     RobotSpec,
 )
@@ -27,7 +28,7 @@ def _gripper(side: str) -> HandSpec:
     s = side[0]
     return HandSpec(
         name=f"{side}_gripper",
-        kind="parallel",
+        kind=HandKind.PARALLEL,
         joints=(f"{s}_gripper_l_finger_joint",),
         mimic=((f"{s}_gripper_r_finger_joint", f"{s}_gripper_l_finger_joint", -1.0),),
         preshapes={"open": (0.020833,), "closed": (0.0,)},
@@ -55,10 +56,15 @@ SPEC = RobotSpec(
     head_joints=("head_pan",),
     head_home=(0.0,),
     capabilities=Capabilities(
-        primitives=("move_arm", "grasp", "transport", "place", "push", "guarded_move", "bimanual_transport"),
+        primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "detect_objects", "place_location",
+                              "close_until_force", "close_until_stall", "naive_grasp", "place", "slide", "push", "pull",
+                              "touch", "explore"}),
         workspace_min=(0.4, -0.9, 0.75),
         workspace_max=(1.1, 0.9, 1.4),
         payload=2.2,
+        max_opening=0.055,
+        wrench_noise=2.0,  # the wrist wrench is estimated from joint efforts: noisy
+        speed=0.2,
         grasp_corrections=("alignment", "sliding", "force_adaptation"),  # parallel grippers: no finger to lose
     ),
     computers=(Computer("baxter_pc", "arm controller, virtual F/T", ("joint_state_publisher", "joint_command_subscriber", "ft")),
