@@ -224,7 +224,8 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
           max_time: Annotated[float | None, typer.Option(min=1.0, help="simulated s per run before the supervisor stops it (empty-box)")] = None,
           max_attempts: Annotated[int | None, typer.Option(min=1, help="grasp attempts per run (empty-box)")] = None,
           strategy: Annotated[list[str] | None, typer.Option(help="only this strategy, repeatable (empty-box; default all)")] = None,
-          first_seed: Annotated[int | None, typer.Option(help="seed of the first run, the next runs count up (empty-box; default 100)")] = None) -> None:
+          first_seed: Annotated[int | None, typer.Option(help="seed of the first run, the next runs count up (empty-box; default 100)")] = None,
+          executor: Annotated[str | None, typer.Option(help="local (primitives in this process), runtime (world and control nodes over zenoh) or both side by side (grasp, empty-box)")] = None) -> None:
     """Run a benchmark: prints a table and writes JSON (and plots) under OUT."""
     path = BENCHMARKS.get(name)
     if path is None:
@@ -236,7 +237,7 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
         console.print(f"[red]benchmark {name!r} is not available: {exc}[/]")
         raise typer.Exit(1) from None
     given = {"jobs": jobs if jobs != 1 else None, "runs": runs, "max_time": max_time, "max_attempts": max_attempts,
-             "strategy": strategy or None, "first_seed": first_seed}
+             "strategy": strategy or None, "first_seed": first_seed, "executor": executor}
     extra = {k: v for k, v in given.items() if v is not None}
     accepted = inspect.signature(mod.run).parameters
     for key in extra:

@@ -1,4 +1,11 @@
-"""Benchmark of thesis Table 3.6: empty a box of 5 objects with the random, exploration and vision approach strategies."""
+"""Benchmark of thesis Table 3.6: empty a box of 5 objects with the random, exploration and vision approach strategies.
+
+Two executors run the same seeded runs: ``local`` steps the task engine and the primitives in
+this process against the simulated robot; ``runtime`` runs them as the deployed system does,
+a world node (the cell: table, box, objects) and tombatossals' control node (task module and
+primitive modules over zenoh) in lockstep, with the supervisor reading the world's ground
+truth on ``eval/`` and the task's progress on the key space; ``both`` runs each seed on both.
+"""
 
 from __future__ import annotations
 
@@ -287,7 +294,104 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
     left = in_box(robot, names)
     end = emptied if left == 0 and emptied is not None else robot.time
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts, "time": end - t0,
-            "left": left, "success": left == 0, "result": str(res)}
+            "left": left, "success": left == 0, "result": str(res), "executor": "local"}
+
+
+def _in_box_poses(names: list[str], msg) -> int:
+    """:func:`in_box` from one ground-truth message of the world (``eval/<cell>/object_poses``)."""
+    cx, cy = BOX_CENTER
+    poses = msg.poses.numpy()
+    n = 0
+    for name in names:
+        p = poses[msg.names.index(name)][:3, 3]
+        if abs(p[0] - cx) < INNER[0] / 2 + WALL and abs(p[1] - cy) < INNER[1] / 2 + WALL and p[2] < BOTTOM + 0.12:
+            n += 1
+    return n
+
+
+def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
+    """One run on the runtime (world and control node in this worker process, a zenoh session each).
+
+    The supervisor is the bench: it counts grasp attempts from the task's progress stream and
+    watches the box from the world's ground truth, both stamped with simulated time, and stops
+    the nodes once the box was empty for 8 s (the running place finishes), the attempts or the
+    simulated time ran out, or the task ended. Attempts and time count up to the first empty
+    ground-truth sample, so the wall-clock moment of the stop does not change the result.
+    """
+    import tempfile
+    import threading
+
+    import yaml
+
+    from contactflow.embodiments.layout import SiteWatch, control_node, world_node
+    from contactflow.embodiments.scene_file import object_entry
+    from contactflow.embodiments.tasks import TASKS_DIR
+    from contactflow.nodes.config import load_node_config
+    from contactflow.nodes.keys import KeySpace
+    from contactflow.nodes.node import Node
+    from contactflow.nodes.procs import free_port, write_config
+    from contactflow.nodes.task_module import TaskProgressMsg
+    from contactflow.nodes.wire import decode
+
+    objs = contents(np.random.default_rng(seed), n_objects)
+    names = [o.name for o in objs]
+    entered: list[tuple[float, TaskProgressMsg]] = []
+    lock = threading.Lock()
+
+    def on_progress(key: str, payload: bytes) -> None:
+        msg = decode(payload, TaskProgressMsg, key)
+        if msg.kind == str(ProgressKind.ENTERED) and msg.node == "grasp" and msg.path and msg.path[-1].startswith("attempt"):
+            with lock:
+                entered.append((msg.hdr.t_sim, msg))
+
+    with tempfile.TemporaryDirectory(prefix="empty-box-") as d:
+        folder = pathlib.Path(d)
+        cell = folder / "cell.yaml"
+        cell.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": ROBOT}],
+                                        "objects": [object_entry(o) for o in (container(), *objs)]}))
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        site = f"box{free_port()}"
+        control = control_node(site, ROBOT, ROBOT, TASKS_DIR / "thesis.yaml", f"empty_box_{strategy}",
+                               task_params(strategy, seed), connect=(endpoint,), autostart=True)
+        world = world_node(site, cell, listen=endpoint, wait_for=(control["node"],), seed=seed, ground_truth_hz=4.0)
+        nodes = []
+        watch = None
+        try:
+            for k, cfg in enumerate((world, control)):
+                node = Node(load_node_config(write_config(folder / f"{cfg['node']}.yaml", cfg)))
+                node.start()
+                nodes.append(node)
+                if k == 0:
+                    watch = SiteWatch(site, endpoint)
+                    sub = watch.t.subscribe(KeySpace(site).output(ROBOT, control["node"], "task", "progress"), on_progress)
+            emptied: float | None = None
+            why = ""
+            while not why:
+                time.sleep(0.2)
+                poses = watch.object_poses()
+                if emptied is None:
+                    emptied = next((m.hdr.t_sim for m in poses if _in_box_poses(names, m) == 0), None)
+                now = poses[-1].hdr.t_sim if poses else 0.0
+                with lock:
+                    attempts = sum(t <= min(emptied if emptied is not None else np.inf, max_time) for t, _ in entered)
+                if watch.outcome(f"{control['node']}/task") is not None:
+                    why = "the task ended"
+                elif emptied is not None and now - emptied > 8.0:
+                    why = "supervisor: the box is empty"
+                elif attempts > max_attempts:
+                    why = "supervisor: attempt limit"
+                elif now >= max_time:
+                    why = f"supervisor: {max_time:g} s of simulated time"
+            left = _in_box_poses(names, poses[-1]) if emptied is None else 0
+        finally:
+            for node in nodes:  # the world first: it would hold the robot of a control node stopped before it
+                node.stop()
+            if watch is not None:
+                sub.close()
+                watch.close()
+    end = emptied if emptied is not None else min(now, max_time)
+    return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": min(attempts, max_attempts + 1),
+            "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime"}
 
 
 def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, names) -> tuple[str, object, float | None]:
@@ -326,17 +430,27 @@ def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, 
     return (f"{res.event}:{res.label or res.detail}" if res else "none"), engine, empty_since
 
 
+EXECUTORS = ("local", "runtime", "both")
+
+
+def _run_once(executor: str, strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
+    return (run_once if executor == "local" else run_once_runtime)(strategy, seed, n_objects, max_attempts, max_time)
+
+
 def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, jobs: int = 1,
         max_time: float | None = None, max_attempts: int | None = None, strategy: list[str] | None = None,
-        first_seed: int = 100) -> dict:
+        first_seed: int = 100, executor: str = "local") -> dict:
     """Each of ``strategy`` (default: all) ``runs`` times (seeds ``first_seed``, +1, ...) on ``jobs`` processes;
-    caps per run in simulated s and attempts."""
+    caps per run in simulated s and attempts; ``executor``: local, runtime or both (each seed on both)."""
     from rich.console import Console
     from rich.progress import Progress as Bar
     from rich.table import Table
 
     from contactflow.nodes.params import ParamError
 
+    if executor not in EXECUTORS:
+        raise ParamError(f"bench empty-box: --executor {executor!r} is not one of {list(EXECUTORS)}")
+    executors = ("local", "runtime") if executor == "both" else (executor,)
     chosen = tuple(strategy) if strategy else STRATEGIES
     for s in chosen:
         if s not in STRATEGIES:
@@ -348,7 +462,8 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     max_attempts = max_attempts if max_attempts is not None else (2 if quick else MAX_ATTEMPTS)
     max_time = max_time if max_time is not None else (30.0 if quick else MAX_TIME)
     t_start = time.perf_counter()
-    plan = [(s, first_seed + k, n_objects, max_attempts, max_time) for s in chosen for k in range(n_runs)]
+    plan = [(ex, s, first_seed + k, n_objects, max_attempts, max_time)
+            for ex in executors for s in chosen for k in range(n_runs)]
     partial = out_dir / "empty_box_runs.jsonl"  # one line per finished run, for long benchmarks
     partial.write_text("")
     with Bar(transient=True) as bar:
@@ -357,36 +472,38 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
         def done(_: int, r: dict) -> None:
             with partial.open("a") as f:
                 f.write(json.dumps(r) + "\n")
-            bar.update(job, advance=1, description=f"{r['strategy']} seed {r['seed']}: {r['left']} left")
+            bar.update(job, advance=1, description=f"{r['executor']}: {r['strategy']} seed {r['seed']}: {r['left']} left")
 
-        results = run_all(run_once, plan, jobs, done, fresh=True)
+        results = run_all(_run_once, plan, jobs, done, fresh=True)
     rows = []
-    for s in chosen:
-        rs = [r for r in results if r["strategy"] == s]
-        rows.append({"method": s, "attempts": float(np.mean([r["attempts"] for r in rs])),
-                     "time": float(np.mean([r["time"] for r in rs])),
-                     "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs),
-                     "attempts_max": int(max(r["attempts"] for r in rs)), "time_max": float(max(r["time"] for r in rs))})
+    for ex in executors:
+        for s in chosen:
+            rs = [r for r in results if r["strategy"] == s and r["executor"] == ex]
+            rows.append({"method": s, "executor": ex, "attempts": float(np.mean([r["attempts"] for r in rs])),
+                         "time": float(np.mean([r["time"] for r in rs])),
+                         "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs),
+                         "attempts_max": int(max(r["attempts"] for r in rs)),
+                         "time_max": float(max(r["time"] for r in rs))})
     summary = {"benchmark": "empty_box", "robot": ROBOT, "objects": n_objects, "runs_per_strategy": n_runs, "first_seed": first_seed,
-               "quick": quick, "max_time": max_time, "max_attempts": max_attempts, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
+               "quick": quick, "executors": list(executors), "max_time": max_time, "max_attempts": max_attempts, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
                "runs": results}
     (out_dir / "empty_box.json").write_text(json.dumps(summary, indent=1))
-    md = ["| method | attempts | time (sim s) | task success | most attempts | longest (sim s) | thesis attempts | thesis time"
-          " | thesis success |", "|---|---|---|---|---|---|---|---|---|"]
+    md = ["| method | executor | attempts | time (sim s) | task success | most attempts | longest (sim s) | thesis attempts"
+          " | thesis time | thesis success |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         t = THESIS[r["method"]]
-        md.append(f"| {r['method']} | {r['attempts']:.1f} | {r['time']:.1f} | {100 * r['success']:.0f}% | "
+        md.append(f"| {r['method']} | {r['executor']} | {r['attempts']:.1f} | {r['time']:.1f} | {100 * r['success']:.0f}% | "
                   f"{r['attempts_max']} | {r['time_max']:.0f} | {t['attempts']} | {t['time']} s | {100 * t['success']:.0f}% |")
     caps = f"a run ends after {max_time:g} s of simulated time or {max_attempts} grasp attempt{'s' if max_attempts != 1 else ''}"
     md.append(f"\n{n_objects} objects, {n_runs} runs per strategy (seeds {first_seed}-{first_seed + n_runs - 1}); {caps}"
               " (the thesis had no limit).")
     (out_dir / "empty_box.md").write_text("\n".join(md) + "\n")
     table = Table(title=f"Empty a box (Table 3.6), {n_objects} objects x {n_runs} runs", caption=caps)
-    for col in ("method", "attempts", "time (s)", "success", "most attempts", "longest (s)", "thesis"):
+    for col in ("method", "executor", "attempts", "time (s)", "success", "most attempts", "longest (s)", "thesis"):
         table.add_column(col)
     for r in rows:
         t = THESIS[r["method"]]
-        table.add_row(r["method"], f"{r['attempts']:.1f}", f"{r['time']:.1f}", f"{100 * r['success']:.0f}%",
+        table.add_row(r["method"], r["executor"], f"{r['attempts']:.1f}", f"{r['time']:.1f}", f"{100 * r['success']:.0f}%",
                       str(r["attempts_max"]), f"{r['time_max']:.0f}",
                       f"{t['attempts']} / {t['time']} s / {100 * t['success']:.0f}%")
     Console().print(table)
@@ -403,11 +520,13 @@ def _plot(rows: list[dict], path: pathlib.Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(9, 3))
     x = np.arange(len(rows))
     names = [r["method"] for r in rows]
+    several = len({r["executor"] for r in rows}) > 1
+    ticks = [f"{r['method']}\n{r['executor']}" if several else r["method"] for r in rows]
     for ax, key, label in zip(axes, ("attempts", "time", "success"), ("attempts", "time (s)", "success"), strict=True):
         scale = 100.0 if key == "success" else 1.0
         ax.bar(x - 0.2, [scale * r[key] for r in rows], 0.4, label="simulation")
         ax.bar(x + 0.2, [scale * THESIS[n][key] for n in names], 0.4, label="thesis")
-        ax.set_xticks(x, names)
+        ax.set_xticks(x, ticks)
         ax.set_title(label + (" (%)" if key == "success" else ""))
     axes[0].legend()
     fig.tight_layout()

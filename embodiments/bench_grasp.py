@@ -1,4 +1,10 @@
-"""Benchmark of thesis Table 3.3: naive vs robust grasp, with and without approach-vector error, judged from ground truth."""
+"""Benchmark of thesis Table 3.3: naive vs robust grasp, with and without approach-vector error, judged from ground truth.
+
+Two executors run the same trials: ``local`` steps the primitives in this process against the
+simulated robot; ``runtime`` runs each trial as the deployed system does, a world node (the
+cell) and a control node whose task module runs the primitive modules over zenoh in lockstep
+(``embodiments/tasks/grasp_trial.yaml``); ``both`` puts the two tables side by side.
+"""
 
 from __future__ import annotations
 
@@ -25,6 +31,7 @@ from contactflow.embodiments.world import (
     cylinder,
     sphere,
 )
+from contactflow.nodes.params import ParamError
 
 ROBOT = "tombatossals"
 ARM = "right"
@@ -135,21 +142,111 @@ def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int,
             "grasp_values": {k: float(x) for k, x in grasp.values.items()}, "sim_time": robot.time - t0}
 
 
+def _pose_at(poses: list, name: str, t: float) -> np.ndarray | None:
+    """The object's ground-truth pose last published at or before simulated ``t``."""
+    best = None
+    for m in poses:
+        if m.hdr.t_sim <= t + 1e-9 and name in m.names:
+            best = m.poses.numpy()[m.names.index(name)]
+    return best
+
+
+def judge_poses(poses: list, name: str, t_lift: float, t_end: float) -> tuple[bool, str]:
+    """:func:`judge` from the world's ground-truth stream: lifted when the lift ended, still there and
+    not moving during the 1 s hold that follows it (the arm holds still, so moving means in the hand)."""
+    start = next((m.poses.numpy()[m.names.index(name)] for m in poses if name in m.names), None)
+    lifted, held = _pose_at(poses, name, t_lift), _pose_at(poses, name, t_end)
+    if start is None or lifted is None or held is None:
+        return False, "no ground truth"
+    z0 = float(start[2, 3])
+    if lifted[2, 3] - z0 < 0.06:
+        return False, "not lifted"
+    if held[2, 3] - z0 < 0.06:
+        return False, "dropped during the hold"
+    moved = float(np.linalg.norm(held[:3, 3] - lifted[:3, 3]))
+    turned = float(np.linalg.norm(Rotation.from_matrix(lifted[:3, :3].T @ held[:3, :3]).as_rotvec()))
+    if moved > 0.01 or turned > np.deg2rad(10):
+        return False, f"moves in the hand ({moved * 100:.1f} cm, {np.rad2deg(turned):.0f} deg)"
+    return True, "stable"
+
+
+def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int) -> dict:
+    """One trial on the runtime: a world node (the cell with ``spec``) and tombatossals' control node in lockstep,
+    in this process (a zenoh session each); the same perturbed approach as :func:`run_trial` for ``seed``."""
+    import tempfile
+
+    import yaml
+
+    from contactflow.embodiments.layout import control_node, run_cell, world_node
+    from contactflow.embodiments.scene_file import object_entry
+    from contactflow.embodiments.tasks import TASKS_DIR
+    from contactflow.nodes.procs import free_port
+
+    rng = np.random.default_rng(seed)
+    goal = perturb(approach, rng) if t.error else approach
+    v = pose6(goal)
+    with tempfile.TemporaryDirectory(prefix="grasp-trial-") as d:
+        folder = pathlib.Path(d)
+        cell = folder / "cell.yaml"
+        cell.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": ROBOT}], "objects": [object_entry(spec)]}))
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        site = f"grasp{free_port()}"
+        control = control_node(site, ROBOT, ROBOT, TASKS_DIR / "grasp_trial.yaml", t.controller,
+                               {"arm": ARM, "approach": [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
+                               connect=(endpoint,), autostart=True)
+        world = world_node(site, cell, listen=endpoint, wait_for=(control["node"],), seed=seed, ground_truth_hz=50.0)
+        run = run_cell(folder, world, [control], endpoint, timeout=600.0)
+    final = {e.module.rsplit("/", 1)[-1]: e for e in run.messages if e.event in ("success", "failure", "error", "timeout")
+             and e.module.rsplit("/", 1)[-1] in ("move_to", "robust_grasp", "naive_grasp", "lift")}
+    end = run.outcomes[ROBOT]
+    lift = final.get("lift")
+    ok, why = judge_poses(run.poses, spec.name, lift.hdr.t_sim if lift is not None else end.hdr.t_sim, end.hdr.t_sim)
+    grasp = final.get(f"{t.controller}_grasp")
+    return {"object": t.obj, "controller": t.controller, "error": t.error, "trial": t.trial, "success": ok,
+            "why": why, "move": str(final["move_to"].event) if "move_to" in final else "",
+            "grasp": str(grasp.event) if grasp is not None else "", "lift": str(lift.event) if lift is not None else "",
+            "grasp_values": dict(grasp.values) if grasp is not None else {}, "sim_time": run.sim_s, "wall_time": run.wall_s}
+
+
 @functools.cache
 def _approach(name: str) -> np.ndarray:
     return vision_approach(next(s for s in objects() if s.name == name))
 
 
+def _seed(t: Trial) -> int:
+    # same seed for naive and robust: both face the same perturbed approach vector
+    return 1000 * t.trial + zlib.crc32(t.obj.encode()) % 997
+
+
 def _trial(t: Trial, grasp_params: dict[str, object] | None = None) -> dict:
     """One planned trial in this process (the approach of each object is computed once per process)."""
     spec = next(s for s in objects() if s.name == t.obj)
-    # same seed for naive and robust: both face the same perturbed approach vector
-    return run_trial(spec, _approach(t.obj), t, seed=1000 * t.trial + zlib.crc32(t.obj.encode()) % 997,
-                     grasp_params=grasp_params)
+    return run_trial(spec, _approach(t.obj), t, seed=_seed(t), grasp_params=grasp_params)
+
+
+def _runtime_trial(t: Trial) -> dict:
+    """One planned trial on the runtime (world and control node in this worker process)."""
+    spec = next(s for s in objects() if s.name == t.obj)
+    return run_trial_runtime(spec, _approach(t.obj), t, seed=_seed(t))
+
+
+EXECUTORS = ("local", "runtime", "both")
+
+
+def rows_of(results: list[dict]) -> list[dict]:
+    """Table 3.3's rows: stable grasps per controller, without and with approach error."""
+    rows = []
+    for c in ("naive", "robust"):
+        for e in (False, True):
+            rs = [r for r in results if r["controller"] == c and r["error"] == e]
+            ok = sum(r["success"] for r in rs)
+            rows.append({"controller": c + (" + error" if e else ""), "stable": ok, "failures": len(rs) - ok,
+                         "success_rate": ok / len(rs) if rs else 0.0})
+    return rows
 
 
 def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n_objects: int | None = None,
-        jobs: int = 1) -> dict:
+        jobs: int = 1, executor: str = "local") -> dict:
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
@@ -161,30 +258,35 @@ def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n
     specs = specs[: n_objects if n_objects is not None else (1 if quick else len(specs))]
     if quick:
         specs = [s for s in objects() if s.name == "cylinder"]
+    if executor not in EXECUTORS:
+        raise ParamError(f"bench grasp: --executor {executor!r} is not one of {list(EXECUTORS)}")
+    executors = ("local", "runtime") if executor == "both" else (executor,)
     plan = [Trial(s.name, c, e, k) for s in specs for e in (False, True) for c in ("naive", "robust") for k in range(n_trials)]
     t_start = time.perf_counter()
+    by_executor: dict[str, list[dict]] = {}
+    walls: dict[str, float] = {}
     with Progress(transient=True) as progress:
-        task = progress.add_task("grasp trials", total=len(plan))
+        for ex in executors:
+            task = progress.add_task(f"grasp trials ({ex})", total=len(plan))
 
-        def done(_: int, r: dict) -> None:
-            progress.update(task, advance=1,
-                            description=f"{r['object']} {r['controller']}{' + error' if r['error'] else ''}")
+            def done(_: int, r: dict, task=task) -> None:
+                progress.update(task, advance=1,
+                                description=f"{r['object']} {r['controller']}{' + error' if r['error'] else ''}")
 
-        results = run_all(_trial, [(t,) for t in plan], jobs, done)
-    rows = []
-    for c in ("naive", "robust"):
-        for e in (False, True):
-            rs = [r for r in results if r["controller"] == c and r["error"] == e]
-            ok = sum(r["success"] for r in rs)
-            rows.append({"controller": c + (" + error" if e else ""), "stable": ok, "failures": len(rs) - ok,
-                         "success_rate": ok / len(rs) if rs else 0.0})
+            t0 = time.perf_counter()
+            by_executor[ex] = run_all(_trial if ex == "local" else _runtime_trial, [(t,) for t in plan], jobs, done)
+            walls[ex] = time.perf_counter() - t0
+    results = by_executor[executors[-1]]
+    rows = rows_of(results)
     per_object = {s.name: {f"{c}{'+error' if e else ''}": sum(r["success"] for r in results
                                                                if r["object"] == s.name and r["controller"] == c and r["error"] == e)
                            for c in ("naive", "robust") for e in (False, True)} for s in specs}
     summary = {"benchmark": "grasp", "robot": ROBOT, "objects": [s.name for s in specs], "trials_per_condition": n_trials,
                "quick": quick, "rows": rows, "per_object": per_object, "wall_time": time.perf_counter() - t_start,
                "thesis": {"naive": 0.88, "robust": 0.99, "naive + error": 0.19, "robust + error": 0.59},
-               "trials": results}
+               "executor": executors[-1], "trials": results,
+               "executors": {ex: {"rows": rows_of(rs), "wall_time": walls[ex], "trials": rs}
+                             for ex, rs in by_executor.items()}}
     (out_dir / "grasp.json").write_text(json.dumps(summary, indent=1))
     md = ["| controller | stable grasps | failures | success | thesis |", "|---|---|---|---|---|"]
     for r in rows:
@@ -192,11 +294,20 @@ def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n
                   f"{100 * summary['thesis'][r['controller']]:.0f}% |")
     (out_dir / "grasp.md").write_text("\n".join(md) + "\n")
     table = Table(title=f"Grasp benchmark (Table 3.3), {len(specs)} objects x {n_trials} trials")
-    for col in ("controller", "stable", "failures", "success", "thesis"):
-        table.add_column(col)
-    for r in rows:
-        table.add_row(r["controller"], str(r["stable"]), str(r["failures"]), f"{100 * r['success_rate']:.0f}%",
-                      f"{100 * summary['thesis'][r['controller']]:.0f}%")
+    table.add_column("controller")
+    for ex in executors:
+        table.add_column(f"stable ({ex})" if len(executors) > 1 else "stable")
+        table.add_column(f"success ({ex})" if len(executors) > 1 else "success")
+    table.add_column("thesis")
+    per = {ex: rows_of(rs) for ex, rs in by_executor.items()}
+    for i, r in enumerate(rows):
+        cells = []
+        for ex in executors:
+            x = per[ex][i]
+            cells += [f"{x['stable']}/{x['stable'] + x['failures']}", f"{100 * x['success_rate']:.0f}%"]
+        table.add_row(r["controller"], *cells, f"{100 * summary['thesis'][r['controller']]:.0f}%")
+    if len(executors) > 1:
+        table.caption = " | ".join(f"{ex}: {walls[ex]:.0f} s wall" for ex in executors)
     Console().print(table)
     _plot(rows, summary["thesis"], out_dir / "grasp.png")
     return summary

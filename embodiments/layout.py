@@ -21,6 +21,7 @@ from typing import Any
 
 import yaml
 
+from contactflow.embodiments.messages import ObjectPoses
 from contactflow.nodes.messages import Clock, EventMsg
 from contactflow.nodes.status import Event
 from contactflow.nodes.taskgraph import NodeKind, TaskGraph
@@ -70,8 +71,13 @@ def primitive_modules(robot: str, embodiment: str = "", types: list[str] | None 
 
 
 def _plain(v: Any) -> Any:
+    """Plain YAML values: tuples and numpy arrays become lists, numpy scalars numbers."""
+    if hasattr(v, "tolist"):
+        v = v.tolist()
     if isinstance(v, tuple | list):
         return [_plain(x) for x in v]
+    if isinstance(v, Mapping):
+        return {k: _plain(x) for k, x in v.items()}
     return v
 
 
@@ -114,7 +120,7 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
             m["inputs"] = dict(inputs[m["type"]])
     modules.append({"name": "task", "type": "task", "robot": robot, "autostart": autostart,
                     "params": {"task_file": str(task_file), "task": name, "robot": robot,
-                               "plan": yaml.safe_dump(dict(plan or {}), default_flow_style=True).strip(),
+                               "plan": yaml.safe_dump(_plain(dict(plan or {})), default_flow_style=True).strip(),
                                "pool": pool}})
     return {"site": site, "node": node or f"control_{robot}", "clock": clock, "zenoh": zenoh(listen, connect),
             "modules": modules}
@@ -155,11 +161,18 @@ class SiteWatch:
         self.ks = KeySpace(site)
         self.t = ZenohTransport(ZenohSettings(connect=(endpoint,))).open()
         self.events: list[EventMsg] = []
+        self.poses: list[ObjectPoses] = []  # the worlds' ground truth (eval/), as it came
         self.first_tick: tuple[float, float] | None = None  # (sim s, wall s) of tick 1
         self.last_tick: tuple[float, float] | None = None
         self._lock = threading.Lock()
         self._subs = [self.t.subscribe(self.ks.events(), self._on_event),
-                      self.t.subscribe(self.ks.clock(), self._on_clock)]
+                      self.t.subscribe(self.ks.clock(), self._on_clock),
+                      self.t.subscribe(self.ks.evaluation("*", "object_poses"), self._on_poses)]
+
+    def _on_poses(self, key: str, payload: bytes) -> None:
+        msg = decode(payload, ObjectPoses, key)
+        with self._lock:
+            self.poses.append(msg)
 
     def _on_event(self, key: str, payload: bytes) -> None:
         with self._lock:
@@ -177,6 +190,11 @@ class SiteWatch:
         """The final event of the module whose address ends with ``module``, if it came."""
         with self._lock:
             return next((e for e in self.events if e.module.endswith(module) and e.event in self.FINAL), None)
+
+    def object_poses(self) -> list[ObjectPoses]:
+        """Every ground-truth message so far."""
+        with self._lock:
+            return list(self.poses)
 
     def messages(self) -> list[EventMsg]:
         """Every event so far, as it came."""
@@ -203,6 +221,7 @@ class CellRun:
     sim_s: float  # simulated s from tick 1 to the last outcome
     wall_s: float  # wall s over the same span
     messages: list[EventMsg]  # every event as it came, with its detail and values
+    poses: list[ObjectPoses]  # the world's ground truth object poses (eval/), as they came
 
     @property
     def rtf(self) -> float:
@@ -247,9 +266,10 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         t0_sim, t0_wall = watch.first_tick
         if keep is not None and not processes:
             keep(started[0].host.modules[("site", "world")].module)
-        return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, watch.messages())
+        return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, watch.messages(),
+                       watch.object_poses())
     finally:
-        for s in reversed(started):
+        for s in started:  # the world first: it would hold robots whose control nodes stopped before it
             if processes:
                 stop_process(s)
             else:

@@ -10,6 +10,11 @@ Example::
       - {name: cyl, kind: cylinder, radius: 0.03, length: 0.12, xyz: [0.55, -0.3, 0.81], mass: 0.2, friction: 0.8}
       - {name: cube, kind: box, size: [0.05, 0.05, 0.05], xyz: [0.5, 0.1, 0.775]}
       - {name: ball, kind: sphere, radius: 0.03, xyz: [0.6, 0.2, 0.78]}
+      - name: spray                                  # several shapes, each placed in the object frame
+        xyz: [0.4, 0.0, 0.751]
+        shapes:
+          - {kind: cylinder, radius: 0.025, length: 0.16, xyz: [0.0, 0.0, 0.08]}
+          - {kind: box, size: [0.03, 0.02, 0.03], xyz: [0.01, 0.0, 0.175]}
 
 Poses are ``[x, y, z, roll, pitch, yaw]`` (m, rad, world). Errors name the file, line and field.
 """
@@ -23,7 +28,8 @@ from contactflow.nodes.yamldoc import YamlDoc
 
 _TOP = {"scene", "robots", "objects"}
 _ROBOT = {"name", "embodiment", "base"}
-_OBJECT = {"name", "kind", "size", "radius", "length", "xyz", "rpy", "mass", "friction", "static"}
+_OBJECT = {"name", "kind", "size", "radius", "length", "shapes", "xyz", "rpy", "mass", "friction", "static"}
+_SHAPE = {"kind", "size", "radius", "length", "xyz", "rpy"}
 _SHAPE_FIELDS = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",)}
 
 
@@ -60,7 +66,7 @@ def parse_scene(doc: YamlDoc) -> SceneFile:
     """Validate a scene document; nothing is built (no SAPIEN here)."""
     from contactflow.embodiments import registry
     from contactflow.embodiments.scenes import SCENES
-    from contactflow.embodiments.world import ObjectSpec, ShapeSpec
+    from contactflow.embodiments.world import ObjectSpec
 
     doc.mapping((), _TOP)
     scene = doc.get(("scene",), str, "")
@@ -85,19 +91,17 @@ def parse_scene(doc: YamlDoc) -> SceneFile:
         p = ("objects", i)
         fields = doc.mapping(p, _OBJECT)
         name = doc.get(p + ("name",), str)
-        kind = doc.get(p + ("kind",), str)
-        if kind not in _SHAPE_FIELDS:
-            raise doc.error(p + ("kind",), f"{kind!r} is not one of {sorted(_SHAPE_FIELDS)}")
-        for f in sorted({"size", "radius", "length"} - set(_SHAPE_FIELDS[kind]) & set(fields)):
-            raise doc.error(p + (f,), f"a {kind} has no {f!r} (it takes {list(_SHAPE_FIELDS[kind])})")
-        if kind == "box":
-            size = _floats(doc, p + ("size",), 3)
-            if min(size) <= 0:
-                raise doc.error(p + ("size",), f"sizes must be positive, got {list(size)}")
-        elif kind == "cylinder":
-            size = (_number(doc, p + ("radius",)), _number(doc, p + ("length",)))
+        if "shapes" in fields:
+            for f in sorted({"kind", "size", "radius", "length"} & set(fields)):
+                raise doc.error(p + (f,), f"an object with shapes gives {f!r} per shape")
+            shapes = tuple(_shape(doc, p + ("shapes", k), placed=True)
+                           for k, _ in enumerate(doc.get(p + ("shapes",), list)))
+            if not shapes:
+                raise doc.error(p + ("shapes",), "an object needs at least one shape")
+            kind = "object"
         else:
-            size = (_number(doc, p + ("radius",)),)
+            shapes = (_shape(doc, p, placed=False),)
+            kind = shapes[0].kind
         xyz = _floats(doc, p + ("xyz",), 3)
         rpy = _floats(doc, p + ("rpy",), 3) if doc.get(p + ("rpy",), list, None) is not None else (0.0, 0.0, 0.0)
         mass = _number(doc, p + ("mass",), 0.2)
@@ -105,8 +109,58 @@ def parse_scene(doc: YamlDoc) -> SceneFile:
         static = doc.get(p + ("static",), bool, False)
         if any(o.name == name for o in objects):
             raise doc.error(p + ("name",), f"object {name!r} is defined twice")
-        objects.append(ObjectSpec(name, (ShapeSpec(kind, size),), mass, friction, xyz, rpy, static, kind))
+        objects.append(ObjectSpec(name, shapes, mass, friction, xyz, rpy, static, kind))
     return SceneFile(scene, tuple(robots), tuple(objects), doc.file)
+
+
+def _shape(doc: YamlDoc, p: tuple, placed: bool):
+    """One shape at ``p``: its kind and extents; ``placed`` shapes also take a pose in the object frame."""
+    from contactflow.embodiments.world import ShapeSpec
+
+    fields = doc.mapping(p, _SHAPE) if placed else set(doc.get(p, dict))
+    kind = doc.get(p + ("kind",), str)
+    if kind not in _SHAPE_FIELDS:
+        raise doc.error(p + ("kind",), f"{kind!r} is not one of {sorted(_SHAPE_FIELDS)}")
+    for f in sorted({"size", "radius", "length"} - set(_SHAPE_FIELDS[kind]) & set(fields)):
+        raise doc.error(p + (f,), f"a {kind} has no {f!r} (it takes {list(_SHAPE_FIELDS[kind])})")
+    if kind == "box":
+        size = _floats(doc, p + ("size",), 3)
+        if min(size) <= 0:
+            raise doc.error(p + ("size",), f"sizes must be positive, got {list(size)}")
+    elif kind == "cylinder":
+        size = (_number(doc, p + ("radius",)), _number(doc, p + ("length",)))
+    else:
+        size = (_number(doc, p + ("radius",)),)
+    if not placed:
+        return ShapeSpec(kind, size)
+    at = _floats(doc, p + ("xyz",), 3) if "xyz" in fields else (0.0, 0.0, 0.0)
+    rpy = _floats(doc, p + ("rpy",), 3) if "rpy" in fields else (0.0, 0.0, 0.0)
+    return ShapeSpec(kind, size, at, rpy)
+
+
+def object_entry(spec) -> dict:
+    """A scene file's entry for ``spec`` (an ObjectSpec), the inverse of what :func:`parse_scene` reads."""
+    def floats(v) -> list[float]:
+        return [float(c) for c in v]
+
+    def extents(s) -> dict:
+        if s.kind == "box":
+            return {"kind": "box", "size": floats(s.size)}
+        if s.kind == "cylinder":
+            return {"kind": "cylinder", "radius": float(s.size[0]), "length": float(s.size[1])}
+        if s.kind == "sphere":
+            return {"kind": "sphere", "radius": float(s.size[0])}
+        raise ValueError(f"object {spec.name!r}: a scene file has no {s.kind!r} shapes")
+
+    out: dict = {"name": spec.name}
+    if len(spec.shapes) == 1 and spec.shapes[0].xyz == (0.0, 0.0, 0.0) and spec.shapes[0].rpy == (0.0, 0.0, 0.0):
+        out.update(extents(spec.shapes[0]))
+    else:
+        out["shapes"] = [{**extents(s), "xyz": floats(s.xyz), "rpy": floats(s.rpy)} for s in spec.shapes]
+    out.update(xyz=floats(spec.xyz), rpy=floats(spec.rpy), mass=float(spec.mass), friction=float(spec.friction))
+    if spec.static:
+        out["static"] = True
+    return out
 
 
 def load_scene(path: str | Path) -> SceneFile:

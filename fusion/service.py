@@ -14,10 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.fusion.condensation import CondensationParams, Method, condense
+from contactflow.fusion.condensation import CondensationParams, Method
 from contactflow.fusion.events import ContactTracker, TrackerParams
 from contactflow.fusion.hypotheses import VOXEL_SIZE
 from contactflow.fusion.integrator import Integrator, IntegratorParams
+from contactflow.fusion.loop import FusionLoop
 from contactflow.fusion.messages import (
     ContactEventMsg,
     ContactInfo,
@@ -98,24 +99,27 @@ class ContactFusion(Module):
         self.reset()
 
     def reset(self) -> None:
-        self.integrator = Integrator(self.params.integrator())
-        self.tracker = ContactTracker(self.params.tracker())
+        p = self.params
+        self.loop = FusionLoop(p.integrator(), p.condensation(), p.tracker(), drop_after=p.drop_after)
         self.rejected = 0
 
+    @property
+    def integrator(self) -> Integrator:
+        return self.loop.integrator
+
+    @property
+    def tracker(self) -> ContactTracker:
+        return self.loop.tracker
+
     def on_params(self, old) -> None:  # type: ignore[no-untyped-def]
-        self.params.validate()
-        if (old.voxel_size, old.timeout, old.wait_timeout, old.source_timeout) != (
-                self.params.voxel_size, self.params.timeout, self.params.wait_timeout, self.params.source_timeout):
-            sources = self.integrator.sources
-            self.integrator = Integrator(self.params.integrator())
-            for s in sources.values():
-                self.integrator.plug(s.name, s.robot, s.link, s.last_rx)
-        self.tracker.params = self.params.tracker()
+        p = self.params
+        p.validate()
+        self.loop.drop_after = p.drop_after
+        self.loop.retune(p.integrator(), p.condensation(), p.tracker())
 
     def step(self) -> Status:
         assert self.io is not None
         now = self.io.now
-        integ = self.integrator
         for msg in self.io.take("hypotheses"):
             assert isinstance(msg, HypothesisCloud)
             try:
@@ -124,21 +128,16 @@ class ContactFusion(Module):
                 self.rejected += 1
                 self.io.log(f"rejected cloud: {exc}")
                 continue
-            integ.offer(msg.source, cloud, now, robot=msg.robot, link=msg.link)
-        for s in list(integ.sources.values()):
-            if s.pending is None and s.last_rx < now - self.params.drop_after:
-                integ.unplug(s.name)
-        fused = integ.cycle(now)
-        if fused is None:
-            if integ.active(now) or not self.tracker.tracks:
-                return Status.RUNNING
-            fused = integ.integrate(now)  # nobody talks: let hypotheses expire, contacts break
-        contacts = condense(fused, self.params.condensation())
+            self.loop.offer(msg.source, cloud, now, robot=msg.robot, link=msg.link)
+        cycle = self.loop.step(now)
+        if cycle is None:
+            return Status.RUNNING
+        fused, contacts = cycle.fused, cycle.contacts
         if self.params.publish_hypotheses:
             self.io.publish("hypotheses", FusedCloud.of(fused))
         self.io.publish("contacts", ContactList(
             stamp=now, contacts=[ContactInfo.of(c, fused.columns) for c in contacts]))
-        for e in self.tracker.update(contacts, now):
+        for e in cycle.events:
             self.io.publish("events", ContactEventMsg.of(e))
             x, y, z = (float(v) for v in np.asarray(e.location))
             self.io.emit(e.event, f"{e.robot}/{e.link}" if e.link else e.robot,

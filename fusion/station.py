@@ -1,8 +1,8 @@
 """A robot station's own contact fusion: its tactile and wrist F/T cues fused into contact events.
 
 Runs beside the simulated robot at a fixed rate (thesis: fusion cycles at ~6-30 Hz): each
-hand's pads and each arm's wrist sensor are sources of one integrator; condensation and the
-event tracker turn the fused cloud into ``contact_made``/``contact_broken`` events that the
+hand's pads and each arm's wrist sensor are sources of the one fusion loop (``fusion/loop.py``, as in the
+fusion service): its contact events (``contact_made``/``contact_broken``) are what the
 station publishes on ``contacts/fused/<robot>/events``. Every cycle each source's hypothesis
 cloud (empty when it feels nothing) also goes out on ``contacts/<robot>/<generator>``
 (generators ``tactile_<arm>``, ``force_torque_<arm>``), so ``contactflow echo`` and other
@@ -16,11 +16,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contactflow.fusion.condensation import CondensationParams, condense
-from contactflow.fusion.events import ContactEvent, ContactTracker, TrackerParams
+from contactflow.fusion.condensation import CondensationParams
+from contactflow.fusion.events import ContactEvent, TrackerParams
 from contactflow.fusion.generators.tactile import tactile_hypotheses
 from contactflow.fusion.hypotheses import Hypotheses
-from contactflow.fusion.integrator import Integrator, IntegratorParams
+from contactflow.fusion.integrator import IntegratorParams
+from contactflow.fusion.loop import FusionLoop
 from contactflow.fusion.messages import HypothesisCloud
 from contactflow.fusion.sim_sources import hand_capsules, taxel_readings, wrist_hypotheses
 from contactflow.nodes.keys import KeySpace
@@ -87,9 +88,8 @@ class StationFusion:
             # 4 sigma above the sensor noise: an estimated wrench (Baxter) is far noisier
             floor = max(self.params.min_force, 4.0 * ft.force_noise) if ft is not None else self.params.min_force
             self.cues.append(_Cue(arm.name, arm.name, hand.name, ft_link, prefixes, floor))
-        self.integrator = Integrator(IntegratorParams(timeout=0.3, wait_timeout=0.05, source_timeout=0.5))
-        self.tracker = ContactTracker(TrackerParams(hold=self.params.hold))
-        self.condensation = CondensationParams()
+        self.loop = FusionLoop(IntegratorParams(timeout=0.3, wait_timeout=0.05, source_timeout=0.5),
+                               CondensationParams(), TrackerParams(hold=self.params.hold))
         self._next = 0.0
 
     def __call__(self, robot: object) -> None:
@@ -102,25 +102,22 @@ class StationFusion:
             cloud = Hypotheses.empty(now)
             if pressure.size and float(pressure.max()) > 0:
                 cloud = tactile_hypotheses(pressure, taxels, now, normals)
-                self._offer(f"tactile_{cue.name}", cloud, now, cue.hand)
-            self._send(f"tactile_{cue.name}", cloud, cue.hand)
+            self._offer(f"tactile_{cue.name}", cloud, now, cue.hand)
             if cue.ft_link:
                 force = np.linalg.norm(robot.ft(cue.arm).in_sensor_frame()[0])
                 cloud = Hypotheses.empty(now)
                 if force >= cue.min_force:
                     caps = hand_capsules(robot, cue.links)
                     cloud, _ = wrist_hypotheses(robot, cue.arm, cue.ft_link, caps, now)
-                    self._offer(f"force_torque_{cue.name}", cloud, now, cue.hand)
-                self._send(f"force_torque_{cue.name}", cloud, cue.hand)
-        fused = self.integrator.integrate(now)
-        for ev in self.tracker.update(condense(fused, self.condensation), now):
+                self._offer(f"force_torque_{cue.name}", cloud, now, cue.hand)
+        cycle = self.loop.step(now)  # every source offered this cycle: Algorithm 4.1's wait-all is met
+        for ev in cycle.events if cycle is not None else ():
             self.events.append(ev)
             self.publish(ev)
 
     def _offer(self, generator: str, cloud: Hypotheses, now: float, link: str) -> None:
-        self.integrator.offer(f"{self.name}/{generator}", cloud, now, self.name, link)
-
-    def _send(self, generator: str, cloud: Hypotheses, link: str) -> None:
+        """Every source offers each cycle (empty when it feels nothing), and its cloud goes out on its key."""
+        self.loop.offer(f"{self.name}/{generator}", cloud, now, self.name, link)
         if self.publish_cloud is not None:
             self.publish_cloud(self.keyspace.hypotheses(self.name, generator),
                                HypothesisCloud.of(cloud, self.name, generator, link))

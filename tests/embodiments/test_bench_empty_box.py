@@ -33,6 +33,17 @@ def test_bench_empty_box_quick(tmp_path) -> None:
     assert "| most attempts | longest (sim s) |" in (tmp_path / "empty_box.md").read_text()
 
 
+def test_the_vision_strategy_empties_the_box_on_the_runtime_as_in_process(tmp_path) -> None:
+    """The same seeded run as a world node and a control node over zenoh: the supervisor reads eval/ and progress."""
+    summary = bench_empty_box.run(tmp_path, quick=True, strategy=["vision"], executor="both")
+    local, runtime = sorted(summary["runs"], key=lambda r: r["executor"])
+    assert (local["executor"], runtime["executor"]) == ("local", "runtime")
+    assert runtime["success"] and runtime["left"] == 0 and runtime["attempts"] == local["attempts"] == 1, runtime
+    assert runtime["result"] == "supervisor: the box is empty"
+    assert abs(runtime["time"] - local["time"]) < 2.0  # the same task and physics, sampled at 4 Hz on eval/
+    assert [(r["method"], r["executor"]) for r in summary["rows"]] == [("vision", "local"), ("vision", "runtime")]
+
+
 def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:
     fp = bench_empty_box.hand_footprint()  # the closed hand, measured on its collision shapes
     assert 0.02 < fp[5] < 0.05  # the curled fingers reach below the controlled frame

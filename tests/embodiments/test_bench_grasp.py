@@ -9,12 +9,28 @@ import numpy as np
 from contactflow.embodiments import bench_grasp
 
 
-def test_bench_grasp_quick(tmp_path) -> None:
-    summary = bench_grasp.run(tmp_path, quick=True)
+def test_bench_grasp_quick_runs_the_same_trials_in_process_and_on_the_runtime(tmp_path) -> None:
+    summary = bench_grasp.run(tmp_path, quick=True, executor="both")
     assert {r["controller"] for r in summary["rows"]} == {"naive", "robust", "naive + error", "robust + error"}
     assert len(summary["trials"]) == 4
     assert json.loads((tmp_path / "grasp.json").read_text())["benchmark"] == "grasp"
     assert (tmp_path / "grasp.png").stat().st_size > 0 and (tmp_path / "grasp.md").exists()
+    local, runtime = (summary["executors"][ex]["trials"] for ex in ("local", "runtime"))
+    # on the runtime every step ran as a primitive module over the key space, and was judged from eval/
+    assert all(r["move"] and r["grasp"] and r["lift"] for r in runtime), runtime
+    assert all(r["why"] != "no ground truth" for r in runtime)
+    # the cylinder without approach error is grasped by both controllers on both paths
+    for rs in (local, runtime):
+        assert [r["success"] for r in rs if not r["error"]] == [True, True], rs
+
+
+def test_bench_grasp_refuses_an_unknown_executor(tmp_path) -> None:
+    import pytest
+
+    from contactflow.nodes.params import ParamError
+
+    with pytest.raises(ParamError, match="--executor 'sim' is not one of"):
+        bench_grasp.run(tmp_path, quick=True, executor="sim")
 
 
 def test_approach_error_is_uniform_up_to_5_cm_and_15_deg_per_axis_with_either_sign() -> None:

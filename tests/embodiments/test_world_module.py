@@ -48,10 +48,26 @@ objects:
     ("robots: [{name: melfa, base: [0, 0]}]\n", r"scene.yaml:1: robots\[0\].base: expected 6 numbers"),
     ("robots: [{name: melfa}, {name: melfa}]\n", r"scene.yaml:1: robots\[1\].name: robot 'melfa' is placed twice"),
     ("scene: moon\nrobots: [{name: melfa}]\n", r"scene.yaml:1: scene: 'moon' is not one of"),
+    ("robots: [{name: melfa}]\nobjects:\n  - name: c\n    xyz: [0, 0, 1]\n    shapes:\n"
+     "      - {kind: box, size: [1, 1, 1], xyz: [0, 0]}\n", r"scene.yaml:6: objects\[0\].shapes\[0\].xyz: expected 3"),
+    ("robots: [{name: melfa}]\nobjects:\n  - {name: c, kind: box, size: [1, 1, 1], xyz: [0, 0, 1], shapes: []}\n",
+     r"scene.yaml:3: objects\[0\].kind: an object with shapes gives 'kind' per shape"),
 ])
 def test_a_bad_scene_file_names_the_line_and_field(text, where):
     with pytest.raises(ConfigError, match=where):
         parse_scene(YamlDoc.parse(text, "scene.yaml"))
+
+
+def test_objects_of_several_shapes_round_trip_through_a_scene_file():
+    from contactflow.embodiments.bench_grasp import objects
+    from contactflow.embodiments.scene_file import object_entry
+
+    specs = objects()
+    doc = yaml.safe_dump({"scene": "table", "robots": [{"name": "tombatossals"}],
+                          "objects": [object_entry(s) for s in specs]})
+    parsed = parse_scene(YamlDoc.parse(doc, "bench.yaml")).objects
+    assert [(o.name, o.shapes, o.mass, o.xyz) for o in parsed] == [(s.name, s.shapes, s.mass, s.xyz) for s in specs]
+    assert sum(len(o.shapes) > 1 for o in parsed) == 4  # car, spray, stapler, weight
 
 
 class Client:
