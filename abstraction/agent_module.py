@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from contactflow.abstraction.agent import RobotAgent
+from contactflow.abstraction.atd import DETECT
 from contactflow.abstraction.profiles import PROFILES
 from contactflow.embodiments.messages import DepthImage, ObjectPoses
 from contactflow.nodes.keys import ANY, KeySpace
@@ -34,14 +35,20 @@ class _Job:
 
 @dataclass
 class _Running:
-    """The task under way in the module's step: its engine and run, the runner fed with events."""
+    """The task under way in the module's step: its engine and run, the runner fed with events.
+
+    Objects the ATD asks to detect are found first (``detect``: parameter -> its detect_objects
+    instance, or "" before it started); the engine launches once every one is bound.
+    """
 
     job: _Job
     engine: Any  # TaskEngine
-    run_id: str
     inner: Any  # ControlRunner
     monitor: Any  # StationFusion, or None without fusion
     t0: float  # s on the node's clock when it started
+    params: dict  # the run's bound parameters (world frame)
+    detect: dict[str, str] = field(default_factory=dict)
+    run_id: str = ""
 
 
 class RobotAgentModule(Module):
@@ -205,11 +212,47 @@ class RobotAgentModule(Module):
         tr = job.translation
         engine = TaskEngine(robot_runner(inner, robot, p.robot, robot.hand_points), lambda: io.now,
                             on_progress=lambda pr: job.report(tr.abstract(pr)))
-        run_id = engine.launch(tr.estd, bound_params(tr, job.params))
-        return _Running(job, engine, run_id, inner, self._contact_monitor(robot) if p.fusion else None, io.now)
+        params = bound_params(tr, job.params)
+        detect = {k: "" for k, v in tr.estd.params.items() if v == DETECT and k not in params}
+        r = _Running(job, engine, inner, self._contact_monitor(robot) if p.fusion else None, io.now, params, detect)
+        if not detect:
+            r.run_id = engine.launch(tr.estd, params)
+        return r
+
+    def _detect(self, r: _Running) -> None:
+        """Find the next object the ATD asks to detect with the node's detect_objects; launch when all are bound.
+
+        Its location is the seen points' centre across and half their height below their top
+        (the camera sees an object's top and one side).
+        """
+        key = next(iter(r.detect))
+        if not r.detect[key]:
+            r.detect[key] = f"detect_{key}"
+            r.inner.start(r.detect[key], "detect_objects", {})
+        instance = r.detect[key]
+        for e in r.inner.poll():
+            if e.instance != instance or e.event not in (Event.SUCCESS, Event.FAILURE, Event.ERROR):
+                continue
+            r.inner.stop(e.instance)
+            if e.event is not Event.SUCCESS:
+                self.io.log(f"task not started: {key} was not detected: {e.detail}")
+                r.job.outcome = Event.FAILURE
+                self._run = None
+                r.job.done.set()
+                return
+            v = e.values
+            r.params[key] = [float(v["cx"]), float(v["cy"]), float(v["top"]) - 0.5 * float(v["size_z"])]
+            self.io.log(f"{key} detected at {[round(c, 3) for c in r.params[key]]} ({e.detail})")
+            del r.detect[key]
+            break  # its first outcome carries the values; the module's status event that follows is the same outcome
+        if not r.detect:
+            r.run_id = r.engine.launch(r.job.translation.estd, r.params)
 
     def _advance(self, r: _Running) -> None:
         r.inner.feed([m for m in self.io.take("events") if isinstance(m, EventMsg)])
+        if r.detect:
+            self._detect(r)
+            return
         r.engine.tick()
         if r.monitor is not None:
             r.monitor(r.monitor.robot)
@@ -246,7 +289,8 @@ class RobotAgentModule(Module):
     def stop(self) -> None:
         if self._run is not None:
             r, self._run = self._run, None
-            r.engine.cancel(r.run_id, "agent stopped")
+            if r.run_id:
+                r.engine.cancel(r.run_id, "agent stopped")
             r.job.outcome = Event.ERROR
             r.job.done.set()
         if self._agent is not None:

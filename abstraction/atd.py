@@ -8,6 +8,7 @@ size) and environment obstacles. XML layout::
     <statemachine name="grasp_and_lift" start="approach">
       <object name="cup"><location>0.2 0.6 0.1</location><mass>0.3</mass>
         <approach>0 0 -1</approach><size>0.06 0.06 0.12</size></object>
+      <object name="ball"><location>detect</location></object>   <!-- the robot finds it -->
       <environment><obstacle name="box"><position>..</position><size>..</size></obstacle>
       </environment>
       <state name="approach" type="move"><movement>free</movement>
@@ -61,7 +62,11 @@ class AtdError(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class AtdObject:
-    """A target object: location (m), mass (kg), approach direction (unit) and size (m)."""
+    """A target object: location (m), mass (kg), approach direction (unit) and size (m).
+
+    A location is given, left to the dispatch (``None``), or found by the robot's vision when
+    the task starts (``detect``, written ``<location>detect</location>``).
+    """
 
     name: str
     location: Vec3 | None = None
@@ -69,6 +74,11 @@ class AtdObject:
     approach: Vec3 | None = None
     size: Vec3 | None = None
     where: Where = field(default_factory=Where)
+    detect: bool = False  # the robot detects the object's location when the task starts
+
+
+DETECT = "detect"
+"""The location of an object the robot detects: the ATD's word, and the ESTD parameter's value until bound."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -260,9 +270,10 @@ def _object(name: str, props: Mapping[str, Any], where: Where) -> AtdObject:
     for key in props:
         if key not in allowed:
             raise ValueError(f"object property <{key}> is unknown (accepted: {', '.join(sorted(allowed))})")
+    detect = isinstance(props.get("location"), str) and props["location"].strip() == DETECT
     return AtdObject(
-        name=name, where=where,
-        location=_vec3(props["location"], "location") if "location" in props else None,
+        name=name, where=where, detect=detect,
+        location=_vec3(props["location"], "location") if "location" in props and not detect else None,
         mass=_positive(props["mass"], "mass") if "mass" in props else None,
         approach=_unit(props["approach"], "approach") if "approach" in props else None,
         size=_vec3(props["size"], "size") if "size" in props else None,

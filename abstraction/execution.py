@@ -8,6 +8,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from contactflow.abstraction.atd import DETECT
 from contactflow.abstraction.concrete import ConcreteRunner, HandGeometry
 from contactflow.abstraction.frames import TaskFrame, params_to_world
 from contactflow.abstraction.translator import AbstractProgress, Translation
@@ -71,10 +72,15 @@ class EngineExecutor:
 
     def __call__(self, translation: Translation, report: Callable[[AbstractProgress], None],
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
+        bound = bound_params(translation, params)
+        detect = sorted(k for k, v in translation.estd.params.items() if v == DETECT and k not in bound)
+        if detect:
+            raise ValueError(f"{', '.join(detect)}: the ATD asks to detect it, which the runtime executor's vision "
+                             "does (this executor runs a world of its own)")
         clock = SimTime()
         runner, advance = self.make(clock)
         engine = TaskEngine(runner, clock, on_progress=lambda p: report(translation.abstract(p)))
-        run = engine.launch(translation.estd, bound_params(translation, params))
+        run = engine.launch(translation.estd, bound)
         wall0 = time.monotonic()
         while not engine.done(run):
             if cancel.is_set():

@@ -18,7 +18,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from contactflow.abstraction.atd import Atd, AtdEvent, AtdObject, AtdState
+from contactflow.abstraction.atd import DETECT, Atd, AtdEvent, AtdObject, AtdState
 from contactflow.abstraction.concrete import LINE_SPEED, LINE_TURN, Goal
 from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.primitives import AbstractPrimitive, Movement
@@ -162,7 +162,12 @@ class Factory:
         obj = atd.objects.get(name) if name else atd.object_of(state)
         oname = obj.name if obj is not None else (name or state.object or DEFAULT_OBJECT)
         loc, app = _param_name(oname, "location"), _param_name(oname, "approach")
-        if obj is not None and obj.location is not None:
+        if obj is not None and obj.detect:
+            if not self.robot.has(Sensor.CAMERA) or "detect_objects" not in self.robot.capabilities:
+                raise MappingRefused(f"object {oname!r} is to be detected and {self.robot.name} cannot find it "
+                                     "(that needs a camera and the detect_objects primitive)")
+            self._params_used[loc] = DETECT
+        elif obj is not None and obj.location is not None:
             self._params_used[loc] = list(obj.location)
         else:
             self._params_used.setdefault(loc, REQUIRED)

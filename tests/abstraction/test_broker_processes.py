@@ -4,6 +4,7 @@ The agents run the real simulation executor (each station simulates its world); 
 broker picks first is paced at real time so that it is still mid-task when its process is killed.
 """
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -150,6 +151,57 @@ def test_on_the_runtime_a_killed_control_node_leaves_its_robot_held_and_the_task
                                     for e in held), timeout=10), held
     finally:
         sub.close()
+        tool.close()
+        for p in procs.values():
+            stop_process(p)
+
+
+def test_an_object_the_atd_asks_to_detect_is_found_by_the_vision_node_and_picked(tmp_path):
+    """World, vision3d and control (agent + primitive modules) in three processes: the agent binds the
+    object's location from detect_objects, which reads the vision node's clusters, then runs the task."""
+    from contactflow.embodiments.layout import (
+        VISION_INPUTS,
+        primitive_modules,
+        vision_node,
+        world_node,
+    )
+    from contactflow.embodiments.scene_file import load_scene
+
+    site, robot = "detectrt", "tombatossals"
+    ks = KeySpace(site)
+    hub = free_port()
+    connect = (f"tcp/127.0.0.1:{hub}",)
+    modules = primitive_modules(robot)
+    for m in modules:
+        m.update({"inputs": dict(VISION_INPUTS[m["type"]])} if m["type"] in VISION_INPUTS else {})
+    configs = {
+        "broker": {"site": site, "node": "broker_node", "zenoh": {"mode": "peer", "listen": [connect[0]]},
+                   "modules": [{"name": "broker", "type": "broker"}]},
+        "world": world_node(site, "pick_place", connect=connect, wait_for=("control",), camera_hz=2.0),
+        "vision": vision_node(site, robot, connect=connect),
+        "control": {"site": site, "node": "control", "clock": "lockstep", "zenoh": {"mode": "peer", "connect": list(connect)},
+                    "modules": [{"name": "agent", "type": "robot_agent", "robot": robot, "params": {"robot": robot}},
+                                *modules]},
+    }
+    procs = {name: spawn_node(write_config(tmp_path / f"{name}.yaml", cfg), tmp_path / f"{name}.log")
+             for name, cfg in configs.items()}
+    tool = ZenohTransport(ZenohSettings(connect=connect)).open()
+    try:
+        assert wait_for(lambda: len(tool.alive(ks.alive_robot(), timeout=0.5)) == 1, timeout=60), \
+            "\n".join(p.read_text()[-1500:] for p in tmp_path.glob("*.log"))
+        follow = dispatch(tool, ks, (EXAMPLES / "pick_detected.xml").read_text(), "pick_detected.xml", target=robot)
+        assert follow.reply.ok, follow.reply
+        assert follow.done.wait(180), [(m.robot, m.kind, m.state, m.detail) for m in follow.progress]
+        assert follow.outcome == "success", [(m.kind, m.state, m.event, m.detail) for m in follow.progress]
+        close(follow)
+        log = " ".join((tmp_path / "control.log").read_text().split())  # the console wraps long lines
+        found = re.search(r"can_location detected at \[([^\]]+)\] \(1 objects \(([a-z ]+),", log)
+        assert found is not None, log[-3000:]
+        assert found.group(2) == "vision chain"  # the vision node's clusters, not a camera frame of its own
+        xyz = [float(c) for c in found.group(1).split(",")]
+        can = next(o for o in load_scene("pick_place").objects if o.name == "cyl")
+        assert sum((a - b) ** 2 for a, b in zip(xyz, can.xyz, strict=True)) ** 0.5 < 0.03, (xyz, can.xyz)
+    finally:
         tool.close()
         for p in procs.values():
             stop_process(p)

@@ -300,3 +300,23 @@ def test_a_received_estd_with_a_bad_primitive_param_is_refused_naming_node_and_f
     bad = msg.task.replace("threshold: 2.5", "threshold: lots", 1)
     with pytest.raises(EstdError, match=r"helper 'grasp_stable': wait_event\.params\.threshold"):
         received(type(msg)(**{**{f: getattr(msg, f) for f in msg.__struct_fields__}, "task": bad}), MELFA, "run")
+
+
+def test_an_object_to_detect_is_a_parameter_its_robot_binds_and_only_a_robot_with_vision_takes_it():
+    from contactflow.abstraction.atd import DETECT
+    from contactflow.abstraction.execution import EngineExecutor
+
+    atd = load_atd(path("pick_detected.xml"))
+    assert atd.objects["can"].detect and atd.objects["can"].location is None
+    yaml_form = parse_atd("statemachine:\n  name: p\n  objects:\n    can: {location: detect}\n  states:\n"
+                          "    - {name: g, type: grasp}\n    - {name: ok, type: success}\n  transitions:\n"
+                          "    - {origin: g, destination: ok, events: [success]}\n", "p.yaml")
+    assert yaml_form.objects["can"].detect
+    tr = translate(atd, factory_for(TOMBATOSSALS))
+    assert tr.estd.params["can_location"] == DETECT
+    for robot in (MELFA, BAXTER):  # no camera: the broker does not send it there
+        with pytest.raises(TranslationError, match=f"object 'can' is to be detected and {robot.name} cannot find it"):
+            translate(atd, factory_for(robot))
+    # an executor without the runtime's vision refuses it rather than run towards a word
+    with pytest.raises(ValueError, match="can_location: the ATD asks to detect it"):
+        EngineExecutor(lambda clock: (None, None))(tr, lambda p: None, None)
