@@ -179,12 +179,25 @@ def _pending(sent: int, applied: int, status: str) -> Status:
     return Status.RUNNING if sent > applied else Status(status)
 
 
+def _limits(robot: RemoteRobot, joints: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) position limits of ``joints`` from the robot's model."""
+    kin = robot.kin
+    idx = kin.q_index(tuple(joints))
+    return (np.asarray(kin.model.lowerPositionLimit)[idx].copy(), np.asarray(kin.model.upperPositionLimit)[idx].copy())
+
+
 class RemoteArm:
-    """An arm of a :class:`RemoteRobot` (the :class:`~contactflow.embodiments.primitives.base.ArmLike` of a primitive)."""
+    """An arm of a :class:`RemoteRobot` (the :class:`~contactflow.embodiments.primitives.base.ArmLike` of a primitive).
+
+    Joint targets are clipped to the joint limits, as the simulated robot's controllers do: a
+    primitive holding the measured joints of an arm resting at a limit (encoders read past it)
+    must hold it, not have the world refuse the command and keep the arm moving.
+    """
 
     def __init__(self, robot: RemoteRobot, spec: Any) -> None:
         self.robot, self.spec = robot, spec
         self.name, self.joints, self.home = spec.name, spec.joints, spec.home
+        self.lower, self.upper = _limits(robot, spec.joints)
         self._sent = 0
         self._stop_sent = 0
 
@@ -239,10 +252,10 @@ class RemoteArm:
         q = np.asarray(q, dtype=np.float64)
         if q.shape != (len(self.joints),):
             raise ValueError(f"arm {self.name}: move_joints needs {len(self.joints)} values, got shape {q.shape}")
-        self._send(ArmCommandKind.JOINTS, q, speed=float(speed or 0.0))
+        self._send(ArmCommandKind.JOINTS, np.clip(q, self.lower, self.upper), speed=float(speed or 0.0))
 
     def execute_waypoints(self, waypoints: np.ndarray, speed: float | None = None, abort_force: float = 8.0) -> None:
-        w = np.atleast_2d(np.asarray(waypoints, dtype=np.float64))
+        w = np.clip(np.atleast_2d(np.asarray(waypoints, dtype=np.float64)), self.lower, self.upper)
         self._send(ArmCommandKind.WAYPOINTS, w, speed=float(speed or 0.0),
                    abort_force=0.0 if not np.isfinite(abort_force) else float(abort_force))
 
@@ -281,11 +294,12 @@ class RemoteArm:
 
 
 class RemoteHand:
-    """A hand of a :class:`RemoteRobot`."""
+    """A hand of a :class:`RemoteRobot`; finger targets are clipped to the joint limits, as the simulated hand does."""
 
     def __init__(self, robot: RemoteRobot, spec: Any) -> None:
         self.robot, self.spec = robot, spec
         self.name, self.kind, self.joints = spec.name, spec.kind, spec.joints
+        self.lower, self.upper = _limits(robot, spec.joints)
         self.preshapes = tuple(spec.preshapes)
         self._sent = 0
 
@@ -319,7 +333,7 @@ class RemoteHand:
             raise ValueError(f"hand {self.name}: effort must be in (0, 1], got {effort}")
         self._sent += 1
         self.robot.link.send(HandCommand(robot=self.robot.name, hand=self.name, seq=self._sent,
-                                         values=NDArray.of(q), effort=float(effort)))
+                                         values=NDArray.of(np.clip(q, self.lower, self.upper)), effort=float(effort)))
 
     def preshape(self, name: str, effort: float = 1.0) -> None:
         if name not in self.spec.preshapes:
@@ -340,10 +354,7 @@ class RemoteHead:
 
     def __init__(self, robot: RemoteRobot, joints: tuple[str, ...]) -> None:
         self.robot, self.joints = robot, tuple(joints)
-        kin = robot.kin
-        idx = kin.q_index(self.joints)
-        self.lower = np.asarray(kin.model.lowerPositionLimit)[idx].copy()
-        self.upper = np.asarray(kin.model.upperPositionLimit)[idx].copy()
+        self.lower, self.upper = _limits(robot, self.joints)
 
     def q(self) -> np.ndarray:
         return self.robot._q()[self.robot._index(self.joints)].copy()

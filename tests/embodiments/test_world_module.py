@@ -251,3 +251,23 @@ def test_a_realtime_world_follows_the_wall_clock_and_counts_late_commands(tmp_pa
     finally:
         c.close()
         node.stop()
+
+
+def test_a_remote_robot_clips_joint_targets_to_the_limits_as_the_simulated_robot_does(world):
+    """A target just past a limit (holding the measured joints of an arm resting there: encoders read past
+    it) goes to the limit, as on the simulated robot; the world never refuses what the facade sends."""
+    from contactflow.embodiments.remote import connect
+
+    wm, c = world
+    r = connect(c.t, c.ks, "melfa", "tester")
+    arm, hand = r.arm("arm"), r.hand("gripper")
+    hand.set_fingers(hand.upper + 1e-3)
+    past = np.asarray(wm.robots["melfa"].sim.arm("arm").q_cmd, dtype=np.float64).copy()
+    past[5] = arm.upper[5] + 1e-3
+    arm.move_joints(past)
+    assert wait_for(lambda: c.state.arms[0].applied >= 1 and c.state.hands[0].applied >= 1, 10)
+    assert c.state.refused == 0
+    assert wait_for(lambda: abs(c.state.arms[0].q_cmd.numpy()[5] - arm.upper[5]) < 1e-4, 30), c.state.arms[0]
+    # what the facade clips is still refused from a client that sends it raw (the world's own check)
+    c.send(arm_cmd(ArmCommandKind.JOINTS, past, seq=9))
+    assert wait_for(lambda: c.state.refused == 1, 10)
