@@ -24,7 +24,7 @@ from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.primitives import AbstractPrimitive, Movement
 from contactflow.abstraction.profiles import RobotProfile, Sensor
 from contactflow.embodiments.registry import HandKind
-from contactflow.nodes.params import ParamError, replace_params
+from contactflow.nodes.params import ParamError, params_dict, replace_params
 from contactflow.nodes.registry import UnknownModuleType, resolve
 from contactflow.nodes.status import Event
 from contactflow.nodes.taskgraph import ANY_SOURCE, REQUIRED, Helper, Trigger
@@ -56,8 +56,6 @@ def params_class(type_: str) -> type:
 
 def changed(params: Any, keep: Sequence[str] = ()) -> dict[str, Any]:
     """The fields of ``params`` that differ from its class defaults, and those in ``keep``, as plain values."""
-    from contactflow.nodes.params import params_dict
-
     default = params_dict(type(params)())
     return {k: v for k, v in params_dict(params).items() if v != default[k] or k in keep}
 
