@@ -283,7 +283,7 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
 
     def count(p: Progress) -> None:
         nonlocal attempts
-        if p.kind is ProgressKind.ENTERED and p.node in ("grasp",) and p.path and p.path[-1].startswith("attempt"):
+        if _attempt(p):
             attempts += 1
             if attempts > max_attempts or in_box(robot, names) == 0:
                 stop["now"] = True
@@ -319,79 +319,42 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
     ground-truth sample, so the wall-clock moment of the stop does not change the result.
     """
     import tempfile
-    import threading
 
-    import yaml
-
-    from contactflow.embodiments.layout import SiteWatch, control_node, world_node
-    from contactflow.embodiments.scene_file import object_entry
+    from contactflow.embodiments.layout import CellSession
     from contactflow.embodiments.tasks import TASKS_DIR
-    from contactflow.nodes.config import load_node_config
-    from contactflow.nodes.keys import KeySpace
-    from contactflow.nodes.node import Node
-    from contactflow.nodes.procs import free_port, write_config
-    from contactflow.nodes.task_module import TaskProgressMsg
-    from contactflow.nodes.wire import decode
 
     objs = contents(np.random.default_rng(seed), n_objects)
     names = [o.name for o in objs]
-    entered: list[tuple[float, TaskProgressMsg]] = []
-    lock = threading.Lock()
-
-    def on_progress(key: str, payload: bytes) -> None:
-        msg = decode(payload, TaskProgressMsg, key)
-        if msg.kind == str(ProgressKind.ENTERED) and msg.node == "grasp" and msg.path and msg.path[-1].startswith("attempt"):
-            with lock:
-                entered.append((msg.hdr.t_sim, msg))
-
-    with tempfile.TemporaryDirectory(prefix="empty-box-") as d:
-        folder = pathlib.Path(d)
-        cell = folder / "cell.yaml"
-        cell.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": ROBOT}],
-                                        "objects": [object_entry(o) for o in (container(), *objs)]}))
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        site = f"box{free_port()}"
-        control = control_node(site, ROBOT, ROBOT, TASKS_DIR / "thesis.yaml", f"empty_box_{strategy}",
-                               task_params(strategy, seed), connect=(endpoint,), autostart=True)
-        world = world_node(site, cell, listen=endpoint, wait_for=(control["node"],), seed=seed, ground_truth_hz=4.0)
-        nodes = []
-        watch = None
-        try:
-            for k, cfg in enumerate((world, control)):
-                node = Node(load_node_config(write_config(folder / f"{cfg['node']}.yaml", cfg)))
-                node.start()
-                nodes.append(node)
-                if k == 0:
-                    watch = SiteWatch(site, endpoint)
-                    sub = watch.t.subscribe(KeySpace(site).output(ROBOT, control["node"], "task", "progress"), on_progress)
-            emptied: float | None = None
-            why = ""
-            while not why:
-                time.sleep(0.2)
-                poses = watch.object_poses()
-                if emptied is None:
-                    emptied = next((m.hdr.t_sim for m in poses if _in_box_poses(names, m) == 0), None)
-                now = poses[-1].hdr.t_sim if poses else 0.0
-                with lock:
-                    attempts = sum(t <= min(emptied if emptied is not None else np.inf, max_time) for t, _ in entered)
-                if watch.outcome(f"{control['node']}/task") is not None:
-                    why = "the task ended"
-                elif emptied is not None and now - emptied > 8.0:
-                    why = "supervisor: the box is empty"
-                elif attempts > max_attempts:
-                    why = "supervisor: attempt limit"
-                elif now >= max_time:
-                    why = f"supervisor: {max_time:g} s of simulated time"
-            left = _in_box_poses(names, poses[-1]) if emptied is None else 0
-        finally:
-            for node in nodes:  # the world first: it would hold the robot of a control node stopped before it
-                node.stop()
-            if watch is not None:
-                sub.close()
-                watch.close()
+    with tempfile.TemporaryDirectory(prefix="empty-box-") as d, \
+            CellSession(pathlib.Path(d), [container(), *objs], ROBOT, TASKS_DIR / "thesis.yaml",
+                        f"empty_box_{strategy}", task_params(strategy, seed), seed=seed) as cell:
+        emptied: float | None = None
+        why = ""
+        while not why:
+            time.sleep(0.2)
+            poses = cell.poses()
+            if emptied is None:
+                emptied = next((m.hdr.t_sim for m in poses if _in_box_poses(names, m) == 0), None)
+            now = poses[-1].hdr.t_sim if poses else 0.0
+            until = min(emptied if emptied is not None else np.inf, max_time)
+            attempts = sum(m.hdr.t_sim <= until for m in cell.progress() if _attempt(m))
+            if cell.outcome() is not None:
+                why = "the task ended"
+            elif emptied is not None and now - emptied > 8.0:
+                why = "supervisor: the box is empty"
+            elif attempts > max_attempts:
+                why = "supervisor: attempt limit"
+            elif now >= max_time:
+                why = f"supervisor: {max_time:g} s of simulated time"
+        left = _in_box_poses(names, poses[-1]) if emptied is None else 0
     end = emptied if emptied is not None else min(now, max_time)
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": min(attempts, max_attempts + 1),
             "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime"}
+
+
+def _attempt(m) -> bool:
+    """A progress report (the engine's, or its wire message) of a grasp attempt starting: ``grasp`` entered in an ``attempt``."""
+    return m.kind == str(ProgressKind.ENTERED) and m.node == "grasp" and bool(m.path) and m.path[-1].startswith("attempt")
 
 
 def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, names) -> tuple[str, object, float | None]:

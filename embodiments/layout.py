@@ -278,6 +278,90 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
             watch.close()
 
 
+class CellSession:
+    """One robot's cell on the runtime, in this process: a world node (the table and ``objects``) and the
+    robot's control node running ``task``, each a zenoh session, in lockstep; watched as a supervisor
+    watches a robot: the task's progress, the world's ground truth on ``eval/`` and its outcome.
+
+    Use as a context manager; leaving it stops the nodes, the world first (it would hold the robot
+    of a control node stopped before it).
+    """
+
+    def __init__(self, folder: Path, objects: list, robot: str, task_file: str | Path, task: str,
+                 plan: Mapping[str, Any], seed: int = 0, ground_truth_hz: float = 4.0) -> None:
+        from contactflow.embodiments.scene_file import object_entry
+        from contactflow.nodes.procs import free_port
+
+        self.folder = Path(folder)
+        self.robot = robot
+        cell = self.folder / "cell.yaml"
+        self.folder.mkdir(parents=True, exist_ok=True)
+        cell.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": robot}],
+                                        "objects": [object_entry(o) for o in objects]}))
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.site = f"cell{free_port()}"
+        self.control = control_node(self.site, robot, robot, task_file, task, plan, connect=(self.endpoint,),
+                                    autostart=True)
+        self.world = world_node(self.site, cell, listen=self.endpoint, wait_for=(self.control["node"],), seed=seed,
+                                ground_truth_hz=ground_truth_hz)
+        self._nodes: list[Any] = []
+        self._progress: list[Any] = []
+        self._lock = threading.Lock()
+        self.watch: SiteWatch | None = None
+        self._sub: Any = None
+
+    def __enter__(self) -> CellSession:
+        from contactflow.nodes.config import load_node_config
+        from contactflow.nodes.keys import KeySpace
+        from contactflow.nodes.node import Node
+        from contactflow.nodes.procs import write_config
+
+        try:
+            for k, cfg in enumerate((self.world, self.control)):
+                node = Node(load_node_config(write_config(self.folder / f"{cfg['node']}.yaml", cfg)))
+                node.start()
+                self._nodes.append(node)
+                if k == 0:
+                    self.watch = SiteWatch(self.site, self.endpoint)
+                    key = KeySpace(self.site).output(self.robot, self.control["node"], "task", "progress")
+                    self._sub = self.watch.t.subscribe(key, self._on_progress)
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for node in self._nodes:
+            node.stop()
+        self._nodes = []
+        if self._sub is not None:
+            self._sub.close()
+        if self.watch is not None:
+            self.watch.close()
+
+    def _on_progress(self, key: str, payload: bytes) -> None:
+        from contactflow.nodes.task_module import TaskProgressMsg
+
+        msg = decode(payload, TaskProgressMsg, key)
+        with self._lock:
+            self._progress.append(msg)
+
+    def progress(self) -> list:
+        """The task's progress reports so far (``TaskProgressMsg``, stamped with simulated time)."""
+        with self._lock:
+            return list(self._progress)
+
+    def poses(self) -> list[ObjectPoses]:
+        """The world's ground-truth messages so far."""
+        assert self.watch is not None
+        return self.watch.object_poses()
+
+    def outcome(self) -> EventMsg | None:
+        """The task's final event, once it ended."""
+        assert self.watch is not None
+        return self.watch.outcome(f"{self.control['node']}/task")
+
+
 PLACE_TARGET = (0.55, -0.12, 0.93)  # m, where tombatossals' pick and place puts the can (grasp frame)
 TAP_ABOVE = (0.85, 0.3, 0.95)  # m, where melfa taps down onto the cube of the shared table
 
