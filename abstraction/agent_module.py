@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from contactflow.abstraction.agent import RobotAgent
-from contactflow.abstraction.atd import DETECT
 from contactflow.abstraction.profiles import PROFILES
 from contactflow.embodiments.messages import DepthImage, ObjectPoses
 from contactflow.nodes.keys import ANY, KeySpace
@@ -201,7 +200,7 @@ class RobotAgentModule(Module):
         return run
 
     def _begin(self, job: _Job) -> _Running:
-        from contactflow.abstraction.execution import bound_params, robot_runner
+        from contactflow.abstraction.execution import bound_params, robot_runner, to_detect
         from contactflow.embodiments.remote import connect
         from contactflow.nodes.task_module import ControlRunner
         from contactflow.nodes.taskengine import TaskEngine
@@ -213,7 +212,7 @@ class RobotAgentModule(Module):
         engine = TaskEngine(robot_runner(inner, robot, p.robot, robot.hand_points), lambda: io.now,
                             on_progress=lambda pr: job.report(tr.abstract(pr)))
         params = bound_params(tr, job.params)
-        detect = {k: "" for k, v in tr.estd.params.items() if v == DETECT and k not in params}
+        detect = dict.fromkeys(to_detect(tr, params), "")
         r = _Running(job, engine, inner, self._contact_monitor(robot) if p.fusion else None, io.now, params, detect)
         if not detect:
             r.run_id = engine.launch(tr.estd, params)

@@ -11,12 +11,14 @@ roll, pitch, yaw]`` of the hand's grasp frame, the arm, a push direction and dis
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from contactflow.nodes.params import ParamError, replace_params
+from contactflow.nodes.registry import UnknownModuleType, resolve
 from contactflow.nodes.status import Event
 from contactflow.nodes.taskengine import PrimitiveRunner, RunnerEvent
 from contactflow.nodes.taskgraph import NodeKind, TaskGraph
@@ -41,9 +43,6 @@ class Goal:
     waypoints: tuple[float, ...] = ()  # m, flat [x, y, z, ...] points passed through before the target
     obstacles: tuple[float, ...] = ()  # m, flat boxes [cx, cy, cz, sx, sy, sz, ...] a free path avoids
     pushes: bool = False  # the hand pushes the object ahead of it to the target
-
-    def to_fields(self) -> dict[str, Any]:
-        return asdict(self)
 
     def to_params(self) -> dict[str, Any]:
         """The fields that differ from the defaults, as plain values."""
@@ -286,9 +285,6 @@ def check_params(task: TaskGraph) -> list[str]:
 
     Values that are ``${...}`` references are bound when the node starts, and checked there.
     """
-    from contactflow.nodes.params import ParamError, replace_params
-    from contactflow.nodes.registry import UnknownModuleType, resolve
-
     issues: list[str] = []
     for node in task.nodes.values():
         if node.kind is not NodeKind.PRIMITIVE:

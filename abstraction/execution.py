@@ -29,6 +29,11 @@ def bound_params(translation: Translation, params: Mapping[str, Any] | None) -> 
     return params_to_world({k: v for k, v in (params or {}).items() if k in declared}, frame_of(translation))
 
 
+def to_detect(translation: Translation, bound: Mapping[str, Any]) -> list[str]:
+    """The object locations the ATD asks the robot to detect that the dispatch did not bind."""
+    return sorted(k for k, v in translation.estd.params.items() if v == DETECT and k not in bound)
+
+
 def robot_runner(inner: PrimitiveRunner, robot: Any, embodiment: str,
                  hand_points: Callable[[str], Any]) -> ConcreteRunner:
     """The factory's last step for ``robot`` (a simulated or remote facade) over ``inner``.
@@ -73,7 +78,7 @@ class EngineExecutor:
     def __call__(self, translation: Translation, report: Callable[[AbstractProgress], None],
                  cancel: threading.Event, params: Mapping[str, Any] | None = None) -> Event:
         bound = bound_params(translation, params)
-        detect = sorted(k for k, v in translation.estd.params.items() if v == DETECT and k not in bound)
+        detect = to_detect(translation, bound)
         if detect:
             raise ValueError(f"{', '.join(detect)}: the ATD asks to detect it, which the runtime executor's vision "
                              "does (this executor runs a world of its own)")

@@ -15,7 +15,7 @@ its home, ``embodiments/robots/<name>/factory.py``.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 from contactflow.abstraction.atd import DETECT, Atd, AtdEvent, AtdObject, AtdState
@@ -33,8 +33,6 @@ GRAVITY = 9.81  # m/s^2
 FRICTION = 0.5  # assumed finger-object friction coefficient for grasp force
 DEFAULT_OBJECT = "object"
 DEFAULT_APPROACH = [0.0, 0.0, -1.0]  # from above
-
-
 CARRY_FORCE = 10.0  # N, least unexpected-contact threshold of a guarded path that does not end on contact
 
 
@@ -54,10 +52,10 @@ def params_class(type_: str) -> type:
         raise MappingRefused(str(exc)) from None
 
 
-def changed(params: Any, keep: Sequence[str] = ()) -> dict[str, Any]:
-    """The fields of ``params`` that differ from its class defaults, and those in ``keep``, as plain values."""
-    default = params_dict(type(params)())
-    return {k: v for k, v in params_dict(params).items() if v != default[k] or k in keep}
+def stated(params: Any, keys: Sequence[str]) -> dict[str, Any]:
+    """The fields ``keys`` of ``params`` as plain values (what an ESTD node states; the rest are the class defaults)."""
+    values = params_dict(params)
+    return {k: values[k] for k in keys}
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,14 +65,14 @@ class PrimitiveChoice:
     type: str
     params: Any  # the primitive's own Params dataclass
     goal: Goal | None = None
-    explicit: tuple[str, ...] = ()  # fields the ESTD states even at their class default (the robot's overrides, changes)
+    explicit: tuple[str, ...] = ()  # the fields set: the robot's overrides and the factory's changes
     helpers: tuple[Helper, ...] = ()
     timeout: float | None = None
     notes: tuple[str, ...] = ()
 
     def node_params(self) -> dict[str, Any]:
-        """The ESTD node's parameters: the changed ``Params`` fields and the goal."""
-        out = changed(self.params, self.explicit)
+        """The ESTD node's parameters: the ``Params`` fields set and the goal."""
+        out = stated(self.params, self.explicit)
         if self.goal is not None:
             out["goal"] = self.goal.to_params()
         return out
@@ -140,12 +138,12 @@ class Factory:
             raise MappingRefused(str(exc)) from None
 
     def explicit(self, type_: str, changes: Mapping[str, Any]) -> tuple[str, ...]:
-        """The fields an ESTD states for ``type_`` whatever their value: what the robot overrides or the factory set."""
+        """The fields an ESTD states for ``type_``: what the robot overrides or the factory sets (even at a default)."""
         return tuple(sorted({*self.robot.overrides.get(type_, {}), *changes}))
 
     def helper(self, name: str, type_: str, where: str, **changes: Any) -> Helper:
         """A helper primitive with typed parameters (the fields set or overridden travel)."""
-        return Helper(name, type_, changed(self.params(type_, where, **changes), self.explicit(type_, changes)))
+        return Helper(name, type_, stated(self.params(type_, where, **changes), self.explicit(type_, changes)))
 
     # -- task parameters (objects) -------------------------------------------------------
     def task_params(self, atd: Atd) -> dict[str, Any]:
@@ -247,16 +245,15 @@ class Factory:
         return {"guarded": until_contact, key: force if until_contact else max(force, CARRY_FORCE)}
 
     def _goal(self, atd: Atd, state: AtdState, standoff: float, pushes: bool = False) -> Goal:
-        """Where an arm motion goes: an explicit goal, or the state's object (approached from its side)."""
+        """Where an arm motion goes: an explicit goal, or the state's object (approached from its side, ``standoff`` m back)."""
         approach: str | tuple[float, ...] = ()
         if state.target_object:
             oname, obj = self._object_ref(atd, state, state.target_object)
             target: str | tuple[float, ...] = _ref(oname, "location")
-            standoff = 0.0
             if obj is not None and obj.location is not None:
                 self._reach(obj.location, f"state {state.name!r}: target object {oname!r} at")
         elif state.goal is not None:
-            target, standoff = tuple(state.goal), 0.0
+            target = tuple(state.goal)
             for i, w in enumerate(state.path or (state.goal,)):
                 self._reach(w, f"state {state.name!r}: position {i + 1}")
         else:
@@ -292,7 +289,7 @@ class Factory:
         pushes = kind is AbstractPrimitive.PUSH and concrete != "push"  # an arm motion moving the object ahead of the hand
         goal = self._goal(atd, state, standoff=0.10 if free else 0.0, pushes=pushes)
         if free and atd.obstacles:
-            goal = Goal(**{**goal.to_fields(), "obstacles": tuple(self._obstacles(atd))})
+            goal = replace(goal, obstacles=tuple(self._obstacles(atd)))
         p: dict[str, Any] = {}
         shape = self.hand_shape(state.hand_shape, notes)
         if concrete in ("move_to", "transport"):

@@ -101,16 +101,20 @@ def contents(rng: np.random.Generator, n: int) -> list[ObjectSpec]:
     return out
 
 
-def in_box(robot: SimRobot, names: list[str]) -> int:
-    """Objects still inside the box (ground truth, the "human supervisor" of §3.4.3)."""
-    gt = robot.ground_truth().object_poses
+def count_in_box(poses: dict[str, np.ndarray], names: list[str]) -> int:
+    """How many of ``names`` (world poses, 4x4) are still inside the box."""
     cx, cy = BOX_CENTER
     n = 0
     for name in names:
-        p = gt[name][:3, 3]
+        p = poses[name][:3, 3]
         if abs(p[0] - cx) < INNER[0] / 2 + WALL and abs(p[1] - cy) < INNER[1] / 2 + WALL and p[2] < BOTTOM + 0.12:
             n += 1
     return n
+
+
+def in_box(robot: SimRobot, names: list[str]) -> int:
+    """Objects still inside the box (ground truth, the "human supervisor" of §3.4.3)."""
+    return count_in_box(robot.ground_truth().object_poses, names)
 
 
 @functools.lru_cache(maxsize=1)
@@ -299,14 +303,7 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
 
 def _in_box_poses(names: list[str], msg) -> int:
     """:func:`in_box` from one ground-truth message of the world (``eval/<cell>/object_poses``)."""
-    cx, cy = BOX_CENTER
-    poses = msg.poses.numpy()
-    n = 0
-    for name in names:
-        p = poses[msg.names.index(name)][:3, 3]
-        if abs(p[0] - cx) < INNER[0] / 2 + WALL and abs(p[1] - cy) < INNER[1] / 2 + WALL and p[2] < BOTTOM + 0.12:
-            n += 1
-    return n
+    return count_in_box(dict(zip(msg.names, msg.poses.numpy(), strict=True)), names)
 
 
 def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:

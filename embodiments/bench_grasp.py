@@ -103,8 +103,25 @@ def vision_approach(spec: ObjectSpec) -> np.ndarray:
     return matrix6((v["x"], v["y"], v["z"], v["roll"], v["pitch"], v["yaw"]), "approach")
 
 
+def verdict(z0: float, lifted: np.ndarray, held: np.ndarray, rel0: np.ndarray, rel1: np.ndarray) -> tuple[bool, str]:
+    """Success = lifted 6 cm with the hand and not moving in it during a 1 s hold.
+
+    ``lifted`` and ``held`` are the object's world poses when the lift ended and after the hold,
+    ``rel0`` and ``rel1`` the same in a frame that moves with the hand.
+    """
+    if lifted[2, 3] - z0 < 0.06:
+        return False, "not lifted"
+    if held[2, 3] - z0 < 0.06:
+        return False, "dropped during the hold"
+    moved = float(np.linalg.norm(rel1[:3, 3] - rel0[:3, 3]))
+    turned = float(np.linalg.norm(Rotation.from_matrix(rel0[:3, :3].T @ rel1[:3, :3]).as_rotvec()))
+    if moved > 0.01 or turned > np.deg2rad(10):
+        return False, f"moves in the hand ({moved * 100:.1f} cm, {np.rad2deg(turned):.0f} deg)"
+    return True, "stable"
+
+
 def judge(robot: SimRobot, name: str, z0: float) -> tuple[bool, str]:
-    """Success = lifted with the hand and not moving in it during a 1 s hold (ground truth)."""
+    """:func:`verdict` on the simulated robot: the object's pose in the palm frame, the hold stepped here."""
     palm = robot.spec.hand(robot.spec.arm(ARM).hand).palm_link
     gt = robot.ground_truth().object_poses[name]
     if gt[2, 3] - z0 < 0.06:
@@ -112,14 +129,7 @@ def judge(robot: SimRobot, name: str, z0: float) -> tuple[bool, str]:
     rel0 = np.linalg.inv(robot.frame_pose(palm)) @ gt
     robot.step(1.0)
     gt1 = robot.ground_truth().object_poses[name]
-    rel1 = np.linalg.inv(robot.frame_pose(palm)) @ gt1
-    moved = float(np.linalg.norm(rel1[:3, 3] - rel0[:3, 3]))
-    turned = float(np.linalg.norm(Rotation.from_matrix(rel0[:3, :3].T @ rel1[:3, :3]).as_rotvec()))
-    if gt1[2, 3] - z0 < 0.06:
-        return False, "dropped during the hold"
-    if moved > 0.01 or turned > np.deg2rad(10):
-        return False, f"moves in the hand ({moved * 100:.1f} cm, {np.rad2deg(turned):.0f} deg)"
-    return True, "stable"
+    return verdict(z0, gt, gt1, rel0, np.linalg.inv(robot.frame_pose(palm)) @ gt1)
 
 
 def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int,
@@ -152,22 +162,13 @@ def _pose_at(poses: list, name: str, t: float) -> np.ndarray | None:
 
 
 def judge_poses(poses: list, name: str, t_lift: float, t_end: float) -> tuple[bool, str]:
-    """:func:`judge` from the world's ground-truth stream: lifted when the lift ended, still there and
-    not moving during the 1 s hold that follows it (the arm holds still, so moving means in the hand)."""
+    """:func:`verdict` from the world's ground-truth stream: the poses when the lift ended and after the
+    1 s hold that follows it (the arm holds still, so the world frame moves with the hand)."""
     start = next((m.poses.numpy()[m.names.index(name)] for m in poses if name in m.names), None)
     lifted, held = _pose_at(poses, name, t_lift), _pose_at(poses, name, t_end)
     if start is None or lifted is None or held is None:
         return False, "no ground truth"
-    z0 = float(start[2, 3])
-    if lifted[2, 3] - z0 < 0.06:
-        return False, "not lifted"
-    if held[2, 3] - z0 < 0.06:
-        return False, "dropped during the hold"
-    moved = float(np.linalg.norm(held[:3, 3] - lifted[:3, 3]))
-    turned = float(np.linalg.norm(Rotation.from_matrix(lifted[:3, :3].T @ held[:3, :3]).as_rotvec()))
-    if moved > 0.01 or turned > np.deg2rad(10):
-        return False, f"moves in the hand ({moved * 100:.1f} cm, {np.rad2deg(turned):.0f} deg)"
-    return True, "stable"
+    return verdict(float(start[2, 3]), lifted, held, lifted, held)
 
 
 def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int) -> dict:
@@ -175,10 +176,7 @@ def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: in
     in this process (a zenoh session each); the same perturbed approach as :func:`run_trial` for ``seed``."""
     import tempfile
 
-    import yaml
-
-    from contactflow.embodiments.layout import control_node, run_cell, world_node
-    from contactflow.embodiments.scene_file import object_entry
+    from contactflow.embodiments.layout import control_node, run_cell, world_node, write_cell
     from contactflow.embodiments.tasks import TASKS_DIR
     from contactflow.nodes.procs import free_port
 
@@ -187,8 +185,7 @@ def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: in
     v = pose6(goal)
     with tempfile.TemporaryDirectory(prefix="grasp-trial-") as d:
         folder = pathlib.Path(d)
-        cell = folder / "cell.yaml"
-        cell.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": ROBOT}], "objects": [object_entry(spec)]}))
+        cell = write_cell(folder / "cell.yaml", ROBOT, [spec])
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         site = f"grasp{free_port()}"
         control = control_node(site, ROBOT, ROBOT, TASKS_DIR / "grasp_trial.yaml", t.controller,

@@ -24,6 +24,7 @@ import yaml
 from contactflow.embodiments.messages import ObjectPoses
 from contactflow.nodes.messages import Clock, EventMsg
 from contactflow.nodes.status import Event
+from contactflow.nodes.task_module import TaskProgressMsg
 from contactflow.nodes.taskgraph import NodeKind, TaskGraph
 from contactflow.nodes.wire import decode
 
@@ -162,12 +163,19 @@ class SiteWatch:
         self.t = ZenohTransport(ZenohSettings(connect=(endpoint,))).open()
         self.events: list[EventMsg] = []
         self.poses: list[ObjectPoses] = []  # the worlds' ground truth (eval/), as it came
+        self.progress: list[TaskProgressMsg] = []  # every task module's progress, as it came
         self.first_tick: tuple[float, float] | None = None  # (sim s, wall s) of tick 1
         self.last_tick: tuple[float, float] | None = None
         self._lock = threading.Lock()
         self._subs = [self.t.subscribe(self.ks.events(), self._on_event),
                       self.t.subscribe(self.ks.clock(), self._on_clock),
-                      self.t.subscribe(self.ks.evaluation("*", "object_poses"), self._on_poses)]
+                      self.t.subscribe(self.ks.evaluation("*", "object_poses"), self._on_poses),
+                      self.t.subscribe(self.ks.output("*", "*", "task", "progress"), self._on_progress)]
+
+    def _on_progress(self, key: str, payload: bytes) -> None:
+        msg = decode(payload, TaskProgressMsg, key)
+        with self._lock:
+            self.progress.append(msg)
 
     def _on_poses(self, key: str, payload: bytes) -> None:
         msg = decode(payload, ObjectPoses, key)
@@ -190,6 +198,11 @@ class SiteWatch:
         """The final event of the module whose address ends with ``module``, if it came."""
         with self._lock:
             return next((e for e in self.events if e.module.endswith(module) and e.event in self.FINAL), None)
+
+    def task_progress(self) -> list[TaskProgressMsg]:
+        """Every task progress report so far."""
+        with self._lock:
+            return list(self.progress)
 
     def object_poses(self) -> list[ObjectPoses]:
         """Every ground-truth message so far."""
@@ -228,6 +241,48 @@ class CellRun:
         return self.sim_s / self.wall_s if self.wall_s > 0 else 0.0
 
 
+def start_nodes(folder: Path, configs: list[Mapping[str, Any]], site: str, endpoint: str,
+                processes: bool = False) -> tuple[list[Any], SiteWatch]:
+    """Start node ``configs`` in order (the world first: a site watch joins it on ``endpoint``); each a
+    process of its own with ``processes``, else a zenoh session each in this process."""
+    from contactflow.nodes.config import load_node_config
+    from contactflow.nodes.node import Node
+    from contactflow.nodes.procs import spawn_node, write_config
+
+    folder.mkdir(parents=True, exist_ok=True)
+    started: list[Any] = []
+    watch: SiteWatch | None = None
+    try:
+        for cfg in configs:
+            path = write_config(folder / f"{cfg['node']}.yaml", cfg)
+            if processes:
+                started.append(spawn_node(path, folder / f"{path.stem}.log"))
+            else:
+                node = Node(load_node_config(path))
+                node.start()
+                started.append(node)
+            if watch is None:
+                watch = SiteWatch(site, endpoint)
+    except BaseException:
+        stop_nodes(started, watch, processes)
+        raise
+    assert watch is not None
+    return started, watch
+
+
+def stop_nodes(started: list[Any], watch: SiteWatch | None, processes: bool = False) -> None:
+    """Stop what :func:`start_nodes` started, the world first (it would hold robots whose control nodes stopped before it)."""
+    from contactflow.nodes.procs import stop_process
+
+    for s in started:
+        if processes:
+            stop_process(s)
+        else:
+            s.stop()
+    if watch is not None:
+        watch.close()
+
+
 def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str, Any]], endpoint: str,
              processes: bool = False, timeout: float = 300.0, keep: Callable[[Any], None] | None = None,
              services: tuple[Mapping[str, Any], ...] = ()) -> CellRun:
@@ -238,28 +293,16 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
     runs) before the nodes stop, to read what only the simulation knows. ``services`` are
     nodes the control nodes read (a vision node), started before them.
     """
-    from contactflow.nodes.config import load_node_config
-    from contactflow.nodes.node import Node
-    from contactflow.nodes.procs import spawn_node, stop_process, wait_for, write_config
+    from contactflow.nodes.procs import wait_for
 
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = [write_config(folder / f"{c['node']}.yaml", c) for c in (world, *services, *controls)]
+    configs = [world, *services, *controls]
     robots = [next(m["robot"] for m in c["modules"] if m["name"] == "task") for c in controls]
     names = [f"{r}/{c['node']}/task" for r, c in zip(robots, controls, strict=True)]
-    started: list[Any] = []
-    watch: SiteWatch | None = None
+    started, watch = start_nodes(folder, configs, world["site"], endpoint, processes)
     try:
-        for k, p in enumerate(paths):
-            if processes:
-                started.append(spawn_node(p, folder / f"{p.stem}.log"))
-            else:
-                node = Node(load_node_config(p))
-                node.start()
-                started.append(node)
-            if k == 0:
-                watch = SiteWatch(world["site"], endpoint)
         if not wait_for(lambda: all(watch.outcome(n) for n in names), timeout):
-            logs = "".join((folder / f"{p.stem}.log").read_text()[-2000:] for p in paths if (folder / f"{p.stem}.log").exists())
+            logs = "".join((folder / f"{c['node']}.log").read_text()[-2000:] for c in configs
+                           if (folder / f"{c['node']}.log").exists())
             raise TimeoutError(f"tasks still running after {timeout:g} s: {watch.sequence()[-10:]} {logs}")
         outcomes = {r: watch.outcome(n) for r, n in zip(robots, names, strict=True)}
         end = max(outcomes.values(), key=lambda e: e.hdr.t_sim)
@@ -269,13 +312,17 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, watch.messages(),
                        watch.object_poses())
     finally:
-        for s in started:  # the world first: it would hold robots whose control nodes stopped before it
-            if processes:
-                stop_process(s)
-            else:
-                s.stop()
-        if watch is not None:
-            watch.close()
+        stop_nodes(started, watch, processes)
+
+
+def write_cell(path: Path, robot: str, objects: list) -> Path:
+    """A scene file at ``path``: ``robot`` at its own placement, the table and ``objects`` (ObjectSpecs)."""
+    from contactflow.embodiments.scene_file import object_entry
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": robot}],
+                                    "objects": [object_entry(o) for o in objects]}))
+    return path
 
 
 class CellSession:
@@ -289,67 +336,34 @@ class CellSession:
 
     def __init__(self, folder: Path, objects: list, robot: str, task_file: str | Path, task: str,
                  plan: Mapping[str, Any], seed: int = 0, ground_truth_hz: float = 4.0) -> None:
-        from contactflow.embodiments.scene_file import object_entry
-        from contactflow.nodes.procs import free_port
-
         self.folder = Path(folder)
-        self.robot = robot
-        cell = self.folder / "cell.yaml"
-        self.folder.mkdir(parents=True, exist_ok=True)
-        cell.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": robot}],
-                                        "objects": [object_entry(o) for o in objects]}))
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.site = f"cell{free_port()}"
-        self.control = control_node(self.site, robot, robot, task_file, task, plan, connect=(self.endpoint,),
-                                    autostart=True)
-        self.world = world_node(self.site, cell, listen=self.endpoint, wait_for=(self.control["node"],), seed=seed,
-                                ground_truth_hz=ground_truth_hz)
+        self.robot, self.objects = robot, list(objects)
+        self.task_file, self.task, self.plan = task_file, task, dict(plan)
+        self.seed, self.ground_truth_hz = seed, ground_truth_hz
         self._nodes: list[Any] = []
-        self._progress: list[Any] = []
-        self._lock = threading.Lock()
         self.watch: SiteWatch | None = None
-        self._sub: Any = None
 
     def __enter__(self) -> CellSession:
-        from contactflow.nodes.config import load_node_config
-        from contactflow.nodes.keys import KeySpace
-        from contactflow.nodes.node import Node
-        from contactflow.nodes.procs import write_config
+        from contactflow.nodes.procs import free_port
 
-        try:
-            for k, cfg in enumerate((self.world, self.control)):
-                node = Node(load_node_config(write_config(self.folder / f"{cfg['node']}.yaml", cfg)))
-                node.start()
-                self._nodes.append(node)
-                if k == 0:
-                    self.watch = SiteWatch(self.site, self.endpoint)
-                    key = KeySpace(self.site).output(self.robot, self.control["node"], "task", "progress")
-                    self._sub = self.watch.t.subscribe(key, self._on_progress)
-        except BaseException:
-            self.__exit__(None, None, None)
-            raise
+        cell = write_cell(self.folder / "cell.yaml", self.robot, self.objects)
+        endpoint, site = f"tcp/127.0.0.1:{free_port()}", f"cell{free_port()}"
+        control = control_node(site, self.robot, self.robot, self.task_file, self.task, self.plan,
+                               connect=(endpoint,), autostart=True)
+        world = world_node(site, cell, listen=endpoint, wait_for=(control["node"],), seed=self.seed,
+                           ground_truth_hz=self.ground_truth_hz)
+        self._nodes, self.watch = start_nodes(self.folder, [world, control], site, endpoint)
+        self._task = f"{control['node']}/task"
         return self
 
     def __exit__(self, *exc: object) -> None:
-        for node in self._nodes:
-            node.stop()
-        self._nodes = []
-        if self._sub is not None:
-            self._sub.close()
-        if self.watch is not None:
-            self.watch.close()
+        stop_nodes(self._nodes, self.watch)
+        self._nodes, self.watch = [], None
 
-    def _on_progress(self, key: str, payload: bytes) -> None:
-        from contactflow.nodes.task_module import TaskProgressMsg
-
-        msg = decode(payload, TaskProgressMsg, key)
-        with self._lock:
-            self._progress.append(msg)
-
-    def progress(self) -> list:
-        """The task's progress reports so far (``TaskProgressMsg``, stamped with simulated time)."""
-        with self._lock:
-            return list(self._progress)
+    def progress(self) -> list[TaskProgressMsg]:
+        """The task's progress reports so far (stamped with simulated time)."""
+        assert self.watch is not None
+        return self.watch.task_progress()
 
     def poses(self) -> list[ObjectPoses]:
         """The world's ground-truth messages so far."""
@@ -359,7 +373,7 @@ class CellSession:
     def outcome(self) -> EventMsg | None:
         """The task's final event, once it ended."""
         assert self.watch is not None
-        return self.watch.outcome(f"{self.control['node']}/task")
+        return self.watch.outcome(self._task)
 
 
 PLACE_TARGET = (0.55, -0.12, 0.93)  # m, where tombatossals' pick and place puts the can (grasp frame)

@@ -278,10 +278,6 @@ class RobotHome:
         """The robot's translation factory class (``FACTORY`` of its package's ``factory`` module)."""
         return importlib.import_module(f"{ROBOTS_PACKAGE}.{self.name}.factory").FACTORY
 
-    def params(self, type_: str) -> dict[str, Any]:
-        """The overrides of primitive ``type_`` (a copy; empty when the hardware needs none)."""
-        return dict(self.overrides.get(type_, {}))
-
 
 ROBOTS_PACKAGE = "contactflow.embodiments.robots"
 

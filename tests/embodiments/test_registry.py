@@ -39,8 +39,7 @@ def test_each_robot_has_one_home_found_by_its_package_and_typed_overrides():
             assert type_ in home.spec.capabilities.primitives, (name, type_)
             replace_params(resolve(type_).Params(), dict(changes), where=f"{name}.{type_}.")  # fields and types
     tomb = registry.home("tombatossals")
-    assert tomb.params("detect_objects")["wall_side"] == tomb.wall_side
-    assert tomb.params("detect_objects") is not tomb.params("detect_objects")  # copies: callers cannot edit the home
+    assert tomb.overrides["detect_objects"]["wall_side"] == tomb.overrides["place_location"]["wall_side"] == tomb.wall_side
     assert registry.home("melfa").grasp_center == (0.0, 0.0, 0.0)
 
 
