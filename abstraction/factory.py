@@ -297,8 +297,10 @@ class Factory:
                 p["preshape"] = shape
             if concrete == "move_to":
                 p["planning"] = free
-            elif movement is Movement.GUARDED:
-                p["velocity_limits"] = [LINE_SPEED] * 3 + [LINE_TURN] * 3  # straight and slow: no planner
+            else:
+                p["filter_hz"] = self.filter_hz()  # the contact check of a transport reads the filtered wrench
+                if movement is Movement.GUARDED:
+                    p["velocity_limits"] = [LINE_SPEED] * 3 + [LINE_TURN] * 3  # straight and slow: no planner
             if movement is Movement.GUARDED and not pushes:
                 p.update(self.guard(concrete, until_contact=bool(goal.approach), notes=notes))
         elif shape:
@@ -367,9 +369,12 @@ class Factory:
                 notes: list[str]) -> tuple[dict[str, Any], None, list[Helper]]:
         opening = state.hand_opening
         if opening is None:
-            obj = atd.object_of(state)
-            width = self.object_width(state, obj)
-            opening = width + 0.03 if width is not None else self.robot.max_opening
+            return {}, None, []  # let go completely
+        if self.robot.hand is not HandKind.PARALLEL:
+            # a multi-finger hand's joints between closed and open give no aperture in metres, and a
+            # hand stopped part-way can stay caught on what it held
+            notes.append(f"hand opening {opening:.3f} m approximated by the open hand")
+            return {}, None, []
         if opening > self.robot.max_opening:
             notes.append(f"hand opening {opening:.3f} m clipped to {self.robot.max_opening:.3f} m")
             opening = self.robot.max_opening

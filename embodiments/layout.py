@@ -242,12 +242,18 @@ class CellRun:
 
 
 def start_nodes(folder: Path, configs: list[Mapping[str, Any]], site: str, endpoint: str,
-                processes: bool = False) -> tuple[list[Any], SiteWatch]:
+                processes: bool = False, timeout: float = 60.0) -> tuple[list[Any], SiteWatch]:
     """Start node ``configs`` in order (the world first: a site watch joins it on ``endpoint``); each a
-    process of its own with ``processes``, else a zenoh session each in this process."""
+    process of its own with ``processes``, else a zenoh session each in this process.
+
+    Each node is started once the watch sees the one before it: a node that joined before the
+    watch had reached the world would not know of the watch's subscriptions, and its first
+    events (a task's first steps) would reach nobody.
+    """
     from contactflow.nodes.config import load_node_config
+    from contactflow.nodes.keys import ANY
     from contactflow.nodes.node import Node
-    from contactflow.nodes.procs import spawn_node, write_config
+    from contactflow.nodes.procs import spawn_node, wait_for, write_config
 
     folder.mkdir(parents=True, exist_ok=True)
     started: list[Any] = []
@@ -263,6 +269,9 @@ def start_nodes(folder: Path, configs: list[Mapping[str, Any]], site: str, endpo
                 started.append(node)
             if watch is None:
                 watch = SiteWatch(site, endpoint)
+            up = watch.ks.alive_module(ANY, cfg["node"], ANY)
+            if not wait_for(lambda up=up, w=watch: bool(w.t.alive(up, timeout=0.5)), timeout):
+                raise TimeoutError(f"node {cfg['node']!r} did not come up within {timeout:g} s (see {folder})")
     except BaseException:
         stop_nodes(started, watch, processes)
         raise

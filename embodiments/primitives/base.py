@@ -421,6 +421,14 @@ def matrix6(v: tuple[float, ...] | list[float], where: str) -> np.ndarray:
     return T
 
 
+def low_pass(prev: np.ndarray | float | None, x: np.ndarray | float, cutoff_hz: float, dt: float):
+    """One step of a first-order low-pass of cut-off ``cutoff_hz`` (0: none) over samples ``dt`` s apart."""
+    if prev is None or cutoff_hz <= 0:
+        return x
+    a = dt / (dt + 1.0 / (2 * np.pi * cutoff_hz))
+    return prev + a * (x - prev)
+
+
 def hand_pose_for(robot: str, T_center: np.ndarray) -> np.ndarray:
     """The controlled-frame pose that puts robot ``robot``'s grasp centre (its home's) at ``T_center`` (4x4, world)."""
     from contactflow.embodiments import registry

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
+from contactflow.embodiments.primitives.base import Capability, Primitive, low_pass, pose6
 from contactflow.nodes.status import Event
 
 
@@ -43,14 +43,7 @@ class Place(Primitive):
 
     def update(self) -> None:
         p = self.params
-        raw = self.wrench_in("world")[:3]
-        if p.filter_hz > 0:
-            dt = 1.0 / p.rate_hz
-            a = dt / (dt + 1.0 / (2 * np.pi * p.filter_hz))
-            self.f = self.f + a * (raw - self.f)
-        else:
-            self.f = raw
-        f = self.f
+        self.f = f = low_pass(self.f, self.wrench_in("world")[:3], p.filter_hz, 1.0 / p.rate_hz)
         v = place_velocity(f, self.n, p.velocity, p.force_threshold)
         T = self.r.frame_pose(self.ee_frame)
         travelled = float((self.p0 - T[:3, 3]) @ self.n)

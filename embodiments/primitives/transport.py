@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Capability, Primitive, matrix6, pose6
+from contactflow.embodiments.primitives.base import Capability, Primitive, low_pass, matrix6, pose6
 from contactflow.embodiments.primitives.motion import planning_cloud, pose_error, target_pose
 from contactflow.embodiments.transforms import rotvec_error
 from contactflow.nodes.status import Event, Status
@@ -65,6 +65,7 @@ class Transport(Primitive):
         target: tuple[float, ...] = ()  # [x, y, z, roll, pitch, yaw] m, rad (world)
         relative: bool = False  # target is an offset of the current pose
         force_threshold: float = 15.0  # N, unexpected contact (eq. 3.3)
+        filter_hz: float = 0.0  # Hz, low-pass cut-off on the wrist force of the contact check (0 = none; for noisy estimated wrenches)
         acceleration_limits: tuple[float, ...] = (0.0,) * 6  # m/s^2, rad/s^2 (all 0: unconstrained)
         velocity_limits: tuple[float, ...] = (0.0,) * 6  # m/s, rad/s (all 0: unconstrained; a 0 among others locks that axis)
         obstacles: tuple[float, ...] = ()  # obstacle point cloud, flat [x, y, z, ...] (world): force field and planner
@@ -101,6 +102,7 @@ class Transport(Primitive):
         if self.vlim.shape != (6,) or self.alim.shape != (6,):
             raise ValueError(f"{self.name}: velocity_limits and acceleration_limits need 6 values")
         self.r.tare_ft(self.arm_name)
+        self.f: np.ndarray | None = None  # N, the low-passed wrist force
         self.v_prev = np.zeros(6)
         self.k = 0
         self.plans = 0
@@ -140,7 +142,7 @@ class Transport(Primitive):
             return
         goal = self.goals[self.k]
         cur = self.r.frame_pose(self.ee_frame)
-        f = self.wrench_in("world")[:3]
+        self.f = f = low_pass(self.f, self.wrench_in("world")[:3], p.filter_hz, 1.0 / p.rate_hz)
         if self.mode == "planned":
             if not self.arm.done():
                 return

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.primitives.base import Primitive
+from contactflow.embodiments.primitives.base import Primitive, low_pass
 from contactflow.nodes.status import Event
 
 SENSORS = ("hand", "tactile", "gripper_effort", "wrist_ft")
@@ -63,9 +63,8 @@ class WaitEvent(Primitive):
         if p.sensor == "gripper_effort":
             return self.grip_force() >= max(p.threshold, 1e-9)
         if p.sensor == "wrist_ft":
-            f = float(np.linalg.norm(self.wrench_in("world")[:3]))
-            a = 1.0 if p.filter_hz <= 0 else 1.0 - float(np.exp(-2.0 * np.pi * p.filter_hz / p.rate_hz))
-            self.load = f if self.load is None else self.load + a * (f - self.load)
+            self.load = low_pass(self.load, float(np.linalg.norm(self.wrench_in("world")[:3])), p.filter_hz,
+                                 1.0 / p.rate_hz)
             return self.load >= p.threshold
         return self.holding(min_pads=p.min_contacts)
 

@@ -269,6 +269,10 @@ def test_the_factory_hands_typed_params_and_a_bad_one_is_an_error_naming_the_sta
     assert {h.params["sensor"] for h in baxter["lift_object"].helpers} == {"gripper_effort"}
     # the robot's overrides are part of the typed Params the ESTD carries
     assert tomb["grasp_object"].params["torque_threshold"] == 0.1
+    # the ATD's hand position (6 cm, Table 7.3) opens a gripper that far, as a fraction of its opening;
+    # a multi-finger hand's joints give no aperture in metres: it opens fully
+    assert melfa["let_go"].params == {"hand_target": 0.75}  # 6 of the gripper's 8 cm
+    assert tomb["let_go"].params == {}
 
     class Misspelt(TombatossalsFactory):
         def grasp(self, kind, concrete, state, atd, notes):

@@ -190,7 +190,9 @@ def test_world_control_and_vision_in_three_processes_pick_and_place_the_object_t
     world = world_node("rtv", CELLS / "pick_place.yaml", listen=endpoint, wait_for=(control["node"],), camera_hz=2.0)
     run = run_cell(tmp_path, world, [control], endpoint, processes=True, services=(vision,), timeout=120)
     assert run.outcomes[ROBOT].event is Event.SUCCESS, run.events
-    (detected,) = [e for e in run.messages if e.event is Event.OBJECT_DETECTED]
+    detected = [e for e in run.messages if e.event is Event.OBJECT_DETECTED]
+    assert len(detected) == 1, [(e.module, e.event, e.detail) for e in run.messages]
+    (detected,) = detected
     # the objects came from the vision node, cut from a frame of the world's depth stream; no frame of its own
     assert "vision chain, depth frame site/world/world/tombatossals/depth#" in detected.detail, detected.detail
     assert (detected.values["cx"], detected.values["cy"]) == pytest.approx((0.55, -0.3), abs=0.025)  # the can (r 3 cm)
