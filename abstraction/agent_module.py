@@ -221,8 +221,9 @@ class RobotAgentModule(Module):
     def _detect(self, r: _Running) -> None:
         """Find the next object the ATD asks to detect with the node's detect_objects; launch when all are bound.
 
-        Its location is the seen points' centre across and half their height below their top
-        (the camera sees an object's top and one side).
+        Its location is the centre of its top face across (the camera sees an object's top whole
+        but only its near side, which pulls the centroid of all its points toward the camera) and
+        half the seen height below its top.
         """
         key = next(iter(r.detect))
         if not r.detect[key]:
@@ -240,7 +241,7 @@ class RobotAgentModule(Module):
                 r.job.done.set()
                 return
             v = e.values
-            r.params[key] = [float(v["cx"]), float(v["cy"]), float(v["top"]) - 0.5 * float(v["size_z"])]
+            r.params[key] = [float(v["tx"]), float(v["ty"]), float(v["top"]) - 0.5 * float(v["size_z"])]
             self.io.log(f"{key} detected at {[round(c, 3) for c in r.params[key]]} ({e.detail})")
             del r.detect[key]
             break  # its first outcome carries the values; the module's status event that follows is the same outcome

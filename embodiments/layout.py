@@ -131,10 +131,13 @@ VISION_INPUTS = {"detect_objects": {"objects": "objects.objects", "plane": "plan
 """A control node's inputs (``control_node(inputs=...)``) that make its detect_objects read the robot's vision node."""
 
 
-def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect: tuple[str, ...] = ()) -> dict[str, Any]:
+def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect: tuple[str, ...] = (),
+                clock: str = "lockstep", cell: str = "") -> dict[str, Any]:
     """A robot's vision3d node (thesis §6.3.3): cloud -> plane -> ROI -> objects, fed by the depth stream its world publishes.
 
-    The world streams depth frames only with its ``camera_hz`` param set.
+    The world streams depth frames only with its ``camera_hz`` param set. In lockstep (the
+    default) the world waits for the chain each tick, so a frame's objects reach a task at the
+    same simulated time whatever the CPUs' speed: a seeded run with vision repeats exactly.
     """
     from contactflow.nodes.keys import KeySpace
 
@@ -146,7 +149,7 @@ def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect
         {"name": "objects", "type": f"{svc}.cluster_extractor:ClusterExtractor",
          "inputs": {"cloud": "roi.cloud", "plane": "plane.plane"}},
     ]
-    return {"site": site, "node": node or f"vision3d_{robot}", "robot": robot, "clock": "wall",
+    return {"site": site, "node": node or f"vision3d_{robot}", "robot": robot, "clock": clock, "cell": cell,
             "zenoh": zenoh(listen, connect), "modules": modules}
 
 

@@ -6,7 +6,7 @@ import threading
 import time
 
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.messages import Clock, LockstepAck
+from contactflow.nodes.messages import Clock, LockstepAck, Mark
 from contactflow.nodes.transport import Handle, Transport
 from contactflow.nodes.wire import WireError, decode, encode, stamp
 
@@ -81,12 +81,16 @@ class LockstepClock(SimClock):
     sensor messages and then the clock, this node steps every module due at that time, and
     :meth:`ack` tells the world it may advance (thesis §6.3: one control cycle). Messages a
     module sends during the tick leave before the ack, on the same session, so the world
-    applies them before tick k+1 whatever the process layout.
+    applies them before tick k+1 whatever the process layout. Messages between nodes (or
+    between two modules of one node) travel on their own: the ack names the last one of each
+    stream (:class:`Mark`), the world passes the marks on with tick k+1, and the host steps
+    tick k+1 once its inputs have them, so a module sees a message at the same tick in any layout.
     """
 
     def __init__(self, transport: Transport, ks: KeySpace, node: str, cell: str = "") -> None:
         self._tick = -1
         self._done = -1
+        self._marks: list[Mark] = []
         super().__init__(transport, ks, cell)
         self.node = node
         self._ack = transport.publisher(ks.lockstep(node, cell))
@@ -95,23 +99,24 @@ class LockstepClock(SimClock):
 
     def _advance(self, msg: Clock) -> bool:
         if msg.tick > self._tick:
-            self._tick, self._t = msg.tick, max(self._t, msg.t)
+            self._tick, self._t, self._marks = msg.tick, max(self._t, msg.t), msg.marks
             return True
         return False
 
-    def wait_tick(self, stop: threading.Event) -> int | None:
-        """Block until the world publishes a tick this node has not stepped; None when ``stop`` is set."""
+    def wait_tick(self, stop: threading.Event) -> tuple[int, list[Mark]] | None:
+        """Block until the world publishes a tick this node has not stepped: (tick, the marks of the tick
+        before); None when ``stop`` is set."""
         with self._cond:
             while self._tick <= self._done and not stop.is_set():
                 self._cond.wait(0.05)
             if stop.is_set():
                 return None
             self._done = self._tick
-            return self._tick
+            return self._tick, self._marks
 
-    def ack(self, tick: int) -> None:
+    def ack(self, tick: int, marks: list[Mark] | None = None) -> None:
         self._seq += 1
-        msg = stamp(LockstepAck(node=self.node, tick=tick), f"lockstep/{self.node}", self._seq, self._t)
+        msg = stamp(LockstepAck(node=self.node, tick=tick, marks=marks or []), f"lockstep/{self.node}", self._seq, self._t)
         self._ack(encode(msg))
 
     def close(self) -> None:

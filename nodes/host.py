@@ -9,8 +9,10 @@ module's exception or a malformed message take the node down.
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
+import time
 import traceback
 from collections import deque
 from dataclasses import dataclass, field
@@ -24,18 +26,20 @@ from contactflow.nodes.messages import (
     ControlReply,
     ControlRequest,
     EventMsg,
+    Mark,
     ParamValue,
     StatusMsg,
 )
 from contactflow.nodes.module import LayerError, Module
 from contactflow.nodes.params import ParamError, params_dict
 from contactflow.nodes.status import STATUS_EVENT, Event, Status
-from contactflow.nodes.transport import Handle, Transport
+from contactflow.nodes.transport import Handle, Transport, key_matches
 from contactflow.nodes.wire import Header, Message, MsgId, WireError, decode, encode, stamp
 
 STATUS_PERIOD = 1.0  # s between periodic status messages
 QUEUE_DEPTH = 256  # messages kept per input port between two steps
 MAX_SOURCES = 1024  # sources tracked per input port; bounds memory against hostile senders
+MARK_WAIT = 5.0  # s of wall time a lockstep node waits for the messages a tick's marks name before it steps
 
 
 @dataclass
@@ -86,6 +90,7 @@ class HostedIO:
         self._queues: dict[str, deque[Message]] = {p.name: deque(maxlen=QUEUE_DEPTH) for p in hm.module.inputs}
         self._trackers: dict[str, SeqTracker] = {p.name: SeqTracker() for p in hm.module.inputs}
         self._seqs: dict[str, int] = {}  # one counter per stream, so a gap on a stream means loss
+        self._held: list[tuple[str, Message]] = []  # lockstep: messages sent during the tick being stepped, for the next
         hm.counters.gaps = {p.name: 0 for p in hm.module.inputs}
 
     @property
@@ -111,14 +116,38 @@ class HostedIO:
         return self._hm.addr.robot
 
     def deliver(self, port: str, msg: Message) -> int:
-        """Queue an input; returns how many sequence numbers of its source were missed before it."""
+        """Queue an input; returns how many sequence numbers of its source were missed before it.
+
+        In lockstep a message another node sent during the tick this node steps (it travelled
+        fast) waits for the next tick, as one that travelled slowly does: see :meth:`release`.
+        """
         with self._lock:
             missed = self._trackers[port].observe(msg.hdr)
             if missed:
                 self._hm.counters.gaps[port] += missed
-            self._latest[port] = msg
-            self._queues[port].append(msg)
+            if 0 <= self._host.tick_no <= msg.hdr.tick:
+                self._held.append((port, msg))
+            else:
+                self._latest[port] = msg
+                self._queues[port].append(msg)
+        self._host.delivered()
         return missed
+
+    def release(self, tick: int) -> None:
+        """Make the held messages sent before ``tick`` inputs (the host calls it before stepping ``tick``)."""
+        with self._lock:
+            held, self._held = self._held, []
+            for port, msg in held:
+                if msg.hdr.tick < tick:
+                    self._latest[port] = msg
+                    self._queues[port].append(msg)
+                else:
+                    self._held.append((port, msg))
+
+    def heard(self, port: str, source: str) -> int:
+        """The highest sequence number of ``source`` delivered on ``port`` (0: none)."""
+        with self._lock:
+            return self._trackers[port].last.get(source, 0)
 
     def latest(self, port: str) -> Message | None:
         with self._lock:
@@ -152,8 +181,10 @@ class HostedIO:
         if weight is not None:  # the configuration mixes the resource this port commands
             msg.weight = weight
         stamp(msg, f"{self._hm.addr}/{port}", self.next_seq(port), self.now, inputs)
+        msg.hdr.tick = self._host.tick_no
         pub(encode(msg))
         self._hm.counters.published += 1
+        self._host.mark(self._hm.out_keys[port], msg.hdr.source, msg.hdr.seq)
 
     def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
         msg = EventMsg(event=event, module=str(self._hm.addr), detail=detail, values=values or {})
@@ -176,6 +207,8 @@ class HostedModule:
     addr: ModuleAddr
     io: HostedIO | None = None
     publishers: dict[str, Any] = field(default_factory=dict)
+    out_keys: dict[str, str] = field(default_factory=dict)  # output port -> key it publishes on
+    in_keys: dict[str, str] = field(default_factory=dict)  # wired input port -> key expression it subscribes to
     event_pub: Any = None
     status_pub: Any = None
     handles: list[Handle] = field(default_factory=list)
@@ -213,6 +246,10 @@ class ModuleHost:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._node_token: Handle | None = None
+        self._marks: dict[tuple[str, str], int] = {}  # (key, source) -> last seq published this tick (lockstep)
+        self._delivery = threading.Condition()
+        self.mark_timeouts = 0  # ticks stepped without every message their marks named
+        self.tick_no = -1  # the world tick a lockstep node steps (-1: not in lockstep)
 
     # -- set up ---------------------------------------------------------------------------
     def add(self, cfg: ModuleConfig, module: Module | None = None) -> HostedModule:
@@ -231,6 +268,7 @@ class ModuleHost:
             key = (cfg.outputs.get(port.name) or out_keys.get(port.name)
                    or self.ks.output(addr.robot, addr.node, addr.module, port.name))
             hm.publishers[port.name] = t.publisher(key)
+            hm.out_keys[port.name] = key
         hm.event_pub = t.publisher(self.ks.events(*self._a(addr)))
         hm.status_pub = t.publisher(self.ks.status(*self._a(addr)))
         in_keys = module.default_input_keys(self.ks, addr.robot, addr.module, module.params)
@@ -241,6 +279,7 @@ class ModuleHost:
                 continue
             hm.handles.append(t.subscribe(key, self._input_callback(hm, port.name, port.type)))
             hm.wired.add(port.name)
+            hm.in_keys[port.name] = key
         hm.handles.append(t.queryable(self.ks.control(*self._a(addr)), self._control_callback(hm)))
         hm.handles.append(t.token(self.ks.alive_module(*self._a(addr))))
         module.setup(hm.io)
@@ -451,7 +490,8 @@ class ModuleHost:
         for hm in list(self.modules.values()):
             with hm.lock:
                 m = hm.module
-                if m.state == Status.RUNNING and now >= hm.next_due:
+                # (a nanosecond of slack: a module at the world's tick rate must not skip a tick on rounding)
+                if m.state == Status.RUNNING and now + 1e-9 >= hm.next_due:
                     period = 1.0 / max(m.params.rate_hz, 1e-3)
                     hm.next_due = max(hm.next_due + period, now) if hm.next_due > now - period else now + period
                     try:
@@ -477,13 +517,63 @@ class ModuleHost:
         """Block, stepping modules until :meth:`shutdown`; a lockstep node answers every world tick."""
         clock = self.clock
         if isinstance(clock, LockstepClock):
-            while (k := clock.wait_tick(self._stop)) is not None:
+            while (got := clock.wait_tick(self._stop)) is not None:
+                k, marks = got
+                with self._delivery:
+                    self.tick_no = k
+                self._await_marks(k, marks)
+                with self._lock:
+                    hosted = list(self.modules.values())
+                for hm in hosted:
+                    hm.io.release(k)
                 self.tick()
-                clock.ack(k)
+                clock.ack(k, self._take_marks())
             return
         while not self._stop.is_set():
             due = self.tick()
             clock.wait_until(due, self._stop)
+
+    # -- lockstep delivery -----------------------------------------------------------------
+    def mark(self, key: str, source: str, seq: int) -> None:
+        """Note a message a module published (a lockstep node's ack names the last one per stream)."""
+        if isinstance(self.clock, LockstepClock):
+            with self._delivery:
+                self._marks[(key, source)] = seq
+
+    def _take_marks(self) -> list[Mark]:
+        with self._delivery:
+            marks, self._marks = self._marks, {}
+        return [Mark(key=k, source=src, seq=seq) for (k, src), seq in marks.items()]
+
+    def delivered(self) -> None:
+        with self._delivery:
+            self._delivery.notify_all()
+
+    def _await_marks(self, tick: int, marks: list[Mark]) -> None:
+        """Wait until every input subscribed to a marked stream has its marked message, so the tick's
+        step sees what the nodes sent during the previous tick whatever the delivery delays."""
+        if not marks:
+            return
+        with self._lock:
+            wanted = [(hm, port, m) for hm in self.modules.values() for port, key in hm.in_keys.items()
+                      for m in marks if _marked(key, m.key)]
+        if not wanted:
+            return
+        end = time.monotonic() + MARK_WAIT
+        with self._delivery:
+            while not self._stop.is_set():
+                missing = [(hm, port, m) for hm, port, m in wanted if hm.io.heard(port, m.source) < m.seq]
+                if not missing:
+                    return
+                left = end - time.monotonic()
+                if left <= 0:
+                    break
+                self._delivery.wait(min(left, 0.05))
+        if not self._stop.is_set():
+            self.mark_timeouts += 1
+            hm, port, m = missing[0]
+            self.log.warning("tick %d stepped without %d marked message(s), e.g. %s seq %d for %s.%s",
+                             tick, len(missing), m.source, m.seq, hm.addr, port)
 
     def start(self, host_name: str | None = None) -> None:
         """Announce the node, autostart modules and run the loop on a thread."""
@@ -511,3 +601,9 @@ class ModuleHost:
         if self._node_token is not None:
             self._node_token.close()
         self.clock.close()
+
+
+@functools.lru_cache(maxsize=4096)
+def _marked(subscription: str, key: str) -> bool:
+    """Whether an input subscribed to ``subscription`` receives what is published on ``key`` (cached: every tick asks)."""
+    return key_matches(subscription, key)

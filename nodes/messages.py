@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from enum import StrEnum
 
+import msgspec
+
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.wire import Message, NDArray
 
@@ -56,12 +58,21 @@ class ControlReply(Message, tag="control_reply"):
     description: str = ""  # YAML module description, for DESCRIBE
 
 
+class Mark(msgspec.Struct, frozen=True, kw_only=True):
+    """The last message a lockstep node's module published on ``key`` during a tick (its header's source and seq)."""
+
+    key: str
+    source: str
+    seq: int
+
+
 class Clock(Message, tag="clock"):
     """Simulation clock published by the world; nodes step their modules on it."""
 
     t: float  # s of simulated time
     real_time_factor: float = 1.0
     tick: int = 0  # control tick of the world; lockstep nodes answer each one
+    marks: list[Mark] = []  # what the lockstep nodes published during the previous tick: a subscriber steps once it has them
 
 
 class LockstepAck(Message, tag="lockstep_ack"):
@@ -69,6 +80,7 @@ class LockstepAck(Message, tag="lockstep_ack"):
 
     node: str
     tick: int
+    marks: list[Mark] = []  # the last message of each stream its modules published during the tick
 
 
 class Vector(Message, tag="vector"):

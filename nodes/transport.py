@@ -160,7 +160,8 @@ class ZenohTransport:
             s.close()
 
 
-def _matches(pattern: str, key: str) -> bool:
+def key_matches(pattern: str, key: str) -> bool:
+    """Whether key expressions ``pattern`` and ``key`` share a key (zenoh's intersection)."""
     return zenoh.KeyExpr(pattern).intersects(zenoh.KeyExpr(key))
 
 
@@ -178,7 +179,7 @@ class LocalTransport:
     def publisher(self, key: str, reliable: bool = True) -> Callable[[bytes], None]:
         def put(data: bytes) -> None:
             with self._lock:
-                targets = [cb for pat, cb in self.subs if _matches(pat, key)]
+                targets = [cb for pat, cb in self.subs if key_matches(pat, key)]
             for cb in targets:
                 try:
                     cb(key, bytes(data))
@@ -207,7 +208,7 @@ class LocalTransport:
 
     def query(self, keyexpr: str, payload: bytes, timeout: float = 2.0) -> list[tuple[str, bytes]]:
         with self._lock:
-            targets = [(k, h) for k, h in self.queryables if _matches(keyexpr, k)]
+            targets = [(k, h) for k, h in self.queryables if key_matches(keyexpr, k)]
         return [(k, h(k, payload)) for k, h in targets]
 
     def token(self, key: str) -> Handle:
@@ -215,27 +216,27 @@ class LocalTransport:
             self._next += 1
             tid = self._next
             self.tokens[tid] = key
-            watchers = [cb for pat, cb in self.watchers if _matches(pat, key)]
+            watchers = [cb for pat, cb in self.watchers if key_matches(pat, key)]
         for cb in watchers:
             cb(key, True)
 
         def close() -> None:
             with self._lock:
                 k = self.tokens.pop(tid, None)
-                targets = [cb for pat, cb in self.watchers if k is not None and _matches(pat, k)]
+                targets = [cb for pat, cb in self.watchers if k is not None and key_matches(pat, k)]
             for cb in targets:
                 cb(key, False)
         return _Closer(close)
 
     def alive(self, keyexpr: str, timeout: float = 1.0) -> list[str]:
         with self._lock:
-            return sorted({k for k in self.tokens.values() if _matches(keyexpr, k)})
+            return sorted({k for k in self.tokens.values() if key_matches(keyexpr, k)})
 
     def watch_alive(self, keyexpr: str, callback: AliveCallback) -> Handle:
         entry = (keyexpr, callback)
         with self._lock:
             self.watchers.append(entry)
-            existing = [k for k in self.tokens.values() if _matches(keyexpr, k)]
+            existing = [k for k in self.tokens.values() if key_matches(keyexpr, k)]
         for k in existing:
             callback(k, True)
         return _Closer(self._remove(self.watchers, entry))

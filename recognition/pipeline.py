@@ -95,11 +95,34 @@ def detect_plane(points: np.ndarray, distance: float = 0.01, iterations: int = 2
     largest = max(len(f[2]) for f in found)
     big = [f for f in found if len(f[2]) >= highest_fraction * largest]
     n, d, inl = max(big, key=lambda f: -f[1]) if up is not None else big[0]
+    n, d, inl = _refit(pts, n, d, distance)
     mask[inl] = True
     centroid = pts[inl].mean(axis=0)
     origin = centroid - (centroid @ n + d) * n
     frame = orthonormal_frame(n, _principal_direction(pts[inl] - origin, n))
     return Plane(n, d, origin, frame, len(inl), t), mask
+
+
+def _refit(pts: np.ndarray, n: np.ndarray, d: float, distance: float, rounds: int = 8) -> tuple[np.ndarray, float, np.ndarray]:
+    """Least-squares refit of a RANSAC plane on its consensus set until the set stops changing.
+
+    open3d's RANSAC draws its samples on several threads, so two runs on one cloud return
+    slightly different planes; their consensus sets, refitted, settle on the same plane, which
+    keeps a seeded run repeatable (the same points above the table, the same objects).
+    """
+    inl = np.flatnonzero(np.abs(pts @ n + d) < distance)
+    for _ in range(rounds):
+        if len(inl) < 3:
+            break
+        c = pts[inl].mean(axis=0)
+        m = np.linalg.svd(pts[inl] - c, full_matrices=False)[2][-1]
+        m = m if m @ n >= 0 else -m
+        n, d = m, float(-(m @ c))
+        again = np.flatnonzero(np.abs(pts @ n + d) < distance)
+        if np.array_equal(again, inl):
+            break
+        inl = again
+    return n, d, inl
 
 
 def _principal_direction(points: np.ndarray, normal: np.ndarray) -> np.ndarray:

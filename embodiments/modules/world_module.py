@@ -50,7 +50,7 @@ from contactflow.embodiments.messages import (
     TactileSample,
     WrenchSample,
 )
-from contactflow.nodes.messages import Clock, LockstepAck
+from contactflow.nodes.messages import Clock, LockstepAck, Mark
 from contactflow.nodes.module import Layer, Module, ModuleIO
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.wire import NDArray, WireError, decode, encode, stamp
@@ -126,6 +126,8 @@ class WorldModule(Module):
         self._requests: deque[CameraRequest] = deque()
         self._holds: deque[tuple[str, str]] = deque()
         self._acks: dict[str, int] = {}
+        self._marks: dict[tuple[str, str], int] = {}  # what the lockstep nodes published since the last tick
+        self._tick_marks: list[Mark] = []  # ... passed on with the current tick's clock
         self._lockstep: set[str] = set()
         self._cond = threading.Condition()
         self._handles: list[Any] = []
@@ -217,6 +219,9 @@ class WorldModule(Module):
         except WireError:
             return
         with self._cond:
+            for m in ack.marks:
+                if m.seq > self._marks.get((m.key, m.source), 0):
+                    self._marks[(m.key, m.source)] = m.seq
             if ack.tick > self._acks.get(ack.node, -1):
                 self._acks[ack.node] = ack.tick
                 self._cond.notify_all()
@@ -356,8 +361,13 @@ class WorldModule(Module):
             poses = np.stack([o.pose() for o in objs.values()]) if objs else np.zeros((0, 4, 4))
             self._gt_pub(encode(stamp(ObjectPoses(names=list(objs), poses=NDArray.of(poses)),
                                       f"{self.source}/object_poses", self.tick_no + 1, t)))
+        if not repeat:
+            with self._cond:
+                marks, self._marks = self._marks, {}
+            self._tick_marks = [Mark(key=k, source=src, seq=seq) for (k, src), seq in marks.items()]
         self._clock_seq += 1
-        self._clock_pub(encode(stamp(Clock(t=t, tick=self.tick_no), f"{self.source}/clock", self._clock_seq, t)))
+        self._clock_pub(encode(stamp(Clock(t=t, tick=self.tick_no, marks=self._tick_marks), f"{self.source}/clock",
+                                     self._clock_seq, t)))
 
     def _state(self, name: str, r: _Robot) -> RobotState:
         sim = r.sim
@@ -390,9 +400,11 @@ class WorldModule(Module):
     def _refuse(self, robot: str, why: str) -> None:
         r = self.robots.get(robot)
         if r is None:
+            # a site of several cells: every world hears the others' robots' commands, which is not a fault
             self.refused_unknown += 1
-        else:
-            r.refused += 1
+            self.log.debug("refused: %s", why)
+            return
+        r.refused += 1
         self.log.warning("refused: %s", why)
 
     def _apply(self, msg: RobotCommand) -> None:

@@ -28,6 +28,8 @@ MIN_HEIGHT = 0.01
 """m: points this close to the support are the support's."""
 CLUSTER_EPS = 0.015
 """m: DBSCAN neighbourhood of the objects' points."""
+TOP_BAND = 0.01
+"""m: the points this close to an object's top are its top face, seen whole from above (its centre across)."""
 
 
 def support_plane(region: np.ndarray, z: float) -> Plane:
@@ -347,7 +349,8 @@ class DetectObjects(Primitive):
         approach = self.hand_pose(av, yaw)
         d = av.direction
         dims = np.sort(pick.box.extent)[::-1]
-        vals = dict(count=count, cx=float(c[0]), cy=float(c[1]), cz=float(c[2]), top=top,
+        tx, ty = pts[pts[:, 2] >= top - TOP_BAND][:, :2].mean(axis=0)
+        vals = dict(count=count, cx=float(c[0]), cy=float(c[1]), cz=float(c[2]), top=top, tx=float(tx), ty=float(ty),
                     size_x=float(size[0]), size_y=float(size[1]), size_z=float(top - bottom),
                     grasp_z=float(grasp_z), dx=float(d[0]), dy=float(d[1]), dz=float(d[2]),
                     d1=float(dims[0]), d2=float(dims[1]), d3=float(dims[2]), **pose6(approach))

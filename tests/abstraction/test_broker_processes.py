@@ -177,7 +177,7 @@ def test_an_object_the_atd_asks_to_detect_is_found_by_the_vision_node_and_picked
     configs = {
         "broker": {"site": site, "node": "broker_node", "zenoh": {"mode": "peer", "listen": [connect[0]]},
                    "modules": [{"name": "broker", "type": "broker"}]},
-        "world": world_node(site, "pick_place", connect=connect, wait_for=("control",), camera_hz=2.0),
+        "world": world_node(site, "pick_place", connect=connect, wait_for=("control", f"vision3d_{robot}"), camera_hz=2.0),
         "vision": vision_node(site, robot, connect=connect),
         "control": {"site": site, "node": "control", "clock": "lockstep", "zenoh": {"mode": "peer", "connect": list(connect)},
                     "modules": [{"name": "agent", "type": "robot_agent", "robot": robot, "params": {"robot": robot}},
@@ -200,7 +200,8 @@ def test_an_object_the_atd_asks_to_detect_is_found_by_the_vision_node_and_picked
         assert found.group(2) == "vision chain"  # the vision node's clusters, not a camera frame of its own
         xyz = [float(c) for c in found.group(1).split(",")]
         can = next(o for o in load_scene("pick_place").objects if o.name == "cyl")
-        assert sum((a - b) ** 2 for a, b in zip(xyz, can.xyz, strict=True)) ** 0.5 < 0.03, (xyz, can.xyz)
+        # the centre of the can's top face, seen whole (the centroid of all the seen points was 1.7 cm toward the camera)
+        assert sum((a - b) ** 2 for a, b in zip(xyz, can.xyz, strict=True)) ** 0.5 < 0.01, (xyz, can.xyz)
     finally:
         tool.close()
         for p in procs.values():

@@ -21,7 +21,7 @@ from contactflow.embodiments.messages import (
 from contactflow.embodiments.scene_file import parse_scene
 from contactflow.nodes.config import parse_node_config
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.messages import Clock, EventMsg, LockstepAck
+from contactflow.nodes.messages import Clock, EventMsg, LockstepAck, Mark
 from contactflow.nodes.node import Node
 from contactflow.nodes.procs import free_port, wait_for
 from contactflow.nodes.status import Event
@@ -103,8 +103,8 @@ class Client:
     def send(self, msg) -> None:
         self._cmd(encode(msg))
 
-    def ack(self, tick: int) -> None:
-        self._ack(encode(LockstepAck(node="tester", tick=tick)))
+    def ack(self, tick: int, marks: list[Mark] | None = None) -> None:
+        self._ack(encode(LockstepAck(node="tester", tick=tick, marks=marks or [])))
 
     def close(self) -> None:
         for s in self._subs:
@@ -181,13 +181,17 @@ def test_a_lockstep_node_holds_the_world_at_each_tick_until_it_answers(world):
     k = wm.tick_no
     time.sleep(0.5)
     assert wm.tick_no == k  # waiting for the tester's answer to tick k
+    sent = Mark(key="cf/x/data/out", source="site/tester/m/out", seq=7)
     for i in range(3):
-        c.ack(k + i)
+        c.ack(k + i, [sent] if i == 1 else [])
         assert wait_for(lambda i=i: wm.tick_no == k + i + 1, 5)
     time.sleep(0.3)
     assert wm.tick_no == k + 3
     ticks = [m.tick for m in c.clocks if m.tick >= k]
     assert {k + 1, k + 2, k + 3} <= set(ticks)
+    # what the node said it sent during tick k+1 comes with tick k+2 (its subscribers wait for it), and only then
+    marks = {m.tick: m.marks for m in c.clocks if m.tick > k}
+    assert marks[k + 2] == [sent] and marks[k + 1] == [] and marks[k + 3] == []
     token.close()  # gone: the world runs on without it
     assert wait_for(lambda: wm.tick_no > k + 50, 10)
     assert wm.overruns == 0

@@ -1,0 +1,144 @@
+"""Lockstep delivery: a message a module sends during world tick k is an input at tick k+1, however late it travels."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import pytest
+
+from contactflow.nodes.config import ModuleConfig, NodeConfig, parse_source
+from contactflow.nodes.host import ModuleHost
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.messages import Clock, LockstepAck, Mark, Vector
+from contactflow.nodes.module import Layer, Module, Port
+from contactflow.nodes.status import Status
+from contactflow.nodes.transport import LocalTransport, ZenohSettings
+from contactflow.nodes.wire import decode, encode, stamp
+
+DT = 0.005  # s, one world tick
+DELAY = 0.03  # s a data message travels, six ticks of a world that would not wait
+
+
+class SlowDataTransport(LocalTransport):
+    """The in-process bus, with module outputs (``.../out``) delivered ``DELAY`` s late on a thread of their own."""
+
+    def publisher(self, key, reliable=True):
+        put = super().publisher(key, reliable)
+        if not key.endswith("/out"):
+            return put
+
+        def late(data: bytes) -> None:
+            threading.Timer(DELAY, put, (data,)).start()
+        return late
+
+
+class Producer(Module):
+    """Publishes the time of every tick it steps."""
+
+    layer = Layer.SERVICE
+    outputs = (Port("out", Vector),)
+
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 1.0 / DT  # Hz, every tick
+
+    def step(self) -> Status:
+        self.io.publish("out", Vector(values=[self.io.now]))
+        return Status.RUNNING
+
+
+class Consumer(Module):
+    """Records, at every tick, the producer's values it has by then."""
+
+    layer = Layer.TASK
+    inputs = (Port("inp", Vector),)
+
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 1.0 / DT  # Hz, every tick
+
+    def start(self) -> None:
+        self.seen: list[tuple[float, list[float]]] = []
+
+    def step(self) -> Status:
+        self.seen.append((self.io.now, [m.values[0] for m in self.io.take("inp")]))
+        return Status.RUNNING
+
+
+def node(name: str, modules: tuple[ModuleConfig, ...]) -> NodeConfig:
+    return NodeConfig(site="ls", node=name, host="h", robot="site", clock="lockstep", zenoh=ZenohSettings(),
+                      modules=modules)
+
+
+def run_world(t: LocalTransport, ks: KeySpace, nodes: list[str], ticks: int, pass_marks: bool) -> None:
+    """What the world module does: tick k+1 once every node acknowledged tick k, with the marks of their acks."""
+    acks: dict[str, LockstepAck] = {}
+    cond = threading.Condition()
+
+    def on_ack(key: str, payload: bytes) -> None:
+        ack = decode(payload, LockstepAck, key)
+        with cond:
+            acks[ack.node] = ack
+            cond.notify_all()
+
+    sub = t.subscribe(ks.lockstep("*"), on_ack)
+    clock = t.publisher(ks.clock())
+    marks: list[Mark] = []
+    try:
+        for k in range(ticks):
+            clock(encode(stamp(Clock(t=k * DT, tick=k, marks=marks if pass_marks else []), "world/clock", k + 1, k * DT)))
+            with cond:
+                assert cond.wait_for(lambda k=k: all(n in acks and acks[n].tick >= k for n in nodes), 10.0)
+                marks = [m for n in nodes for m in acks[n].marks]
+    finally:
+        sub.close()
+
+
+@pytest.mark.parametrize("layout", ["one node", "two nodes"])
+def test_a_lockstep_module_gets_what_another_sent_during_the_tick_before_however_late_it_travels(layout):
+    t = SlowDataTransport()
+    ks = KeySpace("ls")
+    producer, consumer = Producer("src"), Consumer("dst")
+    cfg_p = ModuleConfig("src", "producer", Producer, Producer.Params(), "site")
+    cfg_c = ModuleConfig("dst", "consumer", Consumer, Consumer.Params(), "site", inputs={"inp": parse_source("src.out")})
+    if layout == "one node":
+        hosts = [ModuleHost(node("n1", (cfg_p, cfg_c)), t)]
+        hosts[0].add(cfg_p, producer)
+        hosts[0].add(cfg_c, consumer)
+    else:
+        hosts = [ModuleHost(node("n1", (cfg_p,)), t), ModuleHost(node("n2", (cfg_c,)), t)]
+        hosts[0].add(cfg_p, producer)
+        hosts[1].add(cfg_c, consumer)
+    for h in hosts:
+        h.start()
+    try:
+        run_world(t, ks, [h.config.node for h in hosts], 40, pass_marks=True)
+    finally:
+        for h in hosts:
+            h.shutdown()
+    steps = consumer.seen[1:]  # at tick 0 nothing was sent yet
+    assert len(steps) >= 38
+    # every tick brings exactly the value the producer sent the tick before, not DELAY (6 ticks) later
+    assert all(values == [pytest.approx(now - DT)] for now, values in steps), [s for s in steps if s[1] != [pytest.approx(s[0] - DT)]]
+    assert all(h.mark_timeouts == 0 for h in hosts)
+
+
+def test_without_the_marks_a_late_message_reaches_a_later_tick():
+    """The same run with a world that passes no marks on: the layout's delays decide the tick a message is seen."""
+    t = SlowDataTransport()
+    ks = KeySpace("ls")
+    producer, consumer = Producer("src"), Consumer("dst")
+    cfg_p = ModuleConfig("src", "producer", Producer, Producer.Params(), "site")
+    cfg_c = ModuleConfig("dst", "consumer", Consumer, Consumer.Params(), "site", inputs={"inp": parse_source("src.out")})
+    host = ModuleHost(node("n1", (cfg_p, cfg_c)), t)
+    host.add(cfg_p, producer)
+    host.add(cfg_c, consumer)
+    host.start()
+    try:
+        run_world(t, ks, ["n1"], 40, pass_marks=False)
+        time.sleep(2 * DELAY)
+    finally:
+        host.shutdown()
+    assert any(values != [pytest.approx(now - DT)] for now, values in consumer.seen[1:])
