@@ -9,15 +9,12 @@ from typing import Any
 
 from contactflow.abstraction.agent import RobotAgent
 from contactflow.abstraction.profiles import PROFILES
-from contactflow.embodiments.messages import DepthImage, ObjectPoses
 from contactflow.nodes.keys import ANY, KeySpace
 from contactflow.nodes.messages import EventMsg
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
 from contactflow.nodes.params import ParamError
 from contactflow.nodes.status import Event, Status
-from contactflow.nodes.wire import NDArray, encode, stamp
-
-EXECUTORS = ("runtime", "sim")
+from contactflow.nodes.wire import encode, stamp
 
 
 @dataclass
@@ -53,39 +50,27 @@ class _Running:
 class RobotAgentModule(Module):
     """Advertises the robot, bids on ATDs and runs the ESTDs it is given.
 
-    With ``executor: runtime`` (the deployed system) the task engine runs in this module's
-    step on the robot's control node, in lockstep with the world: it starts and stops the
-    node's primitive modules with control messages and follows their events, and the
-    primitives drive the world's robot over the key space. The robot's contact cues are
-    fused here and published as contact events. With ``executor: sim`` the agent keeps a
-    world of its own in-process (benchmarks and tests of the factory), publishing its object
-    poses on the evaluation keys when the world is built and whenever a task ends.
+    The task engine runs in this module's step on the robot's control node, in lockstep with
+    the world: it starts and stops the node's primitive modules with control messages and
+    follows their events, and the primitives drive the world's robot over the key space. The
+    robot's contact cues are fused here and published as contact events.
     """
 
     layer = Layer.TASK
     autostart = True
-    inputs = (Port("events", EventMsg, "events of the primitive modules of this robot (runtime executor)"),)
-    outputs = (Port("depth", DepthImage, "the robot camera's depth frames while a task runs (sim executor)"),)
+    inputs = (Port("events", EventMsg, "events of the primitive modules of this robot"),)
 
     @dataclass(frozen=True)
     class Params:
-        rate_hz: float = 20.0  # Hz, task engine ticks (runtime executor)
+        rate_hz: float = 20.0  # Hz, task engine ticks
         robot: str = "tombatossals"  # embodiment name
-        executor: str = "runtime"  # runtime (the node's primitive modules, the world's robot) | sim (in-process world)
-        realtime: float = 1.0  # sim executor: pace of the task loop (1 = real time, 0 = as fast as possible)
-        scene: str = "thesis_7_3"  # sim executor: the station's world (embodiments/scenes.py)
         fusion: bool = True  # fuse the robot's contact cues and publish contact events
-        camera_hz: float = 1.0  # sim executor: Hz of simulated time, depth frames of the robot's camera (0 = none)
-        pool: int = 2  # runtime executor: modules per primitive type on the node (T, T_2, ...)
+        pool: int = 2  # modules per primitive type on the node (T, T_2, ...)
         max_time: float = 120.0  # s of simulated time a task may run
 
         def validate(self) -> None:
             if self.robot not in PROFILES:
                 raise ValueError(f"robot: {self.robot!r} is not one of {sorted(PROFILES)}")
-            if self.executor not in EXECUTORS:
-                raise ValueError(f"executor: {self.executor!r} is not one of {list(EXECUTORS)}")
-            if self.realtime < 0:
-                raise ValueError(f"realtime: {self.realtime} is negative")
 
     @classmethod
     def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
@@ -95,70 +80,8 @@ class RobotAgentModule(Module):
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)
         self._agent: RobotAgent | None = None
-        self._truth_seq = 0
-        self._truth_pub = None
         self._jobs: queue.Queue[_Job] = queue.Queue()
         self._run: _Running | None = None  # the task under way
-
-    def _executor(self):
-        if self.params.executor == "runtime":
-            return self._runtime_executor()
-        from contactflow.abstraction.sim_executor import SimExecutor
-
-        p = self.params
-        sim = SimExecutor(p.robot, scene=p.scene, realtime=p.realtime, monitor_factory=self._station_monitor)
-
-        def run(translation, report, cancel, params):
-            try:
-                return sim(translation, report, cancel, params)
-            finally:
-                # before the agent's final report: whoever waits for the end finds the world as it left it
-                if sim.robot is not None:
-                    self._publish_truth(sim.robot)
-
-        return run
-
-    def _publish_truth(self, robot) -> None:
-        import numpy as np
-
-        gt = robot.ground_truth()
-        names = sorted(gt.object_poses)
-        poses = np.stack([gt.object_poses[n] for n in names]) if names else np.zeros((0, 4, 4))
-        self._truth_seq += 1
-        msg = stamp(ObjectPoses(names=names, poses=NDArray.of(np.asarray(poses, dtype=np.float64))),
-                    f"{self.params.robot}/{self.io.node}/{self.name}/truth", self._truth_seq, robot.time)
-        if self._truth_pub is None:
-            self._truth_pub = self.io.transport.publisher(self.io.keyspace.evaluation(self.params.robot, "object_poses"))
-        self._truth_pub(encode(msg))
-
-    def _station_monitor(self, robot):
-        """Called once the world exists: the per-tick hook publishing contact events and depth."""
-        self._publish_truth(robot)
-        hooks = []
-        if self.params.fusion:
-            hooks.append(self._contact_monitor(robot))
-        if self.params.camera_hz > 0 and robot.spec.cameras:
-            hooks.append(self._camera_monitor(robot))
-
-        def monitor(r) -> None:
-            for hook in hooks:
-                hook(r)
-
-        return monitor
-
-    def _camera_monitor(self, robot):
-        camera = robot.spec.cameras[0].name
-        period = 1.0 / self.params.camera_hz
-        state = {"next": 0.0}
-
-        def publish(r) -> None:
-            if r.time + 1e-9 < state["next"]:
-                return
-            state["next"] = r.time + period
-            frame = r.camera(camera)
-            self.io.publish("depth", DepthImage.of(frame.depth, frame.K, frame.T_world_cam, camera))
-
-        return publish
 
     def _contact_monitor(self, robot):
         from contactflow.fusion.messages import ContactEventMsg
@@ -184,20 +107,17 @@ class RobotAgentModule(Module):
         except ValueError as exc:
             raise ParamError(str(exc)) from None
         self._agent = RobotAgent(PROFILES[self.params.robot], self.io.transport, self.io.keyspace,
-                                 self._executor(), node=self.io.node)
+                                 self._executor, node=self.io.node)
         self._agent.start()
 
-    # -- runtime executor -----------------------------------------------------------------
-    def _runtime_executor(self):
-        def run(translation, report, cancel, params) -> Event:
-            job = _Job(translation, report, cancel, dict(params or {}))
-            self._jobs.put(job)
-            while not job.done.wait(0.2):
-                if self.state is not Status.RUNNING:  # the module was stopped: nobody steps the task
-                    return Event.ERROR
-            return job.outcome
-
-        return run
+    # -- the executor: the broker thread hands a task to the step loop and waits ------------
+    def _executor(self, translation, report, cancel, params) -> Event:
+        job = _Job(translation, report, cancel, dict(params or {}))
+        self._jobs.put(job)
+        while not job.done.wait(0.2):
+            if self.state is not Status.RUNNING:  # the module was stopped: nobody steps the task
+                return Event.ERROR
+        return job.outcome
 
     def _begin(self, job: _Job) -> _Running:
         from contactflow.abstraction.execution import bound_params, robot_runner, to_detect
@@ -268,8 +188,6 @@ class RobotAgentModule(Module):
             r.job.done.set()
 
     def step(self) -> Status:
-        if self.params.executor != "runtime":
-            return Status.RUNNING
         if self._run is None:
             try:
                 job = self._jobs.get_nowait()

@@ -1,7 +1,8 @@
-"""Broker, robot agents and a client in separate node processes: dispatch and failover on kill.
+"""Broker, robot agents and a client in separate node processes: dispatch, failover on kill, detection.
 
-The agents run the real simulation executor (each station simulates its world); the robot the
-broker picks first is paced at real time so that it is still mid-task when its process is killed.
+Each robot is a world node and a control node (its agent and primitive modules) in lockstep;
+the robot the broker picks first is paced at real time so that it is still mid-task when its
+control node is killed.
 """
 
 import re
@@ -25,35 +26,44 @@ KS = KeySpace(SITE)
 ROBOTS = ("tombatossals", "melfa")
 PUSH = (EXAMPLES / "push_away.xml").read_text()
 # the broker's own choice for `any`, from the robots' (pure) dry runs
-PACED = 3.0  # the first robot's pace (x real time): slow enough to be killed mid-task, the push takes ~12 s simulated
 FIRST = choose("any", [dry_run(PROFILES[r], PUSH, "push_away.xml")[0] for r in ROBOTS])[0]
 
 
-def node_config(name, port, hub, modules):
-    zen = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"], "multicast_scouting": False}
-    if hub is not None:
-        zen["connect"] = [f"tcp/127.0.0.1:{hub}"]
-    return {"site": SITE, "node": name, "zenoh": zen, "modules": modules}
+def spawn_site(folder: Path, site: str, paced: str = "") -> tuple[dict, ZenohTransport, int]:
+    """A broker node, and for each robot a world node and a lockstep control node (agent + primitive modules);
+    the ``paced`` robot's cell runs at real time (still mid-task when it is killed). Returns once both robots are up."""
+    from contactflow.embodiments.layout import primitive_modules, world_node
 
-
-def agent(robot, realtime):
-    return {"name": f"{robot}_agent", "type": "robot_agent", "robot": robot,
-            "params": {"robot": robot, "executor": "sim", "realtime": realtime, "camera_hz": 0.0}}
-
-
-@pytest.fixture
-def site(tmp_path):
     hub = free_port()
-    procs = {"broker": spawn_node(write_config(tmp_path / "broker.yaml", node_config(
-        "broker_node", hub, None, [{"name": "broker", "type": "broker"}])), tmp_path / "broker.log")}
+    procs = {"broker": spawn_node(write_config(folder / "broker.yaml", {
+        "site": site, "node": "broker_node", "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{hub}"]},
+        "modules": [{"name": "broker", "type": "broker"}]}), folder / "broker.log")}
+    connect = (f"tcp/127.0.0.1:{hub}",)
     for robot in ROBOTS:
-        cfg = node_config(f"{robot}_control", free_port(), hub, [agent(robot, PACED if robot == FIRST else 0.0)])
-        procs[robot] = spawn_node(write_config(tmp_path / f"{robot}.yaml", cfg), tmp_path / f"{robot}.log")
-    tool = ZenohTransport(ZenohSettings(connect=(f"tcp/127.0.0.1:{hub}",))).open()
+        world = world_node(site, f"fig7_4_{robot}", node=f"{robot}_world", connect=connect, cell=robot,
+                           wait_for=(f"{robot}_control",), max_rtf=1.0 if robot == paced else 0.0)
+        control = {"site": site, "node": f"{robot}_control", "clock": "lockstep", "cell": robot,
+                   "zenoh": {"mode": "peer", "connect": list(connect)},
+                   "modules": [{"name": "agent", "type": "robot_agent", "robot": robot, "params": {"robot": robot}},
+                               *primitive_modules(robot)]}
+        for name, cfg in ((f"{robot}_world", world), (robot, control)):
+            procs[name] = spawn_node(write_config(folder / f"{name}.yaml", cfg), folder / f"{name}.log")
+    tool = ZenohTransport(ZenohSettings(connect=connect)).open()
+    ks = KeySpace(site)
+    ready = wait_for(lambda: len(tool.alive(ks.alive_robot(), timeout=0.5)) == 2
+                     and len(tool.alive(ks.alive_module("site", "broker_node", "broker"), timeout=0.5)) == 1, timeout=90)
+    if not ready:
+        tool.close()
+        for proc in procs.values():
+            stop_process(proc)
+        pytest.fail("\n".join(log.read_text()[-1500:] for log in folder.glob("*.log")))
+    return procs, tool, hub
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    procs, tool, hub = spawn_site(tmp_path_factory.mktemp("site"), SITE)
     try:
-        ready = wait_for(lambda: len(tool.alive(KS.alive_robot(), timeout=0.5)) == 2
-                         and len(tool.alive(KS.alive_module("site"), timeout=0.5)) == 1, timeout=40)
-        assert ready, "\n".join(p.read_text()[-1500:] for p in tmp_path.glob("*.log"))
         yield procs, tool, hub
     finally:
         tool.close()
@@ -70,30 +80,6 @@ def test_robots_cli_lists_capabilities(site):
     assert "tombatossals" in out.stdout and "melfa" in out.stdout and "2 robots" in out.stdout
 
 
-def test_task_completes_on_another_robot_when_the_running_node_is_killed(site):
-    procs, tool, _ = site
-    follow = dispatch(tool, KS, PUSH, "push_away.xml", target="any")
-    assert follow.reply.ok, follow.reply.error
-    first = follow.reply.robots[0]
-    assert first == FIRST
-    assert wait_for(lambda: any(m.kind == "edge" and m.robot == first for m in follow.progress), timeout=30)
-    assert not any(m.final and m.robot == first for m in follow.progress)  # still mid-task
-    procs[first].kill()
-    assert follow.done.wait(60), [(m.robot, m.kind, m.state, m.detail) for m in follow.progress]
-    assert follow.outcome == "success"
-    failover = [m for m in follow.progress if m.kind == "failover"]
-    assert failover and first in failover[0].detail and "liveliness" in failover[0].detail
-
-    def finals():  # the robot's own last report may arrive after the broker's
-        return [m.robot for m in follow.progress if m.final and m.robot != "broker"]
-
-    assert wait_for(lambda: bool(finals()), timeout=5)
-    close(follow)
-    assert finals() == [other for other in ROBOTS if other != first]
-    states = [m.state for m in follow.progress if m.kind == "entered" and m.robot != first and m.robot != "broker"]
-    assert states == ["approach", "push_object", "retreat", "pushed"]
-
-
 def test_cli_run_refuses_an_invalid_atd_without_dispatching(site, tmp_path):
     _, _, hub = site
     bad = tmp_path / "bad.xml"
@@ -105,35 +91,17 @@ def test_cli_run_refuses_an_invalid_atd_without_dispatching(site, tmp_path):
     assert "not dispatched" in out.stdout and "bad.xml:" in out.stdout
 
 
-def test_on_the_runtime_a_killed_control_node_leaves_its_robot_held_and_the_task_fails_over(tmp_path):
+def test_a_killed_control_node_leaves_its_robot_held_and_the_task_fails_over(tmp_path):
     """Each robot a world node and a lockstep control node (agent + primitive modules); kill one mid-push."""
-    from contactflow.embodiments.layout import primitive_modules, world_node
     from contactflow.nodes.messages import EventMsg
     from contactflow.nodes.wire import decode
 
     site = "brokerrt"
     ks = KeySpace(site)
-    hub = free_port()
-    procs = {"broker": spawn_node(write_config(tmp_path / "broker.yaml", {
-        "site": site, "node": "broker_node", "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{hub}"]},
-        "modules": [{"name": "broker", "type": "broker"}]}), tmp_path / "broker.log")}
-    connect = (f"tcp/127.0.0.1:{hub}",)
-    for robot in ROBOTS:
-        # the first robot's cell runs at real time, so it is still mid-push when its control node dies
-        world = world_node(site, f"fig7_4_{robot}", node=f"{robot}_world", connect=connect, cell=robot,
-                           wait_for=(f"{robot}_control",), max_rtf=1.0 if robot == FIRST else 0.0)
-        control = {"site": site, "node": f"{robot}_control", "clock": "lockstep", "cell": robot,
-                   "zenoh": {"mode": "peer", "connect": list(connect)},
-                   "modules": [{"name": "agent", "type": "robot_agent", "robot": robot, "params": {"robot": robot}},
-                               *primitive_modules(robot)]}
-        for name, cfg in ((f"{robot}_world", world), (robot, control)):
-            procs[name] = spawn_node(write_config(tmp_path / f"{name}.yaml", cfg), tmp_path / f"{name}.log")
-    tool = ZenohTransport(ZenohSettings(connect=connect)).open()
+    procs, tool, _ = spawn_site(tmp_path, site, paced=FIRST)
     held: list[EventMsg] = []
     sub = tool.subscribe(ks.events("site", f"{FIRST}_world", "world"), lambda k, p: held.append(decode(p, EventMsg, k)))
     try:
-        ready = wait_for(lambda: len(tool.alive(ks.alive_robot(), timeout=0.5)) == 2, timeout=60)
-        assert ready, "\n".join(p.read_text()[-1500:] for p in tmp_path.glob("*.log"))
         follow = dispatch(tool, ks, PUSH, "push_away.xml", target="any")
         assert follow.reply.ok and follow.reply.robots[0] == FIRST, follow.reply
         assert wait_for(lambda: any(m.kind == "edge" and m.robot == FIRST for m in follow.progress), timeout=60)
