@@ -132,8 +132,10 @@ VISION_INPUTS = {"detect_objects": {"objects": "objects.objects", "plane": "plan
 
 
 def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect: tuple[str, ...] = (),
-                clock: str = "lockstep", cell: str = "") -> dict[str, Any]:
-    """A robot's vision3d node (thesis §6.3.3): cloud -> plane -> ROI -> objects, fed by the depth stream its world publishes.
+                clock: str = "lockstep", cell: str = "", embodiment: str = "") -> dict[str, Any]:
+    """A robot's vision3d node (thesis §6.3.3): cloud -> plane -> ROI -> self filter -> objects, fed by the depth
+    stream and the joints its world publishes (the self filter poses the spherical model of ``embodiment``,
+    default ``robot``, at its registry base).
 
     The world streams depth frames only with its ``camera_hz`` param set. In lockstep (the
     default) the world waits for the chain each tick, so a frame's objects reach a task at the
@@ -142,12 +144,15 @@ def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect
     from contactflow.nodes.keys import KeySpace
 
     svc = "contactflow.recognition.services"
+    ks = KeySpace(site)
     modules = [
-        {"name": "cloud", "type": f"{svc}.cloud_builder:CloudBuilder", "inputs": {"depth": KeySpace(site).robot(robot, "depth")}},
+        {"name": "cloud", "type": f"{svc}.cloud_builder:CloudBuilder", "inputs": {"depth": ks.robot(robot, "depth")}},
         {"name": "plane", "type": f"{svc}.plane_detector:PlaneDetector", "inputs": {"cloud": "cloud.cloud"}},
         {"name": "roi", "type": f"{svc}.roi_filter:RoiFilter", "inputs": {"cloud": "cloud.cloud", "roi": "plane.roi"}},
+        {"name": "self", "type": f"{svc}.self_filter:SelfFilter", "params": {"robot": embodiment or robot},
+         "inputs": {"cloud": "roi.cloud", "joints": ks.robot(robot, "joints")}},
         {"name": "objects", "type": f"{svc}.cluster_extractor:ClusterExtractor",
-         "inputs": {"cloud": "roi.cloud", "plane": "plane.plane"}},
+         "inputs": {"cloud": "self.cloud", "plane": "plane.plane"}},
     ]
     return {"site": site, "node": node or f"vision3d_{robot}", "robot": robot, "clock": clock, "cell": cell,
             "zenoh": zenoh(listen, connect), "modules": modules}

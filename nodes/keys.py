@@ -13,7 +13,7 @@ Layout (``docs/protocol.md`` documents it with examples)::
     cf/<site>/broker/progress/<task_id>                    abstract progress stream
     cf/<site>/broker/robots/<robot>/{caps,translate,run}   per-robot broker queryables
     cf/<site>/eval/<robot>/<stream>                        ground truth, for evaluation only
-    cf/<site>/robot/<robot>/{state,command,camera,depth,info}
+    cf/<site>/robot/<robot>/{state,joints,command,camera,depth,info}
                                                            a world's robot: state per tick, commands in, camera
                                                            frames on request, depth stream, description (queryable)
     cf/<site>/lockstep/[<cell>/]<node>                     lockstep: a node finished a world tick
@@ -45,7 +45,7 @@ ANY = "*"
 CLAIM_MODES = ("excl", "mix")
 """A claim is exclusive, or shared by modules that all declare weighted mixing (thesis §6.3.1)."""
 BENCH_SIGNALS = ("ready", "done")
-ROBOT_STREAMS = ("state", "command", "camera", "depth", "info")
+ROBOT_STREAMS = ("state", "joints", "command", "camera", "depth", "info")
 """A world's robot: its state each tick, the commands it takes, camera frames, its description."""
 
 

@@ -43,6 +43,7 @@ from contactflow.embodiments.messages import (
     HandPoints,
     HandState,
     HeadCommand,
+    JointState,
     ObjectPoses,
     ObstacleMsg,
     RobotInfo,
@@ -78,6 +79,7 @@ class _Robot:
     state_pub: Any
     camera_pub: Any
     depth_pub: Any
+    joints_pub: Any
     arm_seq: dict[str, int] = field(default_factory=dict)
     hand_seq: dict[str, int] = field(default_factory=dict)
     controllers: set[str] = field(default_factory=set)  # nodes holding alive/controller/<robot>/<node>
@@ -88,6 +90,7 @@ class _Robot:
     seq: int = 0
     depth_seq: int = 0
     last: RobotState | None = None  # the state of the current tick
+    joints: JointState | None = None  # its joints, on their own for the subscribers that need only them (self filter)
 
 
 class WorldModule(Module):
@@ -183,7 +186,8 @@ class WorldModule(Module):
             self.robots[rp.name] = _Robot(sim, encode(stamp(info, f"{addr}/info", 1, 0.0)),
                                           transport.publisher(ks.robot(rp.name, "state")),
                                           transport.publisher(ks.robot(rp.name, "camera")),
-                                          transport.publisher(ks.robot(rp.name, "depth")))
+                                          transport.publisher(ks.robot(rp.name, "depth")),
+                                          transport.publisher(ks.robot(rp.name, "joints")))
         world.step(max(1, int(round(p.settle / world.params.timestep))))
         self._every = max(1, int(round(1.0 / (p.control_rate * world.params.timestep))))
         self._clock_pub = transport.publisher(ks.clock(p.cell))
@@ -350,6 +354,7 @@ class WorldModule(Module):
                 r.last = self._state(name, r)
             r.seq += 1
             r.state_pub(encode(stamp(r.last, f"{self.source}/{name}/state", r.seq, t)))
+            r.joints_pub(encode(stamp(r.joints, f"{self.source}/{name}/joints", r.seq, t)))
         if not repeat and self.params.camera_hz > 0 and t >= self._depth_due - 1e-9:
             self._depth_due = t + 1.0 / self.params.camera_hz
             for r in self.robots.values():
@@ -371,7 +376,9 @@ class WorldModule(Module):
 
     def _state(self, name: str, r: _Robot) -> RobotState:
         sim = r.sim
-        names, q, qd, _effort = sim.joint_state()
+        names, q, qd, effort = sim.joint_state()
+        r.joints = JointState(robot=name, names=names, position=NDArray.of(q), velocity=NDArray.of(qd),
+                              effort=NDArray.of(np.asarray(effort, dtype=np.float64)))
         arms = [ArmState(name=a, q_cmd=NDArray.of(np.asarray(sim.arm(a).q_cmd, dtype=np.float64)),
                          status=str(sim.arm(a).status), abort_reason=sim.arm(a).abort_reason,
                          applied=r.arm_seq.get(a, 0)) for a in sim.arms]

@@ -275,3 +275,23 @@ def test_a_remote_robot_clips_joint_targets_to_the_limits_as_the_simulated_robot
     # what the facade clips is still refused from a client that sends it raw (the world's own check)
     c.send(arm_cmd(ArmCommandKind.JOINTS, past, seq=9))
     assert wait_for(lambda: c.state.refused == 1, 10)
+
+
+def test_each_tick_the_joints_come_on_their_own_stream_too(world):
+    """A subscriber that needs only the joints (the vision node's self filter) reads them without the robot's state."""
+    from contactflow.embodiments.messages import JointState, RobotState
+
+    wm, c = world
+    got: dict[str, dict[int, object]] = {"joints": {}, "state": {}}
+    subs = [c.t.subscribe(c.ks.robot("melfa", s), lambda k, p, s=s, t=t: got[s].setdefault((m := decode(p, t, k)).hdr.seq, m))
+            for s, t in (("joints", JointState), ("state", RobotState))]
+    try:
+        assert wait_for(lambda: len(set(got["joints"]) & set(got["state"])) >= 5, 10)
+    finally:
+        for s in subs:
+            s.close()
+    for seq in sorted(set(got["joints"]) & set(got["state"]))[:5]:
+        j, s = got["joints"][seq], got["state"][seq]
+        assert j.robot == "melfa" and j.names == s.names and j.hdr.t_sim == s.hdr.t_sim
+        assert np.array_equal(j.position.numpy(), s.position.numpy())
+        assert j.effort.numpy().shape == (len(s.names),) and np.all(np.isfinite(j.effort.numpy()))
