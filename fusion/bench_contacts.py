@@ -299,8 +299,9 @@ def touch_task(rig: Rig, home: np.ndarray, centre: np.ndarray, dirs: list[np.nda
 class _Streams:
     """The bench's session: each fusion service's contact lists and the world's true contacts, as they came."""
 
-    def __init__(self, transport, fused: dict[str, str], truth: str) -> None:
+    def __init__(self, transport, fused: dict[str, str], truth: str, obj: str) -> None:
         self._lock = threading.Lock()
+        self.obj = obj  # the touched object (the world reports the robot's contacts with the table too)
         self.fused: dict[str, list] = {m: [] for m in fused}  # modality -> [(stamp, [(location, sigma)])]
         self.truth: list[tuple[float, np.ndarray | None]] = []  # (sim s, force-weighted contact point)
         self._subs = [transport.subscribe(truth, self._on_truth)]
@@ -321,8 +322,9 @@ class _Streams:
         from contactflow.nodes.wire import decode
 
         msg = decode(payload, TrueContacts, key)
-        w = msg.forces.numpy()
-        point = (msg.positions.numpy() * w[:, None]).sum(axis=0) / w.sum() if w.sum() > 0 else None
+        on = np.array([b == self.obj for b in msg.body_b], dtype=bool)
+        w = msg.forces.numpy()[on]
+        point = (msg.positions.numpy()[on] * w[:, None]).sum(axis=0) / w.sum() if w.sum() > 0 else None
         with self._lock:
             self.truth.append((msg.hdr.t_sim, point))
 
@@ -411,7 +413,7 @@ def run_object_runtime(name: str, spec, rig: Rig, dirs: list[np.ndarray], folder
     w = world_node(site, cell, listen=endpoint, wait_for=(control["node"], fusion_node), ground_truth_hz=0.0,
                    contacts_hz=200.0)
     started, watch = start_nodes(folder, [w, fusion, control], site, endpoint)
-    streams = _Streams(watch.t, keys, ks.evaluation(rig.robot, "true_contacts"))
+    streams = _Streams(watch.t, keys, ks.evaluation(rig.robot, "true_contacts"), spec.name)
     try:
         task = f"{control['node']}/task"
         if not wait_for(lambda: watch.outcome(task) is not None, 120.0 * len(dirs)):

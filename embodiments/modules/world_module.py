@@ -371,7 +371,7 @@ class WorldModule(Module):
         self._clock_pub(encode(stamp(Clock(t=t, tick=self.tick_no), f"{self.source}/clock", self._clock_seq, t)))
 
     def _publish_contacts(self, t: float) -> None:
-        """Each robot's physics contact points with the cell's objects (its link first, the normal from it)."""
+        """Each robot's physics contact points with the cell's objects, the table included (its link first, the normal from it)."""
         from contactflow.embodiments.sensors.ground_truth import read_ground_truth
 
         objects = set(self.world.objects)
