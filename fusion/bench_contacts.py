@@ -280,14 +280,16 @@ def touch_task(rig: Rig, home: np.ndarray, centre: np.ndarray, dirs: list[np.nda
     for i, d in enumerate(dirs):
         start = home.copy()
         start[:3, 3] = centre - 0.13 * d
-        move = {"arm": rig.arm, "planning": False, "speed": 0.25}
-        nodes[f"home_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(home)}, "timeout": 15}
-        nodes[f"approach_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start)}, "timeout": 15}
+        # as the local arm.move_pose + wait(6): no contact stops the move (a hand landing on the object on its way
+        # to the start stays there, and the touch starts from where it is), 6 s at most
+        move = {"arm": rig.arm, "planning": False, "speed": 0.25, "abort_force": 1e4}
+        nodes[f"home_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(home)}, "timeout": 6}
+        nodes[f"approach_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start)}, "timeout": 6}
         nodes[f"touch_{i}"] = {"primitive": "touch", "timeout": 10,
                                "params": {"arm": rig.arm, "direction": [float(v) for v in d], "frame": "world",
                                           "force_threshold": PRESS_FORCE, "velocity": 0.04, "max_distance": 0.2}}
         nodes[f"back_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start), "abort_force": 40.0},
-                              "timeout": 15}
+                              "timeout": 6}
         order += [f"home_{i}", f"approach_{i}", f"touch_{i}", f"back_{i}"]
     nodes["done"], nodes["failed"] = {"terminal": "success"}, {"terminal": "failure"}
     edges = []
