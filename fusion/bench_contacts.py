@@ -23,9 +23,10 @@ of its robot with the object on ``eval/<robot>/true_contacts``), the robot's con
 (the touches as one task of ``move_to`` and ``touch`` primitive modules; ``contact_cues``
 publishing its tactile and wrist F/T clouds from the world's robot state) and a fusion node
 (``contact_fusion`` per modality, the fused one on ``KeySpace.fused(robot, "contacts")``).
-A touch counts when the world saw the hand on the object between entering ``touch_i`` and
-backing off; a modality detects it when its service reports a contact from then on, and
-ε is that contact's distance to the force-weighted true contact point. Range and simulator
+A touch counts when the world saw the hand on the object as the touch primitive felt the
+wrist force (the local reading moment); a modality detects it when its service reports a
+contact from then until the back-off, and ε is that contact's distance to the force-weighted
+true contact point. Range and simulator
 support have no generator on the runtime: their rows say missing. ``both`` prints the
 two side by side.
 """
@@ -339,33 +340,48 @@ class _Streams:
             sub.close()
 
 
-def _windows(progress: list, n: int, tail: float = 0.3) -> list[tuple[float, float] | None]:
-    """(start, end) in simulated s of each touch: from entering ``touch_i`` to ``tail`` s into ``back_i``."""
+TICK = 0.005  # s, the world's control tick (200 Hz)
+SETTLE = 0.05  # s after a touch felt the wrist force within which the world must see the hand on the object
+
+
+def _windows(progress: list, events: list, n: int, tail: float = 0.3) -> list[tuple[float, float, float] | None]:
+    """(contact, end) in simulated s of each touch that felt one: when its touch primitive felt the wrist force
+    (the local bench's reading moment) and ``tail`` s into the back-off that follows."""
     entered = {m.node: m.hdr.t_sim for m in progress if m.kind == "entered"}
-    return [(entered[f"touch_{i}"], entered[f"back_{i}"] + tail) if f"back_{i}" in entered else None for i in range(n)]
+    out: list[tuple[float, float, float] | None] = []
+    for i in range(n):
+        if f"back_{i}" not in entered:
+            out.append(None)
+            continue
+        t0, t1 = entered[f"touch_{i}"], entered[f"back_{i}"]
+        felt = [e.hdr.t_sim for e in events if e.event == "contact" and e.module.rsplit("/", 1)[-1].startswith("touch")
+                and t0 - 1e-9 <= e.hdr.t_sim <= t1 + 1e-9]
+        out.append((min(felt), t1 + tail) if felt else None)
+    return out
 
 
 def judge_touch(window: tuple[float, float] | None, fused: dict[str, list], truth: list) -> dict:
-    """One runtime touch: the true contact point when the hand first touched inside the window, and per
-    modality the first fused contacts from then on (the closest to the truth, its spread)."""
+    """One runtime touch, read as the local bench reads it: the hand on the object when the touch felt the
+    wrist force (the world's first true contact from a tick before to SETTLE after it: a hand resting on an
+    edge chatters), and per modality the first fused contacts from then until the back-off (the closest to
+    the truth, its spread)."""
     if window is None:
         return {"truth": None, "modalities": {}}
-    t0, t1 = window
-    touched = [(t, p) for t, p in truth if t0 <= t <= t1 and p is not None]
+    t_c, t1 = window
+    touched = [(t, p) for t, p in truth if t_c - TICK - 1e-9 <= t <= t_c + SETTLE and p is not None]
     if not touched:
         return {"truth": None, "modalities": {}}
-    t_touch = touched[0][0]
+    point = touched[0][1]
     out = {}
     for mod, lists in fused.items():
-        hit = next(((t, cs) for t, cs in lists if t_touch <= t <= t1 and cs), None)
+        hit = next(((t, cs) for t, cs in lists if t_c - 1e-9 <= t <= t1 and cs), None)
         if hit is None:
             out[mod] = None
             continue
         t, contacts = hit
-        point = [p for tt, p in touched if tt <= t + 1e-9][-1]
         loc, sigma = min(contacts, key=lambda c: float(np.linalg.norm(c[0] - point)))
-        out[mod] = {"eps": float(np.linalg.norm(loc - point)), "sigma": float(sigma), "delay": t - t_touch}
-    return {"truth": touched[0][1].tolist(), "t_touch": t_touch, "modalities": out}
+        out[mod] = {"eps": float(np.linalg.norm(loc - point)), "sigma": float(sigma), "delay": t - t_c}
+    return {"truth": point.tolist(), "t_touch": t_c, "modalities": out}
 
 
 def run_object_runtime(name: str, spec, rig: Rig, dirs: list[np.ndarray], folder: pathlib.Path) -> list[dict]:
@@ -423,7 +439,7 @@ def run_object_runtime(name: str, spec, rig: Rig, dirs: list[np.ndarray], folder
                                f"{watch.sequence()[-10:]}")
         wait_for(lambda: False, 0.5)  # the last contact lists on their way
         fused, truth = streams.take()
-        windows = _windows(watch.task_progress(), len(dirs))
+        windows = _windows(watch.task_progress(), watch.messages(), len(dirs))
     finally:
         streams.close()
         stop_nodes(started, watch)
