@@ -259,6 +259,9 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
     return touches
 
 
+TICK = 0.005  # s, the world's control tick (200 Hz)
+HOLD = 0.2  # s the hand stays where the touch stopped
+SETTLE = 0.05  # s after a touch felt the wrist force within which the world must see the hand on the object
 FUSED = {"tactile": "tactile", "force": "force_torque", "tactile + force": "*"}
 """The runtime's fusion services: modality -> the generators (of the robot's arm) each fuses."""
 MISSING = {"range": "no range generator on the runtime (the rig's head camera is not in the world)",
@@ -275,7 +278,7 @@ def _target(T: np.ndarray) -> list[float]:
 def touch_task(rig: Rig, home: np.ndarray, centre: np.ndarray, dirs: list[np.ndarray]) -> dict:
     """The touches of one object as one task, the local protocol step for step: for each direction the arm goes
     home, to the start 13 cm before the object, touches along the direction until the wrist feels
-    PRESS_FORCE, and backs off to the start; each step follows the last whatever its outcome."""
+    PRESS_FORCE, holds still HOLD s and backs off to the start; each step follows the last whatever its outcome."""
     nodes: dict[str, dict] = {}
     order: list[str] = []
     for i, d in enumerate(dirs):
@@ -289,9 +292,12 @@ def touch_task(rig: Rig, home: np.ndarray, centre: np.ndarray, dirs: list[np.nda
         nodes[f"touch_{i}"] = {"primitive": "touch", "timeout": 10,
                                "params": {"arm": rig.arm, "direction": [float(v) for v in d], "frame": "world",
                                           "force_threshold": PRESS_FORCE, "velocity": 0.04, "max_distance": 0.2}}
+        # the hand stays on the object a moment, as the local bench reads its sensors there: the back-off's
+        # move_to tares the wrist sensor as it starts, and the F/T cues read after a tare in contact are void
+        nodes[f"hold_{i}"] = {"primitive": "wait_event", "params": {"arm": rig.arm, "delay": HOLD}}
         nodes[f"back_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start), "abort_force": 40.0},
                               "timeout": 6}
-        order += [f"home_{i}", f"approach_{i}", f"touch_{i}", f"back_{i}"]
+        order += [f"home_{i}", f"approach_{i}", f"touch_{i}", f"hold_{i}", f"back_{i}"]
     nodes["done"], nodes["failed"] = {"terminal": "success"}, {"terminal": "failure"}
     edges = []
     for a, b in zip(order, [*order[1:], "done"], strict=True):
@@ -338,10 +344,6 @@ class _Streams:
     def close(self) -> None:
         for sub in self._subs:
             sub.close()
-
-
-TICK = 0.005  # s, the world's control tick (200 Hz)
-SETTLE = 0.05  # s after a touch felt the wrist force within which the world must see the hand on the object
 
 
 def _windows(progress: list, events: list, n: int, tail: float = 0.3) -> list[tuple[float, float, float] | None]:
