@@ -16,6 +16,19 @@ detected when a contact comes out, ε is the distance of the closest contact to 
 truth (force-weighted mean of the simulator's true hand-object contact points, evaluation
 only) and σ its spread. Touches where the hand never reached the object are left out, as
 in the thesis. Writes ``contacts.json``, ``contacts.md`` and ``contacts.png``.
+
+That is the ``local`` executor. ``runtime`` runs the same touches through the runtime path,
+in lockstep: a world node (the rig's robot, the table, the fixed object; the true contacts
+of its robot with the object on ``eval/<robot>/true_contacts``), the robot's control node
+(the touches as one task of ``move_to`` and ``touch`` primitive modules; ``contact_cues``
+publishing its tactile and wrist F/T clouds from the world's robot state) and a fusion node
+(``contact_fusion`` per modality, the fused one on ``KeySpace.fused(robot, "contacts")``).
+A touch counts when the world saw the hand on the object as the touch primitive felt the
+wrist force (the local reading moment); a modality detects it when its service reports a
+contact from then until the back-off, and ε is that contact's distance to the force-weighted
+true contact point. Range and simulator
+support have no generator on the runtime: their rows say missing. ``both`` prints the
+two side by side.
 """
 
 from __future__ import annotations
@@ -23,10 +36,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
+import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import yaml
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
@@ -43,9 +59,11 @@ MODALITIES = {
     "tactile": ("tactile",),
     "force": ("force",),
     "range": ("range",),
+    "tactile + force": ("tactile", "force"),
     "all": ("tactile", "force", "range"),
     "all + simulator": ("tactile", "force", "range", "simulator"),
 }
+EXECUTORS = ("local", "runtime", "both")
 THESIS = {"tactile": (20.9, 1.25, 0.20), "force": (79.1, 5.37, 1.18), "range": (58.1, 3.74, 0.73),
           "all": (90.7, 4.31, 1.10), "all + simulator": (90.7, 3.33, 1.11)}
 TABLE_Z = 0.75
@@ -241,6 +259,214 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
     return touches
 
 
+TICK = 0.005  # s, the world's control tick (200 Hz)
+HOLD = 0.2  # s the hand stays where the touch stopped
+SETTLE = 0.05  # s after a touch felt the wrist force within which the world must see the hand on the object
+FUSED = {"tactile": "tactile", "force": "force_torque", "tactile + force": "*"}
+"""The runtime's fusion services: modality -> the generators (of the robot's arm) each fuses."""
+MISSING = {"range": "no range generator on the runtime (the rig's head camera is not in the world)",
+           "all": "needs range", "all + simulator": "needs range and a prediction scene node"}
+
+
+def _target(T: np.ndarray) -> list[float]:
+    from contactflow.embodiments.primitives.base import pose6
+
+    v = pose6(T)
+    return [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
+
+
+def touch_task(rig: Rig, home: np.ndarray, centre: np.ndarray, dirs: list[np.ndarray]) -> dict:
+    """The touches of one object as one task, the local protocol step for step: for each direction the arm goes
+    home, to the start 13 cm before the object, touches along the direction until the wrist feels
+    PRESS_FORCE, holds still HOLD s and backs off to the start; each step follows the last whatever its outcome."""
+    nodes: dict[str, dict] = {}
+    order: list[str] = []
+    for i, d in enumerate(dirs):
+        start = home.copy()
+        start[:3, 3] = centre - 0.13 * d
+        # as the local arm.move_pose + wait(6): no contact stops the move (a hand landing on the object on its way
+        # to the start stays there, and the touch starts from where it is), 6 s at most
+        move = {"arm": rig.arm, "planning": False, "speed": 0.25, "abort_force": 1e4}
+        nodes[f"home_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(home)}, "timeout": 6}
+        nodes[f"approach_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start)}, "timeout": 6}
+        nodes[f"touch_{i}"] = {"primitive": "touch", "timeout": 10,
+                               "params": {"arm": rig.arm, "direction": [float(v) for v in d], "frame": "world",
+                                          "force_threshold": PRESS_FORCE, "velocity": 0.04, "max_distance": 0.2}}
+        # the hand stays on the object a moment, as the local bench reads its sensors there: the back-off's
+        # move_to tares the wrist sensor as it starts, and the F/T cues read after a tare in contact are void
+        nodes[f"hold_{i}"] = {"primitive": "wait_event", "params": {"arm": rig.arm, "delay": HOLD}}
+        nodes[f"back_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start), "abort_force": 40.0},
+                              "timeout": 6}
+        order += [f"home_{i}", f"approach_{i}", f"touch_{i}", f"hold_{i}", f"back_{i}"]
+    nodes["done"], nodes["failed"] = {"terminal": "success"}, {"terminal": "failure"}
+    edges = []
+    for a, b in zip(order, [*order[1:], "done"], strict=True):
+        edges += [{"from": a, "to": b, "on": [["success", "failure", "timeout"]]}, {"from": a, "to": "failed", "on": "error"}]
+    return {"main": "touches", "tasks": {"touches": {"params": {}, "timeout": 60 * len(dirs), "nodes": nodes, "edges": edges}}}
+
+
+class _Streams:
+    """The bench's session: each fusion service's contact lists and the world's true contacts, as they came."""
+
+    def __init__(self, transport, fused: dict[str, str], truth: str, obj: str) -> None:
+        self._lock = threading.Lock()
+        self.obj = obj  # the touched object (the world reports the robot's contacts with the table too)
+        self.fused: dict[str, list] = {m: [] for m in fused}  # modality -> [(stamp, [(location, sigma)])]
+        self.truth: list[tuple[float, np.ndarray | None]] = []  # (sim s, force-weighted contact point)
+        self._subs = [transport.subscribe(truth, self._on_truth)]
+        for mod, key in fused.items():
+            self._subs.append(transport.subscribe(key, lambda k, b, mod=mod: self._on_fused(mod, k, b)))
+
+    def _on_fused(self, mod: str, key: str, payload: bytes) -> None:
+        from contactflow.fusion.messages import ContactList
+        from contactflow.nodes.wire import decode
+
+        msg = decode(payload, ContactList, key)
+        found = [(np.asarray(c.location), c.sigma) for c in msg.contacts]
+        with self._lock:
+            self.fused[mod].append((msg.stamp, found))
+
+    def _on_truth(self, key: str, payload: bytes) -> None:
+        from contactflow.embodiments.messages import TrueContacts
+        from contactflow.nodes.wire import decode
+
+        msg = decode(payload, TrueContacts, key)
+        on = np.array([b == self.obj for b in msg.body_b], dtype=bool)
+        w = msg.forces.numpy()[on]
+        point = (msg.positions.numpy()[on] * w[:, None]).sum(axis=0) / w.sum() if w.sum() > 0 else None
+        with self._lock:
+            self.truth.append((msg.hdr.t_sim, point))
+
+    def take(self) -> tuple[dict[str, list], list]:
+        with self._lock:
+            return {m: sorted(v, key=lambda x: x[0]) for m, v in self.fused.items()}, sorted(self.truth, key=lambda x: x[0])
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.close()
+
+
+def _windows(progress: list, events: list, n: int, tail: float = 0.3) -> list[tuple[float, float, float] | None]:
+    """(contact, end) in simulated s of each touch that felt one: when its touch primitive felt the wrist force
+    (the local bench's reading moment) and ``tail`` s into the back-off that follows."""
+    entered = {m.node: m.hdr.t_sim for m in progress if m.kind == "entered"}
+    out: list[tuple[float, float, float] | None] = []
+    for i in range(n):
+        if f"back_{i}" not in entered:
+            out.append(None)
+            continue
+        t0, t1 = entered[f"touch_{i}"], entered[f"back_{i}"]
+        felt = [e.hdr.t_sim for e in events if e.event == "contact" and e.module.rsplit("/", 1)[-1].startswith("touch")
+                and t0 - 1e-9 <= e.hdr.t_sim <= t1 + 1e-9]
+        out.append((min(felt), t1 + tail) if felt else None)
+    return out
+
+
+def judge_touch(window: tuple[float, float] | None, fused: dict[str, list], truth: list) -> dict:
+    """One runtime touch, read as the local bench reads it: the hand on the object when the touch felt the
+    wrist force (the world's first true contact from a tick before to SETTLE after it: a hand resting on an
+    edge chatters), and per modality the first fused contacts from then until the back-off (the closest to
+    the truth, its spread)."""
+    if window is None:
+        return {"truth": None, "modalities": {}}
+    t_c, t1 = window
+    touched = [(t, p) for t, p in truth if t_c - TICK - 1e-9 <= t <= t_c + SETTLE and p is not None]
+    if not touched:
+        return {"truth": None, "modalities": {}}
+    point = touched[0][1]
+    out = {}
+    for mod, lists in fused.items():
+        hit = next(((t, cs) for t, cs in lists if t_c - 1e-9 <= t <= t1 and cs), None)
+        if hit is None:
+            out[mod] = None
+            continue
+        t, contacts = hit
+        loc, sigma = min(contacts, key=lambda c: float(np.linalg.norm(c[0] - point)))
+        out[mod] = {"eps": float(np.linalg.norm(loc - point)), "sigma": float(sigma), "delay": t - t_c}
+    return {"truth": point.tolist(), "t_touch": t_c, "modalities": out}
+
+
+def run_object_runtime(name: str, spec, rig: Rig, dirs: list[np.ndarray], folder: pathlib.Path) -> list[dict]:
+    """The touches of one object on the runtime, in this process (a zenoh session per node, in lockstep): a world
+    node (the rig's robot, the table, the fixed object; its true contacts on ``eval/``), the robot's control
+    node (the touch task's primitive modules, and ``contact_cues``: its tactile and wrist F/T generators) and a
+    fusion node (one ``contact_fusion`` per modality; all of them on ``KeySpace.fused(robot, ...)``)."""
+    from contactflow.embodiments.layout import (
+        control_node,
+        start_nodes,
+        stop_nodes,
+        world_node,
+        write_cell,
+        zenoh,
+    )
+    from contactflow.embodiments.sim_robot import SimRobot
+    from contactflow.embodiments.world import World, WorldParams
+    from contactflow.nodes.keys import KeySpace
+    from contactflow.nodes.procs import free_port, wait_for
+
+    world = World(WorldParams(timestep=0.0025))
+    world.add_table()
+    home = SimRobot(world, rig.robot).arm(rig.arm).ee_pose()
+    home[:3, :3] = np.asarray(rig.turn).reshape(3, 3) @ home[:3, :3]
+    centre = np.array([*rig.object_xy, TARGET_Z[name]])
+    folder.mkdir(parents=True, exist_ok=True)
+    task_file = folder / "touches.yaml"
+    task_file.write_text(yaml.safe_dump(touch_task(rig, home, centre, dirs), sort_keys=False))
+    cell = write_cell(folder / "cell.yaml", rig.robot, [spec])
+    endpoint, site = f"tcp/127.0.0.1:{free_port()}", f"contacts{free_port()}"
+    ks = KeySpace(site)
+    control = control_node(site, rig.robot, rig.robot, task_file, connect=(endpoint,), autostart=True)
+    control["modules"].append({"name": "cues", "type": "contact_cues", "robot": rig.robot, "params": {"arm": rig.arm, "rate_hz": 200.0}})
+    fusion_node = f"fusion_{rig.robot}"
+    keys = {mod: (ks.fused(rig.robot, "contacts") if gen == "*" else ks.output(rig.robot, fusion_node, f"fusion_{gen}", "contacts"))
+            for mod, gen in FUSED.items()}
+    fusions = []
+    for gen in FUSED.values():
+        if gen == "*":
+            fusions.append({"name": "fusion", "type": "contact_fusion", "params": {"robot": rig.robot, "sources": f"{rig.robot}/*"}})
+        else:
+            own = {port: ks.output(rig.robot, fusion_node, f"fusion_{gen}", port) for port in ("hypotheses", "contacts", "events")}
+            fusions.append({"name": f"fusion_{gen}", "type": "contact_fusion", "outputs": own,
+                            "params": {"robot": rig.robot, "sources": f"{rig.robot}/{gen}_{rig.arm}"}})
+    fusion = {"site": site, "node": fusion_node, "robot": rig.robot, "clock": "lockstep", "zenoh": zenoh(connect=(endpoint,)),
+              "modules": fusions}
+    w = world_node(site, cell, listen=endpoint, wait_for=(control["node"], fusion_node), ground_truth_hz=0.0,
+                   contacts_hz=200.0)
+    started, watch = start_nodes(folder, [w, fusion, control], site, endpoint)
+    streams = _Streams(watch.t, keys, ks.evaluation(rig.robot, "true_contacts"), spec.name)
+    try:
+        task = f"{control['node']}/task"
+        if not wait_for(lambda: watch.outcome(task) is not None, 120.0 * len(dirs)):
+            raise TimeoutError(f"bench contacts: the touches of {name} still ran after {120 * len(dirs)} s: "
+                               f"{watch.sequence()[-10:]}")
+        wait_for(lambda: False, 0.5)  # the last contact lists on their way
+        fused, truth = streams.take()
+        windows = _windows(watch.task_progress(), watch.messages(), len(dirs))
+    finally:
+        streams.close()
+        stop_nodes(started, watch)
+    return [{"object": name, "direction": d.tolist(), **judge_touch(win, fused, truth)}
+            for d, win in zip(dirs, windows, strict=True)]
+
+
+def evaluate_runtime(touches: list[dict]) -> dict:
+    """Table 4.1's figures of the runtime touches, per modality the runtime fuses; the others are missing."""
+    rows = {}
+    reached = [t for t in touches if t["truth"] is not None]
+    for mod in MODALITIES:
+        if mod not in FUSED:
+            rows[mod] = {"missing": MISSING[mod]}
+            continue
+        hits = [t["modalities"][mod] for t in reached if t["modalities"].get(mod)]
+        eps, sig = [h["eps"] for h in hits], [h["sigma"] for h in hits]
+        rows[mod] = {"detected": len(hits), "touches": len(reached), "rate": 100.0 * len(hits) / max(len(reached), 1),
+                     "eps_cm": 100.0 * float(np.mean(eps)) if eps else float("nan"),
+                     "eps_std_cm": 100.0 * float(np.std(eps)) if eps else float("nan"),
+                     "sigma_cm": 100.0 * float(np.mean(sig)) if sig else float("nan"),
+                     "delay_ms": 1000.0 * float(np.median([h["delay"] for h in hits])) if hits else float("nan")}
+    return rows
+
+
 def evaluate(touches: list[Touch], cparams: CondensationParams) -> dict:
     rows = {}
     for mod, sources in MODALITIES.items():
@@ -264,7 +490,7 @@ def evaluate(touches: list[Touch], cparams: CondensationParams) -> dict:
             "eps_cm": 100.0 * float(np.mean(eps)) if eps else float("nan"),
             "eps_std_cm": 100.0 * float(np.std(eps)) if eps else float("nan"),
             "sigma_cm": 100.0 * float(np.mean(sig)) if sig else float("nan"),
-            "thesis": dict(zip(("rate", "eps_cm", "sigma_cm"), THESIS[mod], strict=True)),
+            "thesis": dict(zip(("rate", "eps_cm", "sigma_cm"), THESIS[mod], strict=True)) if mod in THESIS else None,
         }
     return rows
 
@@ -298,7 +524,22 @@ def _plot(touches: list[Touch], path: pathlib.Path, cparams: CondensationParams)
     plt.close(fig)
 
 
-def run(out_dir: pathlib.Path, quick: bool = False, rig: str = "melfa") -> dict:
+def _cells(r: dict | None) -> list[str]:
+    """detected, ε, σ of one modality row (a runtime row may be missing)."""
+    if r is None:
+        return ["-"] * 3
+    if "missing" in r:
+        return ["missing", "-", "-"]
+    return [f"{r['detected']}/{r['touches']} ({r['rate']:.1f} %)", f"{r['eps_cm']:.2f} ±{r['eps_std_cm']:.2f}",
+            f"{r['sigma_cm']:.2f}"]
+
+
+def run(out_dir: pathlib.Path, quick: bool = False, rig: str = "melfa", executor: str = "local") -> dict:
+    from contactflow.nodes.params import ParamError
+
+    if executor not in EXECUTORS:
+        raise ParamError(f"bench contacts: --executor {executor!r} is not one of {list(EXECUTORS)}")
+    executors = ("local", "runtime") if executor == "both" else (executor,)
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(0)
@@ -308,35 +549,58 @@ def run(out_dir: pathlib.Path, quick: bool = False, rig: str = "melfa") -> dict:
     dirs = directions(n_az=3, elevations=(0.0,)) if quick else directions()
     cparams = CondensationParams()
     touches: list[Touch] = []
-    t0 = time.time()
-    with Progress(transient=True) as progress:
-        task = progress.add_task("touches", total=len(objects) * len(dirs))
-        for name in objects:
-            touches.extend(run_object(name, specs[name], the_rig, dirs, rng, progress, task))
-    rows = evaluate(touches, cparams)
+    per: dict[str, dict] = {}
+    summary: dict = {"benchmark": "contacts", "quick": quick, "rig": dataclasses.asdict(the_rig), "objects": objects,
+                     "directions": len(dirs), "executor": executor,
+                     "goal": {"fused_detection_pct": 95.0, "fused_eps_cm": 2.0}}
+    if "local" in executors:
+        t0 = time.time()
+        with Progress(transient=True) as progress:
+            task = progress.add_task("touches", total=len(objects) * len(dirs))
+            for name in objects:
+                touches.extend(run_object(name, specs[name], the_rig, dirs, rng, progress, task))
+        per["local"] = evaluate(touches, cparams)
+        summary.update({
+            "touches": len(touches), "missed_touches": sum(t.truth is None for t in touches),
+            "seconds": time.time() - t0, "modalities": per["local"],
+            "per_touch": [{"object": t.obj, "direction": t.direction,
+                           "truth": None if t.truth is None else t.truth.tolist(),
+                           "hypotheses": {k: len(v) for k, v in t.clouds.items()}} for t in touches]})
+    if "runtime" in executors:
+        t0 = time.time()
+        rt: list[dict] = []
+        with tempfile.TemporaryDirectory(prefix="bench-contacts-") as d, Progress(transient=True) as progress:
+            task = progress.add_task("touches on the runtime", total=len(objects))
+            for name in objects:
+                rt += run_object_runtime(name, specs[name], the_rig, dirs, pathlib.Path(d) / name)
+                progress.advance(task)
+        per["runtime"] = evaluate_runtime(rt)
+        summary["runtime"] = {"touches": len(rt), "missed_touches": sum(t["truth"] is None for t in rt),
+                              "seconds": time.time() - t0, "modalities": per["runtime"], "per_touch": rt}
     table = Table(title="Table 4.1 in simulation: contact detection per modality")
-    for col in ("modality", "detected", "ε (cm)", "σ (cm)", "thesis detected", "thesis ε", "thesis σ"):
+    table.add_column("modality", justify="right")
+    for ex in executors:
+        suffix = f" ({ex})" if len(executors) > 1 else ""
+        for col in ("detected", "ε (cm)", "σ (cm)"):
+            table.add_column(col + suffix, justify="right")
+    for col in ("thesis detected", "thesis ε", "thesis σ"):
         table.add_column(col, justify="right")
-    md = ["| modality | detected | ε (cm) | σ (cm) | thesis detected | thesis ε (cm) | thesis σ (cm) |",
-          "|---|---|---|---|---|---|---|"]
-    for mod, r in rows.items():
-        th = r["thesis"]
-        cells = [mod, f"{r['detected']}/{r['touches']} ({r['rate']:.1f} %)",
-                 f"{r['eps_cm']:.2f} ±{r['eps_std_cm']:.2f}", f"{r['sigma_cm']:.2f}",
-                 f"{th['rate']:.1f} %", f"{th['eps_cm']:.2f}", f"±{th['sigma_cm']:.2f}"]
+    head = " | ".join(f"{c}{f' ({ex})' if len(executors) > 1 else ''}" for ex in executors
+                      for c in ("detected", "ε (cm)", "σ (cm)"))
+    md = [f"| modality | {head} | thesis detected | thesis ε (cm) | thesis σ (cm) |",
+          "|---|" + "---|" * (3 * len(executors) + 3)]
+    for mod in MODALITIES:
+        th = THESIS.get(mod)
+        cells = [mod, *(c for ex in executors for c in _cells(per[ex].get(mod))),
+                 *((f"{th[0]:.1f} %", f"{th[1]:.2f}", f"±{th[2]:.2f}") if th else ("-",) * 3)]
         table.add_row(*cells)
         md.append("| " + " | ".join(cells) + " |")
+    if "runtime" in per:
+        table.caption = "runtime: " + "; ".join(f"{m}: {r['missing']}" for m, r in per["runtime"].items() if "missing" in r)
+        md += ["", table.caption]
     Console().print(table)
     (out_dir / "contacts.md").write_text("\n".join(md) + "\n")
-    _plot(touches, out_dir / "contacts.png", cparams)
-    summary = {
-        "benchmark": "contacts", "quick": quick, "rig": dataclasses.asdict(the_rig), "objects": objects, "directions": len(dirs),
-        "touches": len(touches), "missed_touches": sum(t.truth is None for t in touches),
-        "seconds": time.time() - t0, "modalities": rows,
-        "per_touch": [{"object": t.obj, "direction": t.direction,
-                       "truth": None if t.truth is None else t.truth.tolist(),
-                       "hypotheses": {k: len(v) for k, v in t.clouds.items()}} for t in touches],
-        "goal": {"fused_detection_pct": 95.0, "fused_eps_cm": 2.0},
-    }
+    if touches:
+        _plot(touches, out_dir / "contacts.png", cparams)
     (out_dir / "contacts.json").write_text(json.dumps(summary, indent=2))
     return summary

@@ -139,7 +139,7 @@ class Integrator:
         return [s for s in self.sources.values() if s.last_rx >= limit or s.pending is not None]
 
     def offer(self, name: str, cloud: Hypotheses, now: float, robot: str = "", link: str = "") -> None:
-        """Hand a cloud to the integrator; a newer cloud of the same source replaces a pending one."""
+        """Hand a cloud to the integrator; a newer cloud of the same source replaces a pending one, unless it is empty."""
         src = self.sources.get(name)
         if src is None:
             if not self.params.auto_plug:
@@ -149,7 +149,10 @@ class Integrator:
             src.robot, src.link = robot or src.robot, link or src.link
         if src.pending is None:
             src.pending_since = now
-        src.pending = cloud
+        # an empty cloud adds nothing to the space (older hypotheses stay until they expire), so it keeps a
+        # pending one: a brief touch one source felt while the cycle waited for another is not dropped unseen
+        if len(cloud) or src.pending is None:
+            src.pending = cloud
         src.last_rx = now
 
     # -- cycle -------------------------------------------------------------------------

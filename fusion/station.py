@@ -54,13 +54,49 @@ class StationParams:
 
 
 @dataclass
-class _Cue:
+class Cue:
+    """One arm's contact cues: its hand's pads and its wrist F/T."""
+
     name: str
     arm: str
     hand: str
     ft_link: str
     links: tuple[str, ...]
     min_force: float  # N, below this the wrist reading is noise
+
+
+def robot_cues(robot: object, min_force: float) -> list[Cue]:
+    """The cues of every arm of ``robot`` with a hand (a SimRobot, or a world's robot over the key space)."""
+    spec = robot.spec
+    cues = []
+    for arm in spec.arms:
+        if not arm.hand:
+            continue
+        hand = spec.hand(arm.hand)
+        ft = spec.ft(arm.ft) if arm.ft else None
+        ft_link = ft.link if ft is not None else ""
+        prefixes = tuple(p for p in (hand.palm_link, *hand.fingertips) if p) or (ft_link,)
+        # 4 sigma above the sensor noise: an estimated wrench (Baxter) is far noisier
+        floor = max(min_force, 4.0 * ft.force_noise) if ft is not None else min_force
+        cues.append(Cue(arm.name, arm.name, hand.name, ft_link, prefixes, floor))
+    return cues
+
+
+def cue_clouds(robot: object, cue: Cue, now: float) -> list[tuple[str, Hypotheses]]:
+    """``(generator, cloud)`` of the cue's pads (``tactile_<arm>``) and wrist F/T (``force_torque_<arm>``) now;
+    a cloud is empty when its sensor feels nothing."""
+    pressure, taxels, normals = taxel_readings(robot, cue.hand)
+    cloud = Hypotheses.empty(now)
+    if pressure.size and float(pressure.max()) > 0:
+        cloud = tactile_hypotheses(pressure, taxels, now, normals)
+    out = [(f"tactile_{cue.name}", cloud)]
+    if cue.ft_link:
+        force = np.linalg.norm(robot.ft(cue.arm).in_sensor_frame()[0])
+        cloud = Hypotheses.empty(now)
+        if force >= cue.min_force:
+            cloud, _ = wrist_hypotheses(robot, cue.arm, cue.ft_link, hand_capsules(robot, cue.links), now)
+        out.append((f"force_torque_{cue.name}", cloud))
+    return out
 
 
 @dataclass
@@ -75,19 +111,8 @@ class StationFusion:
     keyspace: KeySpace = field(default_factory=KeySpace)
 
     def __post_init__(self) -> None:
-        spec = self.robot.spec
-        self.name = spec.name
-        self.cues: list[_Cue] = []
-        for arm in spec.arms:
-            if not arm.hand:
-                continue
-            hand = spec.hand(arm.hand)
-            ft = spec.ft(arm.ft) if arm.ft else None
-            ft_link = ft.link if ft is not None else ""
-            prefixes = tuple(p for p in (hand.palm_link, *hand.fingertips) if p) or (ft_link,)
-            # 4 sigma above the sensor noise: an estimated wrench (Baxter) is far noisier
-            floor = max(self.params.min_force, 4.0 * ft.force_noise) if ft is not None else self.params.min_force
-            self.cues.append(_Cue(arm.name, arm.name, hand.name, ft_link, prefixes, floor))
+        self.name = self.robot.spec.name
+        self.cues = robot_cues(self.robot, self.params.min_force)
         self.loop = FusionLoop(IntegratorParams(timeout=0.3, wait_timeout=0.05, source_timeout=0.5),
                                CondensationParams(), TrackerParams(hold=self.params.hold))
         self._next = 0.0
@@ -98,18 +123,8 @@ class StationFusion:
             return
         self._next = now + 1.0 / self.params.rate_hz
         for cue in self.cues:
-            pressure, taxels, normals = taxel_readings(robot, cue.hand)
-            cloud = Hypotheses.empty(now)
-            if pressure.size and float(pressure.max()) > 0:
-                cloud = tactile_hypotheses(pressure, taxels, now, normals)
-            self._offer(f"tactile_{cue.name}", cloud, now, cue.hand)
-            if cue.ft_link:
-                force = np.linalg.norm(robot.ft(cue.arm).in_sensor_frame()[0])
-                cloud = Hypotheses.empty(now)
-                if force >= cue.min_force:
-                    caps = hand_capsules(robot, cue.links)
-                    cloud, _ = wrist_hypotheses(robot, cue.arm, cue.ft_link, caps, now)
-                self._offer(f"force_torque_{cue.name}", cloud, now, cue.hand)
+            for generator, cloud in cue_clouds(robot, cue, now):
+                self._offer(generator, cloud, now, cue.hand)
         cycle = self.loop.step(now)  # every source offered this cycle: Algorithm 4.1's wait-all is met
         for ev in cycle.events if cycle is not None else ():
             self.events.append(ev)

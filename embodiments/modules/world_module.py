@@ -4,7 +4,8 @@ The module builds the cell of a scene file (robots at their base poses, table, o
 is its robots' hardware: it takes arm, hand, head and camera commands on
 ``robot/<robot>/command``, runs each robot's joint controllers at the control rate, and
 publishes every tick each robot's :class:`RobotState` on ``robot/<robot>/state``, then the
-clock. Object poses go only to ``eval/``. Nothing else in the system touches the scene.
+clock. Object poses and each robot's true contacts with the objects go only to ``eval/``.
+Nothing else in the system touches the scene.
 
 Two clocks (``params.clock``):
 
@@ -49,6 +50,7 @@ from contactflow.embodiments.messages import (
     RobotInfo,
     RobotState,
     TactileSample,
+    TrueContacts,
     WrenchSample,
 )
 from contactflow.nodes.messages import Clock, LockstepAck, Mark
@@ -89,6 +91,7 @@ class _Robot:
     late: int = 0
     seq: int = 0
     depth_seq: int = 0
+    contacts_seq: int = 0
     last: RobotState | None = None  # the state of the current tick
     joints: JointState | None = None  # its joints, on their own for the subscribers that need only them (self filter)
 
@@ -110,6 +113,7 @@ class WorldModule(Module):
         deadline: float = 10.0  # s of wall time a lockstep node has to answer a tick (a plan may take seconds)
         slice: float = 0.05  # s of wall time one step may spend on lockstep ticks
         ground_truth_hz: float = 20.0  # Hz of object poses on eval/
+        contacts_hz: float = 0.0  # Hz of simulated time, each robot's true contacts with the objects on eval/<r>/true_contacts
         camera_hz: float = 0.0  # Hz of simulated time, depth frames of each robot's first camera on robot/<r>/depth
         camera_backend: str = "auto"  # auto | render | raycast
         seed: int = 0  # sensor noise seed of every robot
@@ -136,6 +140,8 @@ class WorldModule(Module):
         self._handles: list[Any] = []
         self._gt_due = 0.0
         self._depth_due = 0.0
+        self._contacts_due = 0.0
+        self._contacts_pubs: dict[str, Any] = {}
         self._clock_seq = 0
         self._t0_wall = 0.0
         self._t0_sim = 0.0
@@ -192,6 +198,8 @@ class WorldModule(Module):
         self._every = max(1, int(round(1.0 / (p.control_rate * world.params.timestep))))
         self._clock_pub = transport.publisher(ks.clock(p.cell))
         self._gt_pub = transport.publisher(ks.evaluation(p.cell or self.name, "object_poses"))
+        if p.contacts_hz > 0:
+            self._contacts_pubs = {name: transport.publisher(ks.evaluation(name, "true_contacts")) for name in self.robots}
         for name, r in self.robots.items():
             self._handles.append(transport.queryable(ks.robot(name, "info"), lambda _k, _p, b=r.info: b))
         self._handles.append(transport.subscribe(ks.robot("*", "command"), self._on_command))
@@ -366,6 +374,9 @@ class WorldModule(Module):
             poses = np.stack([o.pose() for o in objs.values()]) if objs else np.zeros((0, 4, 4))
             self._gt_pub(encode(stamp(ObjectPoses(names=list(objs), poses=NDArray.of(poses)),
                                       f"{self.source}/object_poses", self.tick_no + 1, t)))
+        if not repeat and self.params.contacts_hz > 0 and t >= self._contacts_due - 1e-9:
+            self._contacts_due = t + 1.0 / self.params.contacts_hz
+            self._publish_contacts(t)
         if not repeat:
             with self._cond:
                 marks, self._marks = self._marks, {}
@@ -373,6 +384,27 @@ class WorldModule(Module):
         self._clock_seq += 1
         self._clock_pub(encode(stamp(Clock(t=t, tick=self.tick_no, marks=self._tick_marks), f"{self.source}/clock",
                                      self._clock_seq, t)))
+
+    def _publish_contacts(self, t: float) -> None:
+        """Each robot's physics contact points with the cell's objects, the table included (its link first, the normal from it)."""
+        from contactflow.embodiments.sensors.ground_truth import read_ground_truth
+
+        objects = set(self.world.objects)
+        per: dict[str, list] = {name: [] for name in self.robots}
+        for c in read_ground_truth(self.world).contacts:
+            for link, other, sign in ((c.body_a, c.body_b, 1.0), (c.body_b, c.body_a, -1.0)):
+                robot = link.split("/", 1)[0]
+                if robot in per and other in objects:
+                    per[robot].append((link, other, c.position, sign * c.normal, c.force))
+                    break
+        for name, found in per.items():
+            msg = TrueContacts(body_a=[f[0] for f in found], body_b=[f[1] for f in found],
+                               positions=NDArray.of(np.array([f[2] for f in found], dtype=np.float64).reshape(-1, 3)),
+                               normals=NDArray.of(np.array([f[3] for f in found], dtype=np.float64).reshape(-1, 3)),
+                               forces=NDArray.of(np.array([f[4] for f in found], dtype=np.float64)))
+            self.robots[name].contacts_seq += 1
+            self._contacts_pubs[name](encode(stamp(msg, f"{self.source}/{name}/true_contacts",
+                                                   self.robots[name].contacts_seq, t)))
 
     def _state(self, name: str, r: _Robot) -> RobotState:
         sim = r.sim

@@ -17,6 +17,7 @@ from contactflow.embodiments.messages import (
     CameraRequest,
     HandCommand,
     RobotState,
+    TrueContacts,
 )
 from contactflow.embodiments.scene_file import parse_scene
 from contactflow.nodes.config import parse_node_config
@@ -234,6 +235,39 @@ def test_a_camera_request_is_answered_with_a_frame_of_that_tick(tmp_path):
         assert wait_for(lambda: c.state.refused == 1, 10)
         assert len(c.frames) == 1
     finally:
+        c.close()
+        node.stop()
+
+
+def test_each_robots_true_contacts_with_the_objects_go_to_eval_only_with_contacts_hz(tmp_path):
+    # a fixed block around melfa's open fingers at home: they press on it from the first tick
+    block = "  - {name: block, kind: box, size: [0.12, 0.12, 0.06], xyz: [0.388, 0.109, 1.01], static: true}\n"
+    node, c = start_world(tmp_path, SCENE + block, contacts_hz=50.0)
+    truths: list[TrueContacts] = []
+    sub = c.t.subscribe(c.ks.evaluation("melfa", "true_contacts"), lambda k, p: truths.append(decode(p, TrueContacts, k)))
+    try:
+        assert wait_for(lambda: len(truths) >= 3, 30)
+        msg = truths[-1]
+        pts, normals, forces = msg.positions.numpy(), msg.normals.numpy(), msg.forces.numpy()
+        assert len(forces) >= 1 and np.all(forces > 0)
+        assert all(b.startswith("melfa/") for b in msg.body_a) and set(msg.body_b) == {"block"}  # not the far cube
+        lo, hi = np.array([0.328, 0.049, 0.98]), np.array([0.448, 0.169, 1.04])
+        assert np.all((pts > lo - 0.01) & (pts < hi + 0.01)), pts
+        assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-3)
+        assert msg.hdr.source.endswith("/melfa/true_contacts") and msg.hdr.t_sim > 0
+    finally:
+        sub.close()
+        c.close()
+        node.stop()
+    node, c = start_world(tmp_path, SCENE + block)  # off by default
+    quiet: list[bytes] = []
+    sub = c.t.subscribe(c.ks.evaluation("melfa", "true_contacts"), lambda k, p: quiet.append(p))
+    try:
+        n = len(c.states)
+        assert wait_for(lambda: len(c.states) > n + 20, 30)
+        assert not quiet
+    finally:
+        sub.close()
         c.close()
         node.stop()
 

@@ -74,6 +74,23 @@ def test_waits_for_slow_source_and_takes_newest_of_fast_one():
     assert integ.cycle(0.05) is None  # next cycle waits again
 
 
+def test_an_empty_reading_keeps_a_pending_cloud_the_cycle_has_not_fused_yet():
+    # a wrist F/T feels a brief touch while the cycle waits for the tactile source; its next reading
+    # feels nothing: the touch is fused anyway, as it would have been had the cycle run in between
+    integ = Integrator(IntegratorParams(wait_timeout=1.0))
+    integ.plug("force", now=0.0)
+    integ.plug("tactile", now=0.0)
+    integ.offer("force", cloud(P, 0.6, stamp=0.0), 0.0)
+    assert integ.cycle(0.001) is None
+    integ.offer("force", Hypotheses.empty(0.005), 0.005)
+    integ.offer("tactile", Hypotheses.empty(0.005), 0.005)
+    f = integ.cycle(0.005)
+    assert f is not None and fused_at(f, P) == pytest.approx(0.6)
+    integ.offer("force", Hypotheses.empty(0.01), 0.01)
+    integ.offer("tactile", Hypotheses.empty(0.01), 0.01)
+    assert fused_at(integ.cycle(0.01), P) == pytest.approx(0.6)  # the space keeps it until it expires
+
+
 def test_stops_waiting_after_wait_timeout_and_ignores_silent_sources():
     integ = Integrator(IntegratorParams(wait_timeout=0.1, source_timeout=1.0))
     integ.plug("a", now=0.0)

@@ -18,6 +18,36 @@ def test_bench_vision_quick(tmp_path):
     assert (tmp_path / "vision.md").read_text().startswith("# 3D vision pipeline")
 
 
+def test_bench_vision_runtime_segments_the_worlds_depth_stream_on_the_vision_node(tmp_path):
+    import math
+
+    import pytest
+
+    out = bench_vision.run(tmp_path, quick=True, executor="runtime")
+    rt = json.loads((tmp_path / "vision.json").read_text())["runtime"]
+    assert rt == json.loads(json.dumps(out["runtime"]))
+    # fresh frames of the world's depth stream went through the vision3d node over zenoh
+    # (a loaded machine slows the world's pace, and with it the camera's rate in wall time)
+    assert rt["frames"] >= 3 and 0 < rt["processed"] <= rt["frames"]
+    assert rt["dropped"] == rt["frames"] - rt["processed"]
+    assert rt["processed_hz"] == pytest.approx(rt["processed"] / rt["seconds"]) and 0 < rt["world_rtf"] <= 1.2
+    lat = rt["latency"]
+    assert 0.0 < lat["min_ms"] <= lat["median_ms"] <= lat["p95_ms"] <= lat["max_ms"] < 5000.0
+    assert all(math.isfinite(v) for v in lat.values())
+    # the five objects on the table are five clusters
+    assert rt["objects"] == 5 and rt["clusters_right"] >= 0.9 * rt["processed"], rt
+    assert "runtime" in (tmp_path / "vision.md").read_text()
+
+
+def test_bench_vision_refuses_an_unknown_executor(tmp_path):
+    import pytest
+
+    from contactflow.nodes.params import ParamError
+
+    with pytest.raises(ParamError, match="--executor 'sim' is not one of"):
+        bench_vision.run(tmp_path, executor="sim")
+
+
 def test_bench_recognition_quick(tmp_path):
     out = bench_recognition.run(tmp_path, quick=True)
     for name in ("recognition.json", "recognition.md", "recognition_sos_aos.png", "recognition_knowledge.json"):
