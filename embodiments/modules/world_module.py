@@ -317,7 +317,7 @@ class WorldModule(Module):
         self.overruns += 1
         detail = f"tick {k}: lockstep node(s) {sorted(missing)} did not answer within {self.params.deadline:g} s"
         self.log.warning(detail)
-        self.io.emit(Event.OVERRUN, detail)
+        self.io.emit(Event.OVERRUN, detail, t_sim=self.world.time)
         with self._cond:
             for n in missing:  # a stalled node is treated as gone until it answers again
                 self._acks[n] = k
@@ -351,7 +351,7 @@ class WorldModule(Module):
             for name, r in self.robots.items():
                 if not r.sim.failed:
                     r.sim.failed, r.sim.failure = True, f"physics: {type(exc).__name__}: {exc}"
-                    self.io.emit(Event.HARDWARE_FAILURE, f"{name}: {r.sim.failure}"[:500])
+                    self.io.emit(Event.HARDWARE_FAILURE, f"{name}: {r.sim.failure}"[:500], t_sim=self.world.time)
         self.tick_no += 1
         self._publish_tick()
 
@@ -476,7 +476,7 @@ class WorldModule(Module):
             arm.move_joints(arm.q(), speed=1e6)  # stop where it is; the hands keep their grip
         detail = f"{robot}: held by the world: {why}"
         self.log.warning(detail)
-        self.io.emit(Event.HARDWARE_FAILURE, detail[:500])
+        self.io.emit(Event.HARDWARE_FAILURE, detail[:500], t_sim=self.world.time)
 
     def _joint_values(self, sim: Any, joints: tuple[str, ...], values: np.ndarray, what: str) -> np.ndarray:
         idx = sim.art.indices(joints)

@@ -43,7 +43,8 @@ class LocalIO:
     def publish(self, port: str, msg: Message, inputs: list[MsgId] | None = None) -> None:
         self._latest[port] = msg
 
-    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
+    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None,
+             t_sim: float | None = None) -> None:
         self.runner._events.append(RunnerEvent(self.instance, Event(event), dict(values or {}), detail))
 
     def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:
