@@ -63,7 +63,7 @@ def test_default_manifest_runs_the_real_modules_of_the_areas():
     agents = {n.host: mod["params"]["robot"] for n in m.nodes() for mod in n.modules if mod["type"] == "robot_agent"}
     assert agents == {r.control: r.name for r in m.robots.values()}
     assert {c.__module__.rsplit(".", 1)[-1] for (h, _), c in classes.items() if h == "vision3d"} == {
-        "cloud_builder", "plane_detector", "roi_filter", "cluster_extractor"}
+        "cloud_builder", "plane_detector", "roi_filter", "self_filter", "cluster_extractor"}
     assert classes[("vision2d", "shape")].__module__.endswith("classify_shape")
 
 
