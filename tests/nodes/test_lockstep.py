@@ -34,15 +34,17 @@ class SlowDataTransport(LocalTransport):
         return late
 
 
+@dataclass(frozen=True)
+class EveryTick:
+    rate_hz: float = 1.0 / DT  # Hz, every tick
+
+
 class Producer(Module):
     """Publishes the time of every tick it steps."""
 
     layer = Layer.SERVICE
     outputs = (Port("out", Vector),)
-
-    @dataclass(frozen=True)
-    class Params:
-        rate_hz: float = 1.0 / DT  # Hz, every tick
+    Params = EveryTick
 
     def step(self) -> Status:
         self.io.publish("out", Vector(values=[self.io.now]))
@@ -54,10 +56,7 @@ class Consumer(Module):
 
     layer = Layer.TASK
     inputs = (Port("inp", Vector),)
-
-    @dataclass(frozen=True)
-    class Params:
-        rate_hz: float = 1.0 / DT  # Hz, every tick
+    Params = EveryTick
 
     def start(self) -> None:
         self.seen: list[tuple[float, list[float]]] = []
