@@ -193,8 +193,12 @@ def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: in
                                connect=(endpoint,), autostart=True)
         world = world_node(site, cell, listen=endpoint, wait_for=(control["node"],), seed=seed, ground_truth_hz=50.0)
         run = run_cell(folder, world, [control], endpoint, timeout=600.0)
-    final = {e.module.rsplit("/", 1)[-1]: e for e in run.messages if e.event in ("success", "failure", "error", "timeout")
-             and e.module.rsplit("/", 1)[-1] in ("move_to", "robust_grasp", "naive_grasp", "lift")}
+    final: dict = {}
+    for e in run.messages:
+        name = e.module.rsplit("/", 1)[-1]
+        if e.event in ("success", "failure", "error", "timeout") and name in ("move_to", "robust_grasp", "naive_grasp", "lift"):
+            # the first: the primitive's own outcome with its result values (the host repeats the event without them)
+            final.setdefault(name, e)
     end = run.outcomes[ROBOT]
     lift = final.get("lift")
     ok, why = judge_poses(run.poses, spec.name, lift.hdr.t_sim if lift is not None else end.hdr.t_sim, end.hdr.t_sim)

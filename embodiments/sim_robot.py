@@ -442,7 +442,8 @@ class SimRobot(RobotFacade):
         self.mixer.submit(source, names, q, qd, weight, self.time)
 
     def joint_state(self) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
-        """(names, positions, velocities, efforts) of every active joint."""
+        """(names, positions, velocities, efforts) of every active joint, measured now (not at the last control tick)."""
+        self._sync_kin()
         return list(self.art.joint_names), self._q_s.copy(), self._qd_s.copy(), self.art.drive_efforts()
 
     # -- kinematics ------------------------------------------------------------------------
@@ -463,7 +464,7 @@ class SimRobot(RobotFacade):
         if self._kin_stamp == self.world.steps:
             return
         if not self._nan_injected:
-            self._q_s = self.art.qpos()
+            self._q_s, self._qd_s = self.art.qpos(), self.art.qvel()
         self.kin.update(self._kin_q())
         self._kin_stamp = self.world.steps
 

@@ -224,7 +224,11 @@ def test_the_joint_configuration_tells_where_a_grasped_cylinder_sits_in_the_hand
     robot, runner = scene()
     above = hand_pose_for("tombatossals", top_grasp_pose((0.55, -0.3, 0.93)))
     assert outcome(run_primitive(runner, "move_to", {"arm": ARM, "target": vec(above)})).event is Event.SUCCESS
-    assert outcome(run_primitive(runner, "robust_grasp", {"arm": ARM, "pregrasp_type": "open"})).event is Event.SUCCESS
+    # the grasp this test measures tares the F/T as soon as the preshape is done (the arm is at rest after
+    # move_to); tared 0.1 s later the same close squeezes the can out (the close is chaotic: 1 of 4 nearby
+    # settle parameters holds it)
+    grasp = {"arm": ARM, "pregrasp_type": "open", "settle_speed": 0.0}
+    assert outcome(run_primitive(runner, "robust_grasp", grasp)).event is Event.SUCCESS
     T = robot.arm(ARM).ee_pose()
     truth = (np.linalg.inv(T) @ robot.ground_truth().object_poses["cyl"])[:3, 3]
     est = held_center(robot, ARM)
