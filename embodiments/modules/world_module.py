@@ -122,9 +122,13 @@ class WorldModule(Module):
         republish: float = 0.2  # s of wall time between repeats of the current tick while waiting (late joiners)
         start_timeout: float = 60.0  # s of wall time tick 1 waits for the nodes of wait_for to come up
 
-    def __init__(self, name: str, params: Params | None = None) -> None:
+    def __init__(self, name: str, params: Params | None = None, world: Any = None, sims: tuple = ()) -> None:
+        """``world`` and its ``sims`` (SimRobots): a world built by the caller, co-located with its controllers
+        (the in-process runner): commands apply as they arrive and :meth:`publish_state` sends the state."""
         super().__init__(name, params)
-        self.world: Any = None
+        self.world: Any = world
+        self._given = tuple(sims) if world is not None else None
+        self._published_at = -1  # co-located: the world step of the last state sent
         self.robots: dict[str, _Robot] = {}
         self.tick_no = 0
         self.overruns = 0
@@ -162,39 +166,43 @@ class WorldModule(Module):
         where = f"{self.name}.params"
         if p.clock not in ("lockstep", "realtime"):
             raise ValueError(f"{where}.clock: {p.clock!r} is not lockstep or realtime")
-        if not p.scene_file:
+        if not p.scene_file and self._given is None:
             raise ValueError(f"{where}.scene_file: a world needs a scene file")
         if p.control_rate <= 0 or p.deadline <= 0 or p.slice <= 0 or p.max_rtf < 0:
             raise ValueError(f"{where}: control_rate, deadline and slice must be positive, max_rtf not negative")
-        scene = load_scene(p.scene_file)
         transport = io.transport  # the world is infrastructure: its streams are per robot, not per port
         self.ks = ks = io.keyspace
-        self.world = world = World(WorldParams(camera_backend=p.camera_backend))
-        if scene.scene:
-            SCENES[scene.scene](world)
-        for obj in scene.objects:
-            world.add_object(obj)
         addr = f"{io.robot}/{io.node}/{self.name}" if hasattr(io, "robot") else self.name
         self.source = addr
-        sims = []
-        for k, rp in enumerate(scene.robots):
-            base = None if rp.base is None else xyz_rpy_to_matrix(rp.base[:3], rp.base[3:])
-            sims.append((rp, SimRobot(world, rp.embodiment, name=rp.name, base=base,
-                                      params=SimRobotParams(control_rate=p.control_rate, seed=p.seed + 101 * k))))
+        if self._given is not None:
+            world, sims = self.world, [(sim.name, sim) for sim in self._given]
+        else:
+            scene = load_scene(p.scene_file)
+            self.world = world = World(WorldParams(camera_backend=p.camera_backend))
+            if scene.scene:
+                SCENES[scene.scene](world)
+            for obj in scene.objects:
+                world.add_object(obj)
+            sims = []
+            for k, rp in enumerate(scene.robots):
+                base = None if rp.base is None else xyz_rpy_to_matrix(rp.base[:3], rp.base[3:])
+                sims.append((rp.name, SimRobot(world, rp.embodiment, name=rp.name, base=base,
+                                               params=SimRobotParams(control_rate=p.control_rate, seed=p.seed + 101 * k))))
         fixtures = [ObstacleMsg(name=o.name, kind=o.kind, size=[float(v) for v in o.size],
                                 pose=[float(v) for v in np.asarray(o.pose).ravel()])
                     for o in fixtures_from_world(world)]
-        for rp, sim in sims:
+        for rname, sim in sims:
             hands = [HandPoints(arm=a.name, points=NDArray.of(hand_points(sim, a.name))) for a in sim.spec.arms if a.hand]
-            info = RobotInfo(robot=rp.name, embodiment=rp.embodiment, base=[float(v) for v in sim.art.base.ravel()],
+            info = RobotInfo(robot=rname, embodiment=sim.spec.name, base=[float(v) for v in sim.art.base.ravel()],
                              fixtures=fixtures, hands=hands, world=addr, clock=p.clock, control_rate=p.control_rate,
                              seed=p.seed)
-            self.robots[rp.name] = _Robot(sim, encode(stamp(info, f"{addr}/info", 1, 0.0)),
-                                          transport.publisher(ks.robot(rp.name, "state")),
-                                          transport.publisher(ks.robot(rp.name, "camera")),
-                                          transport.publisher(ks.robot(rp.name, "depth")),
-                                          transport.publisher(ks.robot(rp.name, "joints")))
-        world.step(max(1, int(round(p.settle / world.params.timestep))))
+            self.robots[rname] = _Robot(sim, encode(stamp(info, f"{addr}/info", 1, 0.0)),
+                                          transport.publisher(ks.robot(rname, "state")),
+                                          transport.publisher(ks.robot(rname, "camera")),
+                                          transport.publisher(ks.robot(rname, "depth")),
+                                          transport.publisher(ks.robot(rname, "joints")))
+        if self._given is None:
+            world.step(max(1, int(round(p.settle / world.params.timestep))))
         self._every = max(1, int(round(1.0 / (p.control_rate * world.params.timestep))))
         self._clock_pub = transport.publisher(ks.clock(p.cell))
         self._gt_pub = transport.publisher(ks.evaluation(p.cell or self.name, "object_poses"))
@@ -222,8 +230,19 @@ class WorldModule(Module):
             if msg.robot != robot:
                 self._refuse(robot, f"{key}: the command names robot {msg.robot!r}")
                 return
-            (self._requests if isinstance(msg, CameraRequest) else self._commands).append(msg)
-            self._cond.notify_all()
+            if self._given is None:
+                (self._requests if isinstance(msg, CameraRequest) else self._commands).append(msg)
+                self._cond.notify_all()
+                return
+        self._apply(msg)  # co-located: the caller steps the world, the command applies as on the robot itself
+
+    def publish_state(self) -> None:
+        """Co-located: send each robot's state as it is now, if the world stepped since the last one."""
+        if self.world.steps == self._published_at:
+            return
+        self._published_at = self.world.steps
+        self.tick_no += 1
+        self._publish_tick()
 
     def _on_ack(self, key: str, payload: bytes) -> None:
         try:

@@ -1,4 +1,4 @@
-"""In-process primitive runner for the task engine: primitives stepped in lockstep with the simulated world."""
+"""In-process primitive runner for the task engine: primitives stepped in lockstep with a co-located world module."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ class LocalIO:
         self.runner._events.append(RunnerEvent(self.instance, Event(event), dict(values or {}), detail))
 
     def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:
-        return ControlReply(ok=False, error=f"{self.instance}: in-process primitives command the robot directly, "
+        return ControlReply(ok=False, error=f"{self.instance}: in-process primitives command the robot's world, "
                                              f"not module {target!r}")
 
     def log(self, text: str) -> None:
@@ -65,16 +65,20 @@ class _Active:
 class LocalPrimitiveRunner:
     """:class:`~contactflow.nodes.taskengine.PrimitiveRunner` running primitives in this process.
 
-    Primitives are created by registered short name (``contactflow.nodes.registry``), bound
-    to ``robot``, set up with a :class:`LocalIO` and stepped at their ``rate_hz`` by
-    :meth:`advance` as the world advances. ``defaults`` holds per-type parameter overrides
-    (default: the overrides of the robot's home, :mod:`~contactflow.embodiments.registry`);
-    task parameters override them.
+    Primitives are created by registered short name (``contactflow.nodes.registry``), set up
+    with a :class:`LocalIO` and stepped at their ``rate_hz`` by :meth:`advance` as the world
+    advances. They drive ``robot`` (a simulated robot) as on a node: through the world module
+    of its world, co-located on an in-process bus, whose states they read and whose command
+    port checks and applies what they send (``facade``, the node's
+    :class:`~contactflow.embodiments.remote.RemoteRobot`). ``defaults`` holds per-type
+    parameter overrides (default: the overrides of the robot's home,
+    :mod:`~contactflow.embodiments.registry`); task parameters override them.
     """
 
     def __init__(self, robot: Robot, defaults: Mapping[str, Mapping[str, Any]] | None = None,
                  factory: Callable[[str], type[Primitive]] | None = None) -> None:
         self.robot = robot
+        self._world, self.facade = _co_located(robot)
         if defaults is None:
             defaults = registry.home(robot.spec.name).overrides
         self.defaults = {k: dict(v) for k, v in defaults.items()}
@@ -87,12 +91,13 @@ class LocalPrimitiveRunner:
         cls = self._factory(type)
         merged = {**self.defaults.get(type, {}), **dict(params)}
         prim = cls(instance, replace_params(cls.Params(), merged, where=f"{instance} ({type}).params."))
-        prim.bind(self.robot)
+        prim.bind(self.facade)
         prim.setup(LocalIO(instance, self))
         return prim
 
     def start(self, instance: str, type: str, params: Mapping[str, Any]) -> None:
         self.started.append((instance, type, dict(params)))
+        self._world.publish_state()  # the world may have stepped without the runner since its last tick
         try:
             prim = self.create(instance, type, params)
             prim.start()
@@ -112,6 +117,7 @@ class LocalPrimitiveRunner:
 
     def advance(self) -> None:
         """Step every primitive whose period has elapsed (call once per control tick)."""
+        self._world.publish_state()
         now = self.robot.time
         for a in list(self.active.values()):
             if a.finished or now + 1e-9 < a.next_t:
@@ -129,6 +135,31 @@ class LocalPrimitiveRunner:
                 a.finished = True
                 if not any(e.instance == a.prim.name and e.event is STATUS_EVENT[status] for e in self._events):
                     self._events.append(RunnerEvent(a.prim.name, STATUS_EVENT[status], dict(a.prim.result)))
+
+
+def _co_located(robot: Robot):
+    """The world module around ``robot``'s world on an in-process bus, and the facade primitives drive it through.
+
+    Primitives run here as they do on a node: they read the robot's state as the world sends
+    it and command it on its command port, which the world checks and applies; only the bus
+    differs (in-process and synchronous, not zenoh).
+    """
+    from contactflow.embodiments.modules.world_module import WorldModule
+    from contactflow.embodiments.remote import RemoteRobot, RobotLink
+    from contactflow.nodes.config import ModuleConfig, NodeConfig
+    from contactflow.nodes.host import ModuleHost
+    from contactflow.nodes.transport import LocalTransport, ZenohSettings
+
+    bus = LocalTransport()
+    node = NodeConfig(site="local", node="local", host="local", robot="site", clock="wall", zenoh=ZenohSettings(),
+                      modules=())
+    host = ModuleHost(node, bus)
+    params = WorldModule.Params(control_rate=robot.params.control_rate, ground_truth_hz=0.0)
+    world = WorldModule("world", params, world=robot.world, sims=(robot,))
+    host.add(ModuleConfig("world", "world", WorldModule, params, "site"), world)
+    link = RobotLink(bus, host.ks, robot.name, "local")
+    world.publish_state()
+    return world, RemoteRobot(link)
 
 
 def _resolve_primitive(type_name: str) -> type[Primitive]:

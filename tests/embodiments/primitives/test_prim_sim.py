@@ -222,18 +222,18 @@ def test_the_joint_configuration_tells_where_a_grasped_cylinder_sits_in_the_hand
     from contactflow.embodiments.primitives.hands import held_center
 
     robot, runner = scene()
-    above = hand_pose_for("tombatossals", top_grasp_pose((0.55, -0.3, 0.93)))
-    assert outcome(run_primitive(runner, "move_to", {"arm": ARM, "target": vec(above)})).event is Event.SUCCESS
-    # the grasp this test measures tares the F/T as soon as the preshape is done (the arm is at rest after
-    # move_to); tared 0.1 s later the same close squeezes the can out (the close is chaotic: 1 of 4 nearby
-    # settle parameters holds it)
-    grasp = {"arm": ARM, "pregrasp_type": "open", "settle_speed": 0.0}
-    assert outcome(run_primitive(runner, "robust_grasp", grasp)).event is Event.SUCCESS
+    # the hand closes on the can from over it (a plain close: what this measures is the estimate, not a grasp)
+    for z in (0.93, 0.87):
+        above = hand_pose_for("tombatossals", top_grasp_pose((0.55, -0.3, z)))
+        assert outcome(run_primitive(runner, "move_to", {"arm": ARM, "target": vec(above)})).event is Event.SUCCESS
+    robot.hand(robot.spec.arm(ARM).hand).close(effort=0.5)
+    robot.step(2.0)
     T = robot.arm(ARM).ee_pose()
     truth = (np.linalg.inv(T) @ robot.ground_truth().object_poses["cyl"])[:3, 3]
+    assert robot.ground_truth().object_poses["cyl"][2, 3] > 0.81  # held off the table
     est = held_center(robot, ARM)
     assert est is not None
-    # across the approach axis: this grasp holds the can with the middle pad against the palm, 9.9 cm
-    # from where grasps usually put it; the estimate is 5.1 cm off, half of that
+    # across the approach axis the closing fingers hold the can 3.6 cm from where grasps usually put it;
+    # the estimate from the fingertips on it is 0.6 cm off
     prior = np.linalg.norm(np.asarray(registry.home("tombatossals").grasp_center[:2]) - truth[:2])
-    assert np.linalg.norm(est[:2] - truth[:2]) < 0.6 * prior, (est, truth)
+    assert np.linalg.norm(est[:2] - truth[:2]) < 0.3 * prior, (est, truth)
