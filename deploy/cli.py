@@ -221,6 +221,7 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
           out: Path = Path("bench-results"), quick: bool = False,
           jobs: Annotated[int, typer.Option(min=1, help="worker processes, for benchmarks made of independent runs")] = 1,
           runs: Annotated[int | None, typer.Option(min=1, help="runs per strategy (empty-box; default 10)")] = None,
+          trials: Annotated[int | None, typer.Option(min=1, help="trials per object and condition (grasp; default 10)")] = None,
           max_time: Annotated[float | None, typer.Option(min=1.0, help="simulated s per run before the supervisor stops it (empty-box)")] = None,
           max_attempts: Annotated[int | None, typer.Option(min=1, help="grasp attempts per run (empty-box)")] = None,
           strategy: Annotated[list[str] | None, typer.Option(help="only this strategy, repeatable (empty-box; default all)")] = None,
@@ -236,7 +237,7 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
     except ModuleNotFoundError as exc:
         console.print(f"[red]benchmark {name!r} is not available: {exc}[/]")
         raise typer.Exit(1) from None
-    given = {"jobs": jobs if jobs != 1 else None, "runs": runs, "max_time": max_time, "max_attempts": max_attempts,
+    given = {"jobs": jobs if jobs != 1 else None, "runs": runs, "trials": trials, "max_time": max_time, "max_attempts": max_attempts,
              "strategy": strategy or None, "first_seed": first_seed, "executor": executor}
     extra = {k: v for k, v in given.items() if v is not None}
     accepted = inspect.signature(mod.run).parameters

@@ -186,6 +186,8 @@ def test_bench_catch_zone_is_listed_and_refuses_the_empty_box_caps(tmp_path):
     refused = invoke("bench", "catch-zone", "--quick", "--runs", 3, "--out", tmp_path)
     assert refused.exit_code == 2 and "does not take --runs" in refused.output, refused.output
     assert not (tmp_path / "catch_zone.json").exists()
+    refused = invoke("bench", "catch-zone", "--quick", "--trials", 3, "--out", tmp_path)
+    assert refused.exit_code == 2 and "does not take --trials" in refused.output, refused.output  # the grasp bench's
 
 
 def test_bench_messaging_quick_writes_its_json(tmp_path):
