@@ -60,9 +60,10 @@ def spawn_site(folder: Path, site: str, paced: str = "") -> tuple[dict, ZenohTra
     return procs, tool, hub
 
 
-@pytest.fixture(scope="module")
-def site(tmp_path_factory):
-    procs, tool, hub = spawn_site(tmp_path_factory.mktemp("site"), SITE)
+@pytest.fixture
+def site(tmp_path):
+    # per test: a site left up would run its idle worlds as fast as the CPUs allow beside the next test's
+    procs, tool, hub = spawn_site(tmp_path / "site", SITE)
     try:
         yield procs, tool, hub
     finally:
