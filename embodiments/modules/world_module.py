@@ -428,7 +428,8 @@ class WorldModule(Module):
     def _state(self, name: str, r: _Robot) -> RobotState:
         sim = r.sim
         names, q, qd, effort = sim.joint_state()
-        r.joints = JointState(robot=name, names=names, position=NDArray.of(q), velocity=NDArray.of(qd),
+        position, velocity = NDArray.of(q), NDArray.of(qd)  # one copy each, shared by the state and the joints
+        r.joints = JointState(robot=name, names=names, position=position, velocity=velocity,
                               effort=NDArray.of(np.asarray(effort, dtype=np.float64)))
         arms = [ArmState(name=a, q_cmd=NDArray.of(np.asarray(sim.arm(a).q_cmd, dtype=np.float64)),
                          status=str(sim.arm(a).status), abort_reason=sim.arm(a).abort_reason,
@@ -449,8 +450,8 @@ class WorldModule(Module):
                 pads = sim.tactile(h.name)
                 tactile.append(TactileSample(hand=h.name, pads=list(pads), pressure=NDArray.of(
                     np.stack([np.asarray(v, dtype=np.float32) for v in pads.values()]))))
-        return RobotState(robot=name, tick=self.tick_no, t=sim.time, names=names, position=NDArray.of(q),
-                          velocity=NDArray.of(qd), arms=arms, hands=hands, wrenches=wrenches, tactile=tactile,
+        return RobotState(robot=name, tick=self.tick_no, t=sim.time, names=names, position=position,
+                          velocity=velocity, arms=arms, hands=hands, wrenches=wrenches, tactile=tactile,
                           failed=sim.failed, failure=sim.failure, held=r.held,
                           held_at=r.held_at if r.held else -1, refused=r.refused, late=r.late)
 
