@@ -197,7 +197,6 @@ def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: in
     for e in run.messages:
         name = e.module.rsplit("/", 1)[-1]
         if e.event in ("success", "failure", "error", "timeout") and name in ("move_to", "robust_grasp", "naive_grasp", "lift"):
-            # the first: the primitive's own outcome with its result values (the host repeats the event without them)
             final.setdefault(name, e)
     end = run.outcomes[ROBOT]
     lift = final.get("lift")

@@ -70,8 +70,8 @@ class RobotLink:
         self._request_base = secrets.randbits(40) << 20
         self._cmd = transport.publisher(ks.robot(robot, "command"))
         self._handles = [transport.subscribe(ks.robot(robot, "state"), self._on_state),
-                         transport.subscribe(ks.robot(robot, "camera"), self._on_frame),
-                         transport.token(ks.alive_controller(robot, node))]
+                         transport.subscribe(ks.robot(robot, "camera"), self._on_frame)]
+        self.controller = False  # this node has commanded the robot (and holds alive/controller/<robot>/<node>)
 
     def _on_state(self, key: str, payload: bytes) -> None:
         try:
@@ -123,6 +123,13 @@ class RobotLink:
             return self.state
 
     def send(self, msg: ArmCommand | HandCommand | HeadCommand | CameraRequest) -> None:
+        if not self.controller and not isinstance(msg, CameraRequest):
+            # a node becomes the robot's controller with its first command: the world holds the robot when the
+            # last controller goes, and a node that only reads the robot (contact cues, a camera) must not count
+            transport = self._transport()
+            if transport is not None:
+                self._handles.append(transport.token(self.ks.alive_controller(self.robot, self.node)))
+            self.controller = True
         self._seq += 1
         t = self.state.t if self.state is not None else 0.0
         self._cmd(encode(stamp(msg, f"{self.robot}/{self.node}/controller", self._seq, t)))

@@ -91,6 +91,7 @@ class HostedIO:
         self._trackers: dict[str, SeqTracker] = {p.name: SeqTracker() for p in hm.module.inputs}
         self._seqs: dict[str, int] = {}  # one counter per stream, so a gap on a stream means loss
         self._held: list[tuple[str, Message]] = []  # lockstep: messages sent during the tick being stepped, for the next
+        self.emitted: set[Event] = set()  # the events the module raised itself since its last RUN
         hm.counters.gaps = {p.name: 0 for p in hm.module.inputs}
 
     @property
@@ -188,6 +189,7 @@ class HostedIO:
 
     def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None,
              t_sim: float | None = None) -> None:
+        self.emitted.add(event)
         msg = EventMsg(event=event, module=str(self._hm.addr), detail=detail, values=values or {})
         stamp(msg, str(self._hm.addr), self.next_seq("/evt"), self.now if t_sim is None else t_sim)
         self._hm.event_pub(encode(msg))
@@ -340,6 +342,8 @@ class ModuleHost:
             if refusal:
                 m.params = old
                 return ControlReply(ok=False, error=refusal, state=m.state)
+            if hm.io is not None:
+                hm.io.emitted.clear()
             m.start()
             m.state = Status.RUNNING
             hm.detail = ""
@@ -505,7 +509,7 @@ class ModuleHost:
                         m.state = status
                         self._release(hm)
                         event = STATUS_EVENT.get(status)
-                        if event is not None:
+                        if event is not None and event not in hm.io.emitted:  # a primitive's own outcome has its values
                             hm.io.emit(event)
                         self._publish_status(hm)
                 if now - hm.last_status >= STATUS_PERIOD:

@@ -222,6 +222,24 @@ def test_the_world_holds_a_robot_whose_controller_is_gone_and_raises_hardware_fa
     assert wait_for(lambda: not c.state.held, 10)
 
 
+def test_a_node_linked_to_a_robot_becomes_its_controller_with_its_first_command_not_by_reading_it(world):
+    from contactflow.embodiments.remote import RobotLink
+
+    wm, c = world
+    link = RobotLink(c.t, c.ks, "melfa", "reader")
+    try:
+        link.wait_state()
+        link.send(CameraRequest(robot="melfa", camera="none", request=7))  # asking for a frame reads the robot
+        time.sleep(0.5)
+        assert "reader" not in wm.robots["melfa"].controllers and not c.state.held
+        link.send(arm_cmd(ArmCommandKind.STOP, seq=1))
+        assert wait_for(lambda: "reader" in wm.robots["melfa"].controllers, 10)
+    finally:
+        link.close()
+    # the link went, and with it the robot's only controller: the world holds the robot
+    assert wait_for(lambda: c.state.held, 10)
+
+
 def test_a_camera_request_is_answered_with_a_frame_of_that_tick(tmp_path):
     node, c = start_world(tmp_path, SCENE.replace("{name: melfa}", "{name: tombatossals}"), "tombatossals",
                           camera_backend="raycast")

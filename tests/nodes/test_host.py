@@ -140,8 +140,20 @@ def test_primitive_waits_for_run_then_emits_event_and_success():
     assert reply.ok and reply.state == Status.RUNNING
     run_for(host, clock, 2.0, t0=t)
     events = [m.event for _, m in seen if isinstance(m, EventMsg)]
-    assert events[:2] == [Event.CONTACT, Event.SUCCESS]
+    assert events == [Event.CONTACT, Event.SUCCESS]  # the module's own event, then the host's for the status
     assert host.modules[("site", "th")].module.state == Status.SUCCESS
+
+
+def test_an_outcome_the_module_raised_itself_is_not_repeated_by_the_host():
+    host, clock, seen = make_host(PIPE.replace("threshold: 1.5}", "threshold: 1.5, event: success}"))
+    assert host.send_control("th", Command.RUN, {}).ok
+    t = run_for(host, clock, 2.0)
+    outcomes = [m for _, m in seen if isinstance(m, EventMsg)]
+    assert [m.event for m in outcomes] == [Event.SUCCESS] and "value" in outcomes[0].values
+    # a second run raises its outcome again
+    assert host.send_control("th", Command.RUN, {}).ok
+    run_for(host, clock, 2.0, t0=t)
+    assert [m.event for _, m in seen if isinstance(m, EventMsg)] == [Event.SUCCESS, Event.SUCCESS]
 
 
 def test_online_parameter_change_and_errors():
