@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import threading
 import time
 import traceback
@@ -347,7 +348,10 @@ class ModuleHost:
             m.start()
             m.state = Status.RUNNING
             hm.detail = ""
-            hm.next_due = self.clock.now()
+            # due at the node's next tick, its period counted from there: not from what the clock read when RUN
+            # came (a lockstep node autostarted before the world's first clock reached it read 0, not the first
+            # tick's time, and its 1 Hz plane detector fitted 0.4 s earlier than in another process layout)
+            hm.next_due = -math.inf
         elif req.cmd == Command.STOP:
             if m.state == Status.RUNNING:
                 m.stop()

@@ -125,6 +125,15 @@ def test_services_run_at_their_rate_and_outputs_are_traced():
     assert last.values[0] == pytest.approx(3 * lp_by_seq[last.hdr.inputs[0].seq].values[0])
 
 
+def test_a_module_period_counts_from_its_first_step_not_from_the_clock_reading_when_it_started():
+    # autostarted before the node heard any clock (it read 0), first stepped at 0.41 s: at 1 Hz the next step is
+    # at 1.41 s, as for a node that heard the clock first (a seeded run repeats whatever the process layout)
+    host, clock, seen = make_host("site: t\nnode: n\nclock: sim\nmodules:\n"
+                                  "  - {name: src, type: signal_source, params: {rate_hz: 1, frequency: 1}}\n")
+    run_for(host, clock, 2.0, t0=0.4)
+    assert [round(m.hdr.t_sim, 3) for k, m in seen if k.endswith("/src/out/signal")] == [0.41, 1.41]
+
+
 def test_a_module_knows_which_of_its_inputs_the_configuration_wired():
     host, _, _ = make_host(PIPE.replace("  - {name: sc, type: scale, inputs: {in: lp.out}, params: {gain: 3}}",
                                         "  - {name: sc, type: scale, params: {gain: 3}}"))
