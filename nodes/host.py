@@ -254,6 +254,7 @@ class ModuleHost:
         self._delivery = threading.Condition()
         self.mark_timeouts = 0  # ticks stepped without every message their marks named
         self.tick_no = -1  # the world tick a lockstep node steps (-1: not in lockstep)
+        self._ticked = False  # the node stepped its modules once
 
     # -- set up ---------------------------------------------------------------------------
     def add(self, cfg: ModuleConfig, module: Module | None = None) -> HostedModule:
@@ -348,10 +349,11 @@ class ModuleHost:
             m.start()
             m.state = Status.RUNNING
             hm.detail = ""
-            # due at the node's next tick, its period counted from there: not from what the clock read when RUN
-            # came (a lockstep node autostarted before the world's first clock reached it read 0, not the first
-            # tick's time, and its 1 Hz plane detector fitted 0.4 s earlier than in another process layout)
-            hm.next_due = -math.inf
+            # due now, its period counted from now; before the node's first tick, from that tick: the clock's
+            # reading is no tick's time then (a lockstep node autostarted before the world's first clock reached
+            # it read 0, not the first tick's 0.4 s, and its 1 Hz plane detector fitted at 1.0 s, not 1.4 s,
+            # so a seeded run with the vision node detected at another time in another process layout)
+            hm.next_due = self.clock.now() if self._ticked else -math.inf
         elif req.cmd == Command.STOP:
             if m.state == Status.RUNNING:
                 m.stop()
@@ -495,6 +497,7 @@ class ModuleHost:
     def tick(self) -> float:
         """Step every running module that is due; returns the time the next one is due."""
         now = self.clock.now()
+        self._ticked = True
         next_due = now + STATUS_PERIOD
         for hm in list(self.modules.values()):
             with hm.lock:
