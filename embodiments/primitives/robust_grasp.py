@@ -88,13 +88,48 @@ def search_poses(T_start: np.ndarray, T_now: np.ndarray, direction: np.ndarray, 
     return [back, over]
 
 
+LOOK_DEPTH = 0.3
+"""m below where the grasp began that a look takes in (the support and what stands on it)."""
+
+
+def look_pose(points: np.ndarray, T_start: np.ndarray, pivot: np.ndarray, radius: float,
+              min_size: int = 30) -> tuple[np.ndarray, float] | None:
+    """(pose, distance in m): ``T_start`` shifted across (in world x, y) so its hand-frame ``pivot`` is over the top
+    centre of the object nearest to where that pivot was, among the objects of the world-frame cloud ``points``
+    within ``radius`` of it; None when the cloud shows none there.
+
+    The region reaches from ``LOOK_DEPTH`` below the pivot (to take in the support under an
+    approach that began well above it) to ``radius`` above it; the support is the cloud's
+    dominant plane in it, the objects the clusters standing on it.
+    """
+    from contactflow.embodiments.primitives.detect_objects import TOP_BAND, segment_scene
+
+    g = T_start[:3, :3] @ pivot + T_start[:3, 3]
+    region = np.concatenate([g - (radius, radius, LOOK_DEPTH), g + radius])
+    _, clusters = segment_scene(points, region, min_size=min_size)
+    if not clusters:
+        return None
+    tops = []
+    for c in clusters:
+        top = c.points[c.points[:, 2] >= c.points[:, 2].max() - TOP_BAND]
+        tops.append(top[:, :2].mean(axis=0))
+    d = [float(np.linalg.norm(t - g[:2])) for t in tops]
+    k = int(np.argmin(d))
+    if d[k] > radius:
+        return None
+    goal = T_start.copy()
+    goal[:2, 3] += tops[k] - g[:2]
+    return goal, d[k]
+
+
 class RobustGrasp(Primitive):
     """Reactive grasp: approach along the grasp direction, centre on the object, close while sliding, adapt force.
 
     Per embodiment: the finger-lost correction needs a multi-finger hand with tactile pads
-    on its two external fingers (F1, F3 of Fig. 3.2); a parallel gripper skips it. Two
+    on its two external fingers (F1, F3 of Fig. 3.2); a parallel gripper skips it. Three
     corrections the thesis does not have are off by default: levelling a tilted top grasp
-    before the descent, and searching beside the start after a close that holds nothing.
+    before the descent, and, after a close that holds nothing, looking for the object with a
+    camera and searching beside the start.
     """
 
     requires = Capability(ft=True, hand=True)
@@ -126,6 +161,10 @@ class RobustGrasp(Primitive):
         level_tolerance: float = 0.0  # rad, a grasp direction within this angle of straight down is turned straight down before the approach (objects rest on level supports; 0: off, as in the thesis)
         level_pivot: tuple[float, ...] = (0.0, 0.0, 0.0)  # m, hand-frame point kept in place while levelling (where the hand holds an object)
         search_offsets: tuple[float, ...] = ()  # m, hand-frame (x, y) pairs: after a close that holds nothing, descend again shifted by the next pair (none in the thesis)
+        search_camera: str = ""  # camera that looks for the object after a close that holds nothing, before the search_offsets ("": none; not in the thesis)
+        search_radius: float = 0.2  # m, how far from where the grasp began a look finds the object
+        max_looks: int = 2  # looks after closes on nothing (each followed by a descent over the object it saw)
+        self_margin: float = 0.02  # m, a look ignores points this close to the robot's own spherical model
         settle_speed: float = 0.02  # rad/s, the arm's joints move slower than this for settle_time before the F/T is tared (0: tare at once)
         settle_time: float = 0.1  # s of stillness before the tare
         settle_timeout: float = 2.0  # s the arm may take to come to rest before the tare is taken anyway
@@ -150,6 +189,9 @@ class RobustGrasp(Primitive):
         self._goals: list[np.ndarray] = []
         self._shift_time = 0.0
         self.searches = 0
+        self.looks = 0
+        self._offsets_used = 0
+        self._look_next = False
         self.regrasps = 0
         self.aligns = 0
         self.slides = 0
@@ -322,6 +364,10 @@ class RobustGrasp(Primitive):
             return
         if self.phase is Phase.SHIFT:
             if self.arm.done() or self.r.time - self._t_phase > self._shift_time:
+                if self._look_next:
+                    self._look_next = False
+                    self._look()
+                    return
                 if self._goals:
                     self._next_goal()
                     return
@@ -334,7 +380,7 @@ class RobustGrasp(Primitive):
             held = len(held_fingers(self.hand.positions(), self.closed, self.groups, pads)) >= need
             vals = dict(contacts=len(pads), alignments=self.aligns, slides=self.slides, slides_back=self.slides_back,
                         regrasps=self.regrasps, lateral=self.lateral, support_contacts=self.support_contacts)
-            vals.update(searches=self.searches, levelled=self.levelled)
+            vals.update(searches=self.searches, looks=self.looks, levelled=self.levelled)
             if held:
                 self.emit_once(Event.GRASP_STABLE, f"pads in contact: {pads}", vals)
                 self.succeed(f"grasped with {pads}", **vals)
@@ -411,18 +457,62 @@ class RobustGrasp(Primitive):
         return True
 
     def _search(self) -> bool:
-        """The hand closed on nothing: reopen and descend again from the start shifted by the next of
-        ``search_offsets``; False when none is left."""
+        """The hand closed on nothing: reopen, back out, and descend again over the object a look finds
+        (``search_camera``, up to ``max_looks``) or else over the start shifted by the next of
+        ``search_offsets``; False when neither is left."""
         p = self.params
-        k = 2 * self.searches
-        if k + 1 >= len(p.search_offsets) or self.T_start is None:
+        if self.T_start is None:
+            return False
+        back, _ = search_poses(self.T_start, self.r.frame_pose(self.ee_frame), self.dir, self.xdir, (0.0, 0.0))
+        if p.search_camera and self.looks < p.max_looks:
+            self.looks += 1
+            self.searches += 1
+            self._look_next = True  # once backed out, clear of the object
+            self._reopen([back])
+            return True
+        over = self._offset_goal()
+        if over is None:
             return False
         self.searches += 1
+        self._reopen([back, over])
+        return True
+
+    def _offset_goal(self) -> np.ndarray | None:
+        """Over the start shifted by the next unused pair of ``search_offsets``; None when none is left."""
+        p = self.params
+        k = 2 * self._offsets_used
+        if k + 1 >= len(p.search_offsets) or self.T_start is None:
+            return None
+        self._offsets_used += 1
         offset = (p.search_offsets[k], p.search_offsets[k + 1])
         if self.io is not None:
-            self.io.log(f"closed on nothing: search {self.searches} at {offset[0]:+.3f}, {offset[1]:+.3f} m")
-        self._reopen(search_poses(self.T_start, self.r.frame_pose(self.ee_frame), self.dir, self.xdir, offset))
-        return True
+            self.io.log(f"closed on nothing: search at {offset[0]:+.3f}, {offset[1]:+.3f} m")
+        return search_poses(self.T_start, self.r.frame_pose(self.ee_frame), self.dir, self.xdir, offset)[1]
+
+    def _look(self) -> None:
+        """Backed out after a close on nothing: look for the object with ``search_camera`` and go over it
+        (the closing fingers push objects 5-15 cm); over the next search offset when the look shows nothing."""
+        p = self.params
+        assert self.T_start is not None
+        frame = self.r.camera(p.search_camera)
+        pts = np.asarray(frame.points)
+        model = getattr(self.r, "spherical", None)
+        if model is not None and len(pts):
+            pts = pts[model.distance(pts) > p.self_margin]  # the arm and hand are not the object
+        found = look_pose(pts, self.T_start, np.asarray(p.level_pivot, dtype=np.float64), p.search_radius)
+        if found is not None:
+            goal, d = found
+            if self.io is not None:
+                self.io.log(f"closed on nothing: look {self.looks} sees an object {100 * d:.1f} cm from the start")
+            self._goals = [goal]
+        else:
+            over = self._offset_goal()
+            if over is None:
+                self.fail(f"hand closed without holding; look {self.looks} sees no object within "
+                          f"{p.search_radius:g} m of the start", searches=self.searches, looks=self.looks)
+                return
+            self._goals = [over]
+        self._next_goal()
 
     def _reopen(self, goals: list[np.ndarray]) -> None:
         """Open to the preshape, then visit ``goals`` (controlled-frame poses) before approaching again."""

@@ -95,17 +95,17 @@ def test_allegro_sliding_grasp_keeps_a_light_contact_with_the_table() -> None:
 def test_levelling_the_tilted_approach_saves_the_grasp() -> None:
     # the car, approach error trial 6: tilted by 15 deg, one side of the hand lands first and the
     # closing fingers push the car away; levelled about the grasp centre it is held
-    tilted = _trial("car", "robust", error=True, trial=6, level_tolerance=0.0, search_offsets=[])
+    tilted = _trial("car", "robust", error=True, trial=6, level_tolerance=0.0, search_offsets=[], search_camera="")
     assert not tilted["success"], "the tilted grasp holds: the test no longer exercises the levelling"
     assert tilted["grasp_values"]["levelled"] == 0.0
-    levelled = _trial("car", "robust", error=True, trial=6, search_offsets=[])
+    levelled = _trial("car", "robust", error=True, trial=6, search_offsets=[], search_camera="")
     assert levelled["grasp_values"]["levelled"] > 0.2  # rad, the profile levels it
     assert levelled["success"], levelled["why"]
 
 
 def test_a_close_on_nothing_searches_where_the_hand_pushed_the_object() -> None:
     # the wood block, approach error trial 6: the first close misses and pushes it aside
-    missed = _trial("wood", "robust", error=True, trial=6, search_offsets=[])
+    missed = _trial("wood", "robust", error=True, trial=6, search_offsets=[], search_camera="")
     assert missed["grasp"] == "failure" and not missed["success"], missed
     assert missed["grasp_values"]["searches"] == 0
     found = _trial("wood", "robust", error=True, trial=6)

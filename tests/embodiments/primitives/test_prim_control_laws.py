@@ -21,6 +21,7 @@ from contactflow.embodiments.primitives.release import release_velocity
 from contactflow.embodiments.primitives.robust_grasp import (
     alignment_velocity,
     levelled_pose,
+    look_pose,
     search_poses,
     sliding_velocity,
 )
@@ -130,6 +131,32 @@ def test_search_backs_out_along_the_approach_then_goes_over_the_offset() -> None
     assert np.allclose(over[:3, :3], T0[:3, :3])
     shift = T0[:3, :3].T @ (over[:3, 3] - T0[:3, 3])
     assert np.allclose(shift, (0.09, -0.08, 0.0))
+
+
+def _box_points(lo, hi, step=0.005) -> np.ndarray:
+    """The surface points of the box [lo, hi] (a stand-in for a depth camera's cloud of it, seen all round)."""
+    axes = [np.arange(a, b + 1e-9, step) for a, b in zip(lo, hi, strict=True)]
+    g = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    on = np.any(np.isclose(g, lo) | np.isclose(g, hi), axis=1)
+    return g[on]
+
+
+def test_a_look_goes_over_the_top_of_the_object_nearest_to_where_the_grasp_began() -> None:
+    rng = np.random.default_rng(0)
+    table = np.column_stack([rng.uniform(0.2, 0.9, 40000), rng.uniform(-0.6, 0.1, 40000), np.full(40000, 0.75)])
+    near = _box_points((0.60, -0.36, 0.75), (0.66, -0.30, 0.80))  # pushed 10 cm from where the grasp began
+    far = _box_points((0.30, 0.0, 0.75), (0.36, 0.06, 0.80))  # another object, 40 cm off
+    T0 = _top_grasp((0.0, 0.0, 90.0))
+    pivot = np.array([-0.055, 0.015, 0.0])
+    g = T0[:3, :3] @ pivot + T0[:3, 3]
+    goal, d = look_pose(np.vstack([table, near, far]), T0, pivot, radius=0.2)
+    assert np.allclose(goal[:3, :3], T0[:3, :3]) and goal[2, 3] == pytest.approx(T0[2, 3])  # same height and turn
+    moved = goal[:3, :3] @ pivot + goal[:3, 3]
+    assert moved[:2] == pytest.approx((0.63, -0.33), abs=0.003)  # the pivot over the box's top centre
+    assert d == pytest.approx(float(np.linalg.norm(np.array([0.63, -0.33]) - g[:2])), abs=0.003)
+    # nothing within the radius (the far box is beyond it), or nothing on the table: no pose
+    assert look_pose(np.vstack([table, far]), T0, pivot, radius=0.2) is None
+    assert look_pose(table, T0, pivot, radius=0.2) is None
 
 
 def test_wall_yaws_turn_the_hand_side_measured_for_walls_toward_the_nearest_wall() -> None:
