@@ -517,7 +517,7 @@ class ModuleHost:
                         self._release(hm)
                         event = STATUS_EVENT.get(status)
                         if event is not None and event not in hm.io.emitted:  # a primitive's own outcome has its values
-                            hm.io.emit(event)
+                            hm.io.emit(event, values=dict(m.result))
                         self._publish_status(hm)
                 if now - hm.last_status >= STATUS_PERIOD:
                     self._publish_status(hm)
@@ -594,22 +594,33 @@ class ModuleHost:
         self._thread = threading.Thread(target=self.run, name=f"host-{self.config.node}", daemon=True)
         self._thread.start()
 
+    def remove(self, addr: ModuleAddr) -> None:
+        """Take a module off the node: stopped if it runs, its claims released, its keys undeclared."""
+        with self._lock:
+            hm = self.modules.pop((addr.robot, addr.module), None)
+        if hm is not None:
+            self._retire(hm)
+
+    def _retire(self, hm: HostedModule) -> None:
+        with hm.lock:
+            if hm.module.state == Status.RUNNING:
+                try:
+                    hm.module.stop()
+                except Exception:
+                    self.log.exception("%s: stop raised", hm.addr)
+                hm.module.state = Status.STOPPED
+                self._publish_status(hm)
+            self._release(hm)
+            for h in hm.handles:
+                h.close()
+            hm.handles.clear()
+
     def shutdown(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
         for hm in list(self.modules.values()):
-            with hm.lock:
-                if hm.module.state == Status.RUNNING:
-                    try:
-                        hm.module.stop()
-                    except Exception:
-                        self.log.exception("%s: stop raised", hm.addr)
-                    hm.module.state = Status.STOPPED
-                    self._publish_status(hm)
-                self._release(hm)
-                for h in hm.handles:
-                    h.close()
+            self._retire(hm)
         if self._node_token is not None:
             self._node_token.close()
         self.clock.close()

@@ -111,6 +111,7 @@ class Module:
         self.params = params if params is not None else self.Params()
         self.io: ModuleIO | None = None
         self.state = Status.IDLE
+        self.result: dict[str, float] = {}  # what a finished run reports with its outcome event
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

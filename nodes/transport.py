@@ -165,7 +165,7 @@ def key_matches(pattern: str, key: str) -> bool:
     return zenoh.KeyExpr(pattern).intersects(zenoh.KeyExpr(key))
 
 
-@dataclass
+@dataclass(eq=False)  # one bus is one bus (hashable by identity: the robot links are kept per transport)
 class LocalTransport:
     """In-process bus with zenoh semantics; delivery is synchronous (deterministic)."""
 

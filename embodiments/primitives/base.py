@@ -118,7 +118,6 @@ class Primitive(Module):
         self.arm_name = ""
         self.hand_name = ""
         self.t0 = 0.0
-        self.result: dict[str, float] = {}
         self._outcome: Status = Status.RUNNING
         self._twist_cmd: tuple[tuple[float, ...], str] | None = None
 

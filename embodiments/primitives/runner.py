@@ -1,84 +1,49 @@
-"""In-process primitive runner for the task engine: primitives stepped in lockstep with a co-located world module."""
+"""In-process primitive runner for the task engine: primitives hosted as on a node, in lockstep with a co-located world module."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from contactflow.embodiments import registry
 from contactflow.embodiments.primitives.base import Primitive, PrimitiveError, Robot
-from contactflow.nodes.messages import Command, ControlReply, ParamValue
+from contactflow.nodes.config import ModuleConfig
+from contactflow.nodes.keys import ModuleAddr
+from contactflow.nodes.messages import Command, EventMsg
 from contactflow.nodes.params import replace_params
 from contactflow.nodes.registry import resolve
-from contactflow.nodes.status import STATUS_EVENT, Event, Status
+from contactflow.nodes.status import Event, Status
 from contactflow.nodes.taskengine import Progress, RunnerEvent, RunResult, TaskEngine
 from contactflow.nodes.taskgraph import TaskGraph
-from contactflow.nodes.wire import Message, MsgId
-
-
-@dataclass
-class LocalIO:
-    """A ModuleIO for one primitive instance: events go to the runner's queue, time is the robot's."""
-
-    instance: str
-    runner: LocalPrimitiveRunner
-    logs: list[str] = field(default_factory=list)
-    _latest: dict[str, Message] = field(default_factory=dict)
-
-    @property
-    def now(self) -> float:
-        return self.runner.robot.time
-
-    def latest(self, port: str) -> Message | None:
-        return self._latest.get(port)
-
-    def take(self, port: str) -> list[Message]:
-        msg = self._latest.pop(port, None)
-        return [msg] if msg is not None else []
-
-    def wired(self, port: str) -> bool:
-        return False  # in-process primitives read the robot, not the key space
-
-    def publish(self, port: str, msg: Message, inputs: list[MsgId] | None = None) -> None:
-        self._latest[port] = msg
-
-    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None,
-             t_sim: float | None = None) -> None:
-        self.runner._events.append(RunnerEvent(self.instance, Event(event), dict(values or {}), detail))
-
-    def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:
-        return ControlReply(ok=False, error=f"{self.instance}: in-process primitives command the robot's world, "
-                                             f"not module {target!r}")
-
-    def log(self, text: str) -> None:
-        self.logs.append(text)
+from contactflow.nodes.wire import decode
 
 
 @dataclass
 class _Active:
     prim: Primitive
-    next_t: float
-    finished: bool = False
+    addr: ModuleAddr
 
 
 class LocalPrimitiveRunner:
     """:class:`~contactflow.nodes.taskengine.PrimitiveRunner` running primitives in this process.
 
-    Primitives are created by registered short name (``contactflow.nodes.registry``), set up
-    with a :class:`LocalIO` and stepped at their ``rate_hz`` by :meth:`advance` as the world
-    advances. They drive ``robot`` (a simulated robot) as on a node: through the world module
-    of its world, co-located on an in-process bus, whose states they read and whose command
-    port checks and applies what they send (``facade``, the node's
-    :class:`~contactflow.embodiments.remote.RemoteRobot`). ``defaults`` holds per-type
-    parameter overrides (default: the overrides of the robot's home,
-    :mod:`~contactflow.embodiments.registry`); task parameters override them.
+    Primitives are created by registered short name (``contactflow.nodes.registry``) and run
+    as on a node: hosted by a :class:`~contactflow.nodes.host.ModuleHost` beside the world
+    module of ``robot``'s world, on an in-process bus. The host runs them (RUN, STOP, the
+    resource claims, their steps at ``rate_hz`` on the simulated clock, their events); they read
+    the states the world sends and command its command port, which checks and applies what
+    they send (``facade``, the node's :class:`~contactflow.embodiments.remote.RemoteRobot`).
+    Only the bus differs from a node: in-process and synchronous, not zenoh; :meth:`advance`
+    ticks the host once per control tick. ``defaults`` holds per-type parameter overrides
+    (default: the overrides of the robot's home, :mod:`~contactflow.embodiments.registry`);
+    task parameters override them.
     """
 
     def __init__(self, robot: Robot, defaults: Mapping[str, Mapping[str, Any]] | None = None,
                  factory: Callable[[str], type[Primitive]] | None = None) -> None:
         self.robot = robot
-        self._world, self.facade = _co_located(robot)
+        self._host, self._world, self.facade = _co_located(robot)
         if defaults is None:
             defaults = registry.home(robot.spec.name).overrides
         self.defaults = {k: dict(v) for k, v in defaults.items()}
@@ -86,30 +51,47 @@ class LocalPrimitiveRunner:
         self.active: dict[str, _Active] = {}
         self.started: list[tuple[str, str, dict[str, Any]]] = []
         self._events: list[RunnerEvent] = []
+        self._instances: dict[str, str] = {}  # hosted module name -> the engine's instance it runs
+        self._host.transport.subscribe(self._host.ks.events(robot.name, self._host.config.node), self._on_event)
 
-    def create(self, instance: str, type: str, params: Mapping[str, Any]) -> Primitive:
-        cls = self._factory(type)
-        merged = {**self.defaults.get(type, {}), **dict(params)}
-        prim = cls(instance, replace_params(cls.Params(), merged, where=f"{instance} ({type}).params."))
+    def _on_event(self, key: str, payload: bytes) -> None:
+        msg = decode(payload, EventMsg, key)
+        instance = self._instances.get(msg.module.rsplit("/", 1)[-1])
+        if instance is not None:
+            self._events.append(RunnerEvent(instance, Event(msg.event), dict(msg.values), msg.detail))
+
+    def create(self, instance: str, type_name: str, params: Mapping[str, Any]) -> Primitive:
+        """The primitive ``instance`` of ``type_name`` with the robot's defaults and ``params``, bound to the robot."""
+        cls = self._factory(type_name)
+        merged = {**self.defaults.get(type_name, {}), **dict(params)}
+        prim = cls(instance, replace_params(cls.Params(), merged, where=f"{instance} ({type_name}).params."))
         prim.bind(self.facade)
-        prim.setup(LocalIO(instance, self))
         return prim
 
     def start(self, instance: str, type: str, params: Mapping[str, Any]) -> None:
         self.started.append((instance, type, dict(params)))
-        self._world.publish_state()  # the world may have stepped without the runner since its last tick
+        self._sync()
+        self.stop(instance)  # a finished run of the same instance
+        # the engine's instance names ("run/path/node#activation") are no key segments: the module is numbered
+        name = f"{type}_{len(self.started)}"
+        self._instances[name] = instance
+        addr = ModuleAddr(self.robot.name, self._host.config.node, name)
         try:
             prim = self.create(instance, type, params)
-            prim.start()
+            self._host.add(ModuleConfig(name, type, prim.__class__, prim.params, self.robot.name, autostart=False), prim)
         except (PrimitiveError, ValueError, KeyError) as exc:
             self._events.append(RunnerEvent(instance, Event.ERROR, {}, f"{type}: {exc}"))
             return
-        self.active[instance] = _Active(prim, self.robot.time)
+        self.active[instance] = _Active(prim, addr)
+        reply = self._host.send_control(f"{self.robot.name}/{name}", Command.RUN, {})
+        if not reply.ok and not any(e.instance == instance and e.event is Event.ERROR for e in self._events):
+            self._events.append(RunnerEvent(instance, Event.ERROR, {}, f"{type}: {reply.error}"))
 
     def stop(self, instance: str) -> None:
         a = self.active.pop(instance, None)
         if a is not None:
-            a.prim.stop()
+            self._host.remove(a.addr)
+            self._instances.pop(a.addr.module, None)
 
     def poll(self) -> list[RunnerEvent]:
         out, self._events = self._events, []
@@ -117,49 +99,38 @@ class LocalPrimitiveRunner:
 
     def advance(self) -> None:
         """Step every primitive whose period has elapsed (call once per control tick)."""
+        self._sync()
+        self._host.tick()
+
+    def _sync(self) -> None:
+        """The world's state and clock as they are now (the world may have stepped without the runner)."""
         self._world.publish_state()
-        now = self.robot.time
-        for a in list(self.active.values()):
-            if a.finished or now + 1e-9 < a.next_t:
-                continue
-            a.next_t += 1.0 / a.prim.params.rate_hz
-            if a.next_t < now:
-                a.next_t = now
-            try:
-                status = a.prim.step()
-            except (PrimitiveError, ValueError) as exc:
-                a.finished = True
-                self._events.append(RunnerEvent(a.prim.name, Event.ERROR, {}, str(exc)))
-                continue
-            if status.finished:
-                a.finished = True
-                if not any(e.instance == a.prim.name and e.event is STATUS_EVENT[status] for e in self._events):
-                    self._events.append(RunnerEvent(a.prim.name, STATUS_EVENT[status], dict(a.prim.result)))
+        self._host.clock.advance(self.robot.time)
 
 
 def _co_located(robot: Robot):
-    """The world module around ``robot``'s world on an in-process bus, and the facade primitives drive it through.
+    """A host on an in-process bus with the world module around ``robot``'s world, and the facade primitives drive it through.
 
     Primitives run here as they do on a node: they read the robot's state as the world sends
     it and command it on its command port, which the world checks and applies; only the bus
     differs (in-process and synchronous, not zenoh).
     """
     from contactflow.embodiments.modules.world_module import WorldModule
-    from contactflow.embodiments.remote import RemoteRobot, RobotLink
-    from contactflow.nodes.config import ModuleConfig, NodeConfig
+    from contactflow.embodiments.remote import connect, link
+    from contactflow.nodes.config import NodeConfig
     from contactflow.nodes.host import ModuleHost
     from contactflow.nodes.transport import LocalTransport, ZenohSettings
 
     bus = LocalTransport()
-    node = NodeConfig(site="local", node="local", host="local", robot="site", clock="wall", zenoh=ZenohSettings(),
+    node = NodeConfig(site="local", node="local", host="local", robot="site", clock="sim", zenoh=ZenohSettings(),
                       modules=())
     host = ModuleHost(node, bus)
     params = WorldModule.Params(control_rate=robot.params.control_rate, ground_truth_hz=0.0)
     world = WorldModule("world", params, world=robot.world, sims=(robot,))
-    host.add(ModuleConfig("world", "world", WorldModule, params, "site"), world)
-    link = RobotLink(bus, host.ks, robot.name, "local")
+    host.add(ModuleConfig("world", "world", WorldModule, params, "site", autostart=False), world)
+    link(bus, host.ks, robot.name, node.node)  # subscribed before the world sends the state the facade waits for
     world.publish_state()
-    return world, RemoteRobot(link)
+    return host, world, connect(bus, host.ks, robot.name, node.node)
 
 
 def _resolve_primitive(type_name: str) -> type[Primitive]:

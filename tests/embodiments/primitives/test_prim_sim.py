@@ -67,6 +67,20 @@ def test_release_opens_at_its_opening_velocity() -> None:
     assert 2.2 < took[0.5] < 3.2 and took[1.5] < 1.2
 
 
+def test_in_process_primitives_are_hosted_as_on_a_node_one_per_arm() -> None:
+    robot, runner = scene(with_object=False)
+    far = vec(top_grasp_pose((0.55, -0.3, 1.0)))
+    runner.start("first", "move_to", {"arm": ARM, "target": far})
+    runner.start("second", "move_to", {"arm": ARM, "target": far})  # the same arm: the host refuses the claim
+    refused = [e for e in runner.poll() if e.event is Event.ERROR]
+    assert [e.instance for e in refused] == ["second"]
+    assert "resource 'arm_right' of robot 'tombatossals' is already commanded by" in refused[0].detail
+    runner.start("left", "move_to", {"arm": "left", "target": vec(top_grasp_pose((0.55, 0.3, 1.0)))})
+    runner.stop("first")  # the arm is free again
+    runner.start("third", "move_to", {"arm": ARM, "target": far})
+    assert not [e for e in runner.poll() if e.event is Event.ERROR]
+
+
 def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
     robot, runner = scene()
     # 3 cm along the hand x axis (world y for this yaw): the approach touches the object off-centre
@@ -79,6 +93,31 @@ def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
     assert outcome(ev).event is Event.SUCCESS and Event.GRASP_STABLE in labels(ev)
     assert outcome(run_primitive(runner, "lift", {"arm": ARM, "distance": 0.08, "watch_grasp": False})).event is Event.SUCCESS
     assert robot.ground_truth().object_poses["cyl"][2, 3] > 0.87
+
+
+def test_robust_grasp_that_closed_on_nothing_looks_for_the_object_and_grasps_it() -> None:
+    def block_scene() -> tuple[SimRobot, LocalPrimitiveRunner]:
+        world = World(WorldParams())
+        world.add_table()
+        world.add_object(box("blk", (0.05, 0.05, 0.05), xyz=(0.55, -0.3, 0.776), mass=0.2, friction=0.8))
+        robot = SimRobot(world, "tombatossals")
+        return robot, LocalPrimitiveRunner(robot)
+
+    for camera in ("kinect", ""):
+        robot, runner = block_scene()
+        # 12 cm beside the block: the hand descends to the table and closes on nothing
+        run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.42, 0.92)))})
+        ev = run_primitive(runner, "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "search_camera": camera,
+                                                    "search_offsets": []}, max_time=60)
+        end = outcome(ev)
+        if camera:
+            # the kinect's frame showed the block; the hand went over it and grasped it at the second descent
+            assert end.event is Event.SUCCESS and end.values["looks"] == 1 and end.values["searches"] == 1, end
+            lift = run_primitive(runner, "lift", {"arm": ARM, "distance": 0.08, "watch_grasp": False})
+            assert outcome(lift).event is Event.SUCCESS
+            assert robot.ground_truth().object_poses["blk"][2, 3] > 0.776 + 0.06
+        else:  # without the camera, and no search offsets, the miss is the grasp's failure
+            assert end.event is Event.FAILURE and end.values["looks"] == 0 and end.values["searches"] == 0, end
 
 
 def _hand_efforts(robot: SimRobot) -> float:
