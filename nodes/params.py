@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from typing import Any
@@ -18,9 +19,12 @@ def _coerce(name: str, hint: Any, value: Any) -> Any:
         if isinstance(value, bool):
             raise ParamError(f"{name}: expected a number, got {value!r}")
         try:
-            return float(value)
+            number = float(value)
         except (TypeError, ValueError):
             raise ParamError(f"{name}: expected a number, got {value!r}") from None
+        if math.isnan(number):  # NaN compares false with every bound a module checks: it would pass them all
+            raise ParamError(f"{name}: expected a number, got {value!r}")
+        return number
     if hint is int:
         if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
             raise ParamError(f"{name}: expected an integer, got {value!r}")
@@ -49,9 +53,12 @@ def _coerce(name: str, hint: Any, value: Any) -> Any:
                 raise ParamError(f"{name}: expected a list of strings, got {value!r}")
             return tuple(value)
         try:
-            return tuple(float(v) for v in value)
+            numbers = tuple(float(v) for v in value)
         except (TypeError, ValueError):
             raise ParamError(f"{name}: expected a list of numbers, got {value!r}") from None
+        if any(math.isnan(v) for v in numbers):
+            raise ParamError(f"{name}: expected a list of numbers, got {value!r}")
+        return numbers
     if isinstance(hint, type) and issubclass(hint, str):  # StrEnum
         try:
             return hint(value)
@@ -76,6 +83,9 @@ def replace_params(params: Any, changes: dict[str, Any], where: str = "") -> Any
         if key not in fields:
             raise ParamError(f"{where}{key}: unknown parameter (known: {', '.join(sorted(fields))})")
         out[key] = _coerce(f"{where}{key}", resolved.get(key, fields[key].type), value)
+    rate = out.get("rate_hz")
+    if rate is not None and not (math.isfinite(rate) and rate > 0.0):  # a host steps a module every 1/rate_hz s
+        raise ParamError(f"{where}rate_hz: expected a positive finite rate in Hz, got {changes['rate_hz']!r}")
     new = dataclasses.replace(params, **out)
     check = getattr(new, "validate", None)
     if callable(check):

@@ -32,6 +32,8 @@ def test_good_config_loads(tmp_path):
     ("text", "line", "fragment"),
     [
         (GOOD.replace("rate_hz: 20", "rate_hz: fast"), 6, "modules[0].params.rate_hz"),
+        (GOOD.replace("rate_hz: 20", "rate_hz: .nan"), 6, "modules[0].params.rate_hz"),
+        (GOOD.replace("rate_hz: 20", "rate_hz: -5"), 6, "positive finite rate"),
         (GOOD.replace("type: lowpass", "type: nosuch"), 8, "unknown module type 'nosuch'"),
         (GOOD.replace("in: src.signal", "bogus: src.signal"), 9, "has no input 'bogus'"),
         (GOOD.replace("in: src.signal", "in: nodot"), 9, "modules[1].inputs.in"),
