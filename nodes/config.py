@@ -220,7 +220,21 @@ def parse_node_config(doc: YamlDoc) -> NodeConfig:
             raise doc.error(("modules", i, "name"), f"module {m.robot}/{m.name} is defined twice")
         names.add((m.robot, m.name))
         modules.append(m)
+    _check_wiring(doc, modules)
     return NodeConfig(site, node, host, robot, clock, parse_zenoh(doc, ("zenoh",)), tuple(modules), doc.file, cell)
+
+
+def _check_wiring(doc: YamlDoc, modules: list[ModuleConfig]) -> None:
+    """An input wired to a module of this node names one of its outputs (a module elsewhere is checked where it runs)."""
+    here = {(m.robot, m.name): m for m in modules}
+    for i, m in enumerate(modules):
+        for port, src in m.inputs.items():
+            source = here.get((src.robot or m.robot, src.module)) if src.key is None else None
+            outs = {p.name for p in source.cls.outputs} if source is not None else set()
+            if source is not None and src.port not in outs:
+                raise doc.error(("modules", i, "inputs", port),
+                                f"module {source.name!r} ({source.cls.__name__}) has no output {src.port!r} "
+                                f"(outputs: {sorted(outs)})")
 
 
 def load_node_config(path: str | Path) -> NodeConfig:

@@ -37,6 +37,7 @@ def test_good_config_loads(tmp_path):
         (GOOD.replace("type: lowpass", "type: nosuch"), 8, "unknown module type 'nosuch'"),
         (GOOD.replace("in: src.signal", "bogus: src.signal"), 9, "has no input 'bogus'"),
         (GOOD.replace("in: src.signal", "in: nodot"), 9, "modules[1].inputs.in"),
+        (GOOD.replace("in: src.signal", "in: src.nosuch"), 9, "module 'src' (SignalSource) has no output 'nosuch'"),
         (GOOD + "colour: red\n", 10, "colour: unknown field"),
         (GOOD.replace("node: n1", "node: a/b"), 2, "node"),
         (GOOD.replace("    params: {rate_hz: 20}", "    params: {rate_hz: 20, gain: 3}"), 6, "gain"),
