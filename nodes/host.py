@@ -302,9 +302,7 @@ class ModuleHost:
             try:
                 msg = decode(payload, type_, key)
             except WireError as exc:
-                hm.counters.rejected += 1
-                if hm.counters.rejected <= 10 or hm.counters.rejected % 1000 == 0:
-                    self.log.warning("rejected input #%d of %s: %s", hm.counters.rejected, hm.addr, exc)
+                self._rejected(hm, "input", exc)
                 return
             missed = hm.io.deliver(port, msg)
             if missed:
@@ -319,11 +317,16 @@ class ModuleHost:
             try:
                 req = decode(payload, ControlRequest, key)
             except WireError as exc:
-                hm.counters.rejected += 1
-                self.log.warning("rejected control for %s: %s", hm.addr, exc)
+                self._rejected(hm, "control request", exc)
                 return encode(ControlReply(ok=False, error=str(exc), state=hm.state))
             return encode(self.handle_control(hm, req))
         return on_query
+
+    def _rejected(self, hm: HostedModule, what: str, exc: Exception) -> None:
+        """Count a message that did not decode; log the first ten and every thousandth (a flood is no log flood)."""
+        hm.counters.rejected += 1
+        if hm.counters.rejected <= 10 or hm.counters.rejected % 1000 == 0:
+            self.log.warning("rejected %s #%d of %s: %s", what, hm.counters.rejected, hm.addr, exc)
 
     # -- control --------------------------------------------------------------------------
     def handle_control(self, hm: HostedModule, req: ControlRequest) -> ControlReply:

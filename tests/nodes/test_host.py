@@ -373,3 +373,17 @@ def test_malformed_inputs_and_control_are_counted_and_dropped():
     before = lp.counters.received
     put(encode(Vector(values=[0.1])))
     assert lp.counters.received == before + 1 and lp.counters.rejected == 4
+
+
+def test_a_flood_of_malformed_control_requests_is_answered_counted_and_logged_ten_times(caplog):
+    from contactflow.nodes.messages import ControlReply
+    from contactflow.nodes.wire import decode
+
+    host, _, _ = make_host(PIPE)
+    key = host.ks.control("site", "n", "sc")
+    with caplog.at_level("WARNING", logger="contactflow"):
+        replies = [host.transport.query(key, b"\xc1 not msgpack") for _ in range(50)]
+    assert all(not decode(p, ControlReply, k).ok for ((k, p),) in replies)  # each one refused, none unanswered
+    assert host.modules[("site", "sc")].counters.rejected == 50
+    assert len([r for r in caplog.records if "rejected control request" in r.getMessage()]) == 10
+    assert host.send_control("sc", Command.SET, {"gain": 2.0}).ok  # and the module still answers
