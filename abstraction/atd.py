@@ -618,11 +618,18 @@ def parse_atd(data: str | bytes, file: str = "<memory>") -> Atd:
 
 def load_atd(path: str | Path) -> Atd:
     """Read and parse an ATD file (.xml or .yaml/.yml)."""
+    return parse_atd(read_atd(path), str(path))
+
+
+def read_atd(path: str | Path) -> bytes:
+    """The bytes of an ATD file, refused past :data:`MAX_ATD_BYTES`."""
     p = Path(path)
     try:
-        if p.stat().st_size > MAX_ATD_BYTES:
-            raise AtdError([f"{p}: refused: file exceeds the {MAX_ATD_BYTES}-byte limit"])
-        data = p.read_bytes()
+        # read at most one byte past the limit: a device or pipe reports size 0 and may never end
+        with p.open("rb") as f:
+            data = f.read(MAX_ATD_BYTES + 1)
     except OSError as exc:
         raise AtdError([f"{p}: cannot read ATD: {exc.strerror}"]) from None
-    return parse_atd(data, str(p))
+    if len(data) > MAX_ATD_BYTES:
+        raise AtdError([f"{p}: refused: file exceeds the {MAX_ATD_BYTES}-byte limit"])
+    return data

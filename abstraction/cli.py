@@ -10,7 +10,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from contactflow.abstraction.atd import AtdError, load_atd
+from contactflow.abstraction.atd import AtdError, parse_atd, read_atd
 from contactflow.abstraction.client import TaskFollow, close, dispatch, robots
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.session import default_site, open_tool_session
@@ -70,7 +70,8 @@ def register(app: typer.Typer) -> None:
                 timeout: float = 600.0) -> None:
         """Dispatch an abstract task description (XML or YAML) and follow it live."""
         try:
-            load_atd(task)
+            data = read_atd(task)  # read once: a pipe cannot be read again
+            parse_atd(data, str(task))
         except AtdError as exc:
             console.print(f"[red]invalid ATD, not dispatched:[/]\n{exc}")
             raise typer.Exit(2) from None
@@ -78,7 +79,7 @@ def register(app: typer.Typer) -> None:
         t = open_tool_session(connect)
         follow: TaskFollow | None = None
         try:
-            follow = dispatch(t, ks, task.read_text(), str(task), target=on, params=parse_params(param),
+            follow = dispatch(t, ks, data.decode("utf-8"), str(task), target=on, params=parse_params(param),
                               on_contact=lambda c: console.print(
                                   f"[magenta]contact[/] {c.robot}/{c.link} {c.event} at "
                                   f"({', '.join(f'{v:.3f}' for v in c.location)})"))

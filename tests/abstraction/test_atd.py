@@ -164,3 +164,28 @@ statemachine:
             file="fetch.yaml")
     refused(text.replace("{object: cup}", "{object: mug}"), "fetch.yaml:12:", "unknown object 'mug'",
             file="fetch.yaml")
+
+
+def test_a_file_that_never_ends_is_read_to_the_limit_and_refused(tmp_path):
+    import os
+    import threading
+
+    from contactflow.abstraction.atd import MAX_ATD_BYTES
+
+    fifo = tmp_path / "endless.xml"
+    os.mkfifo(fifo)  # reports size 0, as a device does
+
+    def feed() -> None:
+        try:
+            with open(fifo, "wb") as f:
+                while True:
+                    f.write(b"<" * 65536)
+        except BrokenPipeError:  # the reader stopped at the limit and closed its end
+            pass
+
+    writer = threading.Thread(target=feed, daemon=True)
+    writer.start()
+    with pytest.raises(AtdError, match=f"exceeds the {MAX_ATD_BYTES}-byte limit"):
+        load_atd(fifo)
+    writer.join(10)
+    assert not writer.is_alive()
