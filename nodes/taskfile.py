@@ -55,6 +55,24 @@ _NODE_KINDS = ("primitive", "task", "parallel", "terminal")
 _NODE_KEYS = frozenset({*_NODE_KINDS, "params", "helpers", "timeout", "event", "until", "label"})
 _TASK_KEYS = frozenset({"name", "label", "params", "timeout", "start", "fault", "nodes", "edges"})
 _EDGE_KEYS = frozenset({"from", "to", "on", "name", "label"})
+MAX_YAML_NODES = 100_000
+"""A task file or ATD that expands (through its aliases) to more YAML nodes than this is refused."""
+
+
+def _bounded(root: yaml.Node, file: str, what: str) -> None:
+    """Refuse a document whose aliases expand it past :data:`MAX_YAML_NODES` (a kilobyte of nested aliases
+    can stand for billions of nodes); the walk stops at the limit, so it costs no more than that."""
+    stack, seen = [root], 0
+    while stack:
+        node = stack.pop()
+        seen += 1
+        if seen > MAX_YAML_NODES:
+            raise TaskError([f"{file}: refused: the {what} expands to more than {MAX_YAML_NODES} YAML nodes "
+                             f"(nested aliases)"])
+        if isinstance(node, yaml.MappingNode):
+            stack.extend(n for pair in node.value for n in pair)
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend(node.value)
 
 
 class LocatedYaml:
@@ -78,6 +96,7 @@ class LocatedYaml:
             loader.dispose()
         if root is None:
             raise TaskError([f"{file}: empty {what}"])
+        _bounded(root, file, what)
         return cls(root, loader, file)
 
     @property

@@ -189,3 +189,18 @@ def test_a_file_that_never_ends_is_read_to_the_limit_and_refused(tmp_path):
         load_atd(fifo)
     writer.join(10)
     assert not writer.is_alive()
+
+
+def test_a_yaml_atd_whose_aliases_expand_past_the_limit_is_refused_quickly():
+    import time
+
+    # nine levels of ten aliases each, inside a field the ATD has (an obstacle's properties)
+    levels = ["&a0 [x, x, x, x, x, x, x, x, x, x]"]
+    levels += [f"&a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 9)]
+    text = ("statemachine:\n  name: bomb\n  start: s\n  environment:\n    obstacles:\n      o: ["
+            + ", ".join(levels) + "]\n")
+    assert len(text) < 1500  # 10^9 nodes once expanded
+    t0 = time.perf_counter()
+    with pytest.raises(AtdError, match="expands to more than 100000 YAML nodes"):
+        parse_atd(text, "bomb.yaml")
+    assert time.perf_counter() - t0 < 5.0
