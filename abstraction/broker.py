@@ -27,7 +27,7 @@ from contactflow.abstraction.messages import (
     RunRequest,
     TranslateRequest,
 )
-from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.keys import ANY, KeyExprError, KeySpace, segment
 from contactflow.nodes.status import Event
 from contactflow.nodes.transport import Handle, Transport
 from contactflow.nodes.wire import WireError, decode, encode
@@ -79,6 +79,13 @@ class Broker:
         return encode(self.dispatch(req))
 
     def dispatch(self, req: DispatchRequest) -> DispatchReply:
+        try:  # the id names the task's progress key: refused before anything is reported or kept under it
+            if req.task_id == ANY:
+                raise KeyExprError(f"task_id={req.task_id!r} is a wildcard, not a task id")
+            segment(req.task_id, "task_id")
+        except KeyExprError as exc:
+            self.rejected += 1
+            return DispatchReply(ok=False, task_id=req.task_id[:100], error=str(exc))
         try:
             parse_atd(req.atd, req.file)
         except AtdError as exc:

@@ -8,6 +8,7 @@ import pytest
 from contactflow.abstraction.agent import RobotAgent
 from contactflow.abstraction.broker import Broker
 from contactflow.abstraction.client import close, dispatch, robots
+from contactflow.abstraction.messages import DispatchRequest
 from contactflow.abstraction.profiles import PROFILES
 from contactflow.abstraction.testing import fake_executor
 from contactflow.nodes.keys import KeySpace
@@ -115,6 +116,18 @@ def test_invalid_atd_is_never_dispatched(site_factory):
     assert starts == {}
     unknown = site.run("a: [1,", file="bad.yaml")
     assert not unknown.reply.ok and "bad.yaml" in unknown.reply.error
+
+
+def test_an_invalid_task_id_is_refused_with_a_reply_and_leaves_no_id_in_use(site_factory):
+    starts = {}
+    site = site_factory({"tombatossals": counting(starts, "tombatossals")})
+    for bad in ("a/b", "*", "", "x#1"):
+        reply = site.broker.dispatch(DispatchRequest(task_id=bad, atd=PUSH, file="push_away.xml"))
+        assert not reply.ok and "task_id" in reply.error, bad
+        assert bad not in site.broker.tasks
+    assert starts == {} and site.broker.rejected == 4
+    ok = site.broker.dispatch(DispatchRequest(task_id="push-1", atd=PUSH, file="push_away.xml"))
+    assert ok.ok, ok.error
 
 
 def test_hardware_failure_fails_over_to_the_next_robot(site_factory):
