@@ -85,15 +85,17 @@ class LocatedYaml:
     @classmethod
     def compose(cls, text: str, file: str, what: str) -> LocatedYaml:
         """The document's root node; :class:`TaskError` naming the line when it is no YAML or empty."""
-        loader = yaml.SafeLoader(text)
+        loader: yaml.SafeLoader | None = None
         try:
+            loader = yaml.SafeLoader(text)  # its reader already refuses control characters
             root = loader.get_single_node()
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             line = f":{mark.line + 1}" if mark is not None else ""
-            raise TaskError([f"{file}{line}: not valid YAML: {getattr(exc, 'problem', exc)}"]) from None
+            raise TaskError([f"{file}{line}: not valid YAML: {getattr(exc, 'problem', None) or exc}"]) from None
         finally:
-            loader.dispose()
+            if loader is not None:
+                loader.dispose()
         if root is None:
             raise TaskError([f"{file}: empty {what}"])
         _bounded(root, file, what)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from contactflow.abstraction.atd import AtdError, load_atd, parse_atd
 from contactflow.abstraction.events import AbstractEvent
@@ -204,3 +206,21 @@ def test_a_yaml_atd_whose_aliases_expand_past_the_limit_is_refused_quickly():
     with pytest.raises(AtdError, match="expands to more than 100000 YAML nodes"):
         parse_atd(text, "bomb.yaml")
     assert time.perf_counter() - t0 < 5.0
+
+
+def _mangled(text: str) -> st.SearchStrategy[bytes]:
+    """``text`` cut short, with a stretch replaced by arbitrary bytes."""
+    raw = text.encode()
+    return st.tuples(st.integers(0, len(raw)), st.integers(0, len(raw)), st.binary(max_size=40)).map(
+        lambda c: (raw[:min(c[0], c[1])] + c[2] + raw[max(c[0], c[1]):])[: max(c[0], c[1]) + len(c[2])])
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.one_of(st.binary(max_size=200), st.text(max_size=200), _mangled(FIG),
+                 _mangled(path("fig7_2.yaml").read_text())))
+def test_any_input_is_an_atd_or_an_atd_error(data):
+    # a broker answers every dispatch: whatever arrives parses or is refused with AtdError, never anything else
+    try:
+        parse_atd(data, "fuzz.xml")
+    except AtdError as exc:
+        assert str(exc).startswith("fuzz.xml")
