@@ -76,7 +76,12 @@ class Broker:
         except WireError as exc:
             self.rejected += 1
             return encode(DispatchReply(ok=False, task_id="", error=str(exc)))
-        return encode(self.dispatch(req))
+        try:
+            return encode(self.dispatch(req))
+        except Exception as exc:  # a caller is answered whatever went wrong, never left to its timeout
+            self.log.exception("dispatch of %r", req.task_id[:100])
+            return encode(DispatchReply(ok=False, task_id=req.task_id[:100],
+                                        error=f"broker: dispatch failed: {type(exc).__name__}: {exc}"))
 
     def dispatch(self, req: DispatchRequest) -> DispatchReply:
         try:  # the id names the task's progress key: refused before anything is reported or kept under it

@@ -130,6 +130,21 @@ def test_an_invalid_task_id_is_refused_with_a_reply_and_leaves_no_id_in_use(site
     assert ok.ok, ok.error
 
 
+def test_a_dispatch_that_fails_inside_the_broker_is_still_answered(site_factory, monkeypatch):
+    from contactflow.abstraction.messages import DispatchReply
+    from contactflow.nodes.wire import decode, encode
+
+    site = site_factory({"tombatossals": counting({}, "tombatossals")})
+
+    def broken(record):
+        raise RuntimeError("assignment exploded")
+
+    monkeypatch.setattr(site.broker, "_assign", broken)
+    payload = encode(DispatchRequest(task_id="t-1", atd=PUSH, file="push_away.xml"))
+    reply = decode(site.broker._on_dispatch("k", payload), DispatchReply)
+    assert not reply.ok and "assignment exploded" in reply.error
+
+
 def test_hardware_failure_fails_over_to_the_next_robot(site_factory):
     calls = []
 
