@@ -40,6 +40,7 @@ from contactflow.nodes.wire import Header, Message, MsgId, WireError, decode, en
 STATUS_PERIOD = 1.0  # s between periodic status messages
 QUEUE_DEPTH = 256  # messages kept per input port between two steps
 MAX_SOURCES = 1024  # sources tracked per input port; bounds memory against hostile senders
+MAX_SEQ_JUMP = 1 << 24  # a sequence number this far ahead is a new numbering (a forged or reset source), not loss
 MARK_WAIT = 5.0  # s of wall time a lockstep node waits for the messages a tick's marks name before it steps
 
 
@@ -77,7 +78,7 @@ class SeqTracker:
             return 0
         restart = hdr.seq <= 1 < prev
         self.last[hdr.source] = hdr.seq if hdr.seq > prev or restart else prev
-        return hdr.seq - prev - 1 if hdr.seq > prev else 0
+        return hdr.seq - prev - 1 if prev < hdr.seq <= prev + MAX_SEQ_JUMP else 0
 
 
 class HostedIO:
@@ -255,6 +256,7 @@ class ModuleHost:
         self.mark_timeouts = 0  # ticks stepped without every message their marks named
         self.tick_no = -1  # the world tick a lockstep node steps (-1: not in lockstep)
         self._ticked = False  # the node stepped its modules once
+        self.dead = threading.Event()  # the loop died (the node is down, its process should exit non-zero)
 
     # -- set up ---------------------------------------------------------------------------
     def add(self, cfg: ModuleConfig, module: Module | None = None) -> HostedModule:
@@ -529,7 +531,28 @@ class ModuleHost:
         return next_due
 
     def run(self) -> None:
-        """Block, stepping modules until :meth:`shutdown`; a lockstep node answers every world tick."""
+        """Block, stepping modules until :meth:`shutdown`; a lockstep node answers every world tick.
+
+        A loop that dies takes the node's liveliness down with it (:attr:`dead` is set, the node
+        exits non-zero): never alive with a dead loop, so a supervisor restarts it and the broker
+        fails over.
+        """
+        try:
+            self._loop()
+        except Exception:
+            self.log.exception("node %s: its loop died; taking the node down", self.config.node)
+            self.dead.set()
+            self._stop.set()
+            if self._node_token is not None:
+                self._node_token.close()
+                self._node_token = None
+            for hm in list(self.modules.values()):
+                for h in hm.handles:
+                    h.close()
+                hm.handles.clear()
+            self.clock.close()  # a lockstep node's token too: the world stops waiting for its answers
+
+    def _loop(self) -> None:
         clock = self.clock
         if isinstance(clock, LockstepClock):
             while (got := clock.wait_tick(self._stop)) is not None:

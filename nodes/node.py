@@ -53,5 +53,8 @@ def run_node(path: str | Path) -> None:
         "node %s up (site %s, %d modules, clock %s)", config.node, config.site, len(config.modules), config.clock
     )
     while not quit_.wait(0.2):
-        pass
+        if node.host is not None and node.host.dead.is_set():
+            break
     node.stop()
+    if node.host is not None and node.host.dead.is_set():
+        raise SystemExit(1)  # the loop died: a supervisor restarts the node

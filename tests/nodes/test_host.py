@@ -387,3 +387,39 @@ def test_a_flood_of_malformed_control_requests_is_answered_counted_and_logged_te
     assert host.modules[("site", "sc")].counters.rejected == 50
     assert len([r for r in caplog.records if "rejected control request" in r.getMessage()]) == 10
     assert host.send_control("sc", Command.SET, {"gain": 2.0}).ok  # and the module still answers
+
+
+def test_forged_sequence_numbers_at_the_edge_of_their_range_are_no_loss_and_the_loop_lives():
+    from contactflow.nodes.host import MAX_SEQ_JUMP, SeqTracker
+    from contactflow.nodes.messages import Vector
+    from contactflow.nodes.wire import Header, encode, stamp
+
+    tracker = SeqTracker()
+    assert tracker.observe(Header(source="s", seq=1)) == 0
+    assert tracker.observe(Header(source="s", seq=4)) == 2  # a real gap
+    assert tracker.observe(Header(source="s", seq=2**64 - 1)) == 0  # a new numbering, not 2^64 lost messages
+    assert tracker.observe(Header(source="s", seq=1)) == 0  # a restart
+    assert tracker.observe(Header(source="s", seq=2 + MAX_SEQ_JUMP)) == 0
+    host, clock, seen = make_host(PIPE)
+    key = host.modules[("site", "lp")].in_keys["in"].replace("*", "n")
+    send = host.transport.publisher(key)
+    for seq in (1, 2**64 - 1) * 3:  # three forged wraps summed past what a status message can carry
+        send(encode(stamp(Vector(values=[0.1]), "forger/out", seq, 0.0)))
+    run_for(host, clock, 2.0)  # the status messages go out: the tick does not raise
+    assert host.modules[("site", "lp")].counters.gaps["in"] == 0
+
+
+def test_a_node_whose_loop_dies_takes_its_liveliness_down():
+    host, clock, _ = make_host(PIPE)
+    host.start()
+    node_key = host.ks.alive_node(host.config.host, host.config.node)
+    assert host.transport.alive(node_key)
+
+    def broken() -> float:
+        raise RuntimeError("the loop broke")
+
+    host.tick = broken
+    clock.advance(1.0)
+    assert host.dead.wait(5.0)
+    assert not host.transport.alive(node_key) and not host.transport.alive(host.ks.alive_module())
+    host.shutdown()
