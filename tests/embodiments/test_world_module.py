@@ -234,6 +234,8 @@ def test_a_node_linked_to_a_robot_becomes_its_controller_with_its_first_command_
         assert "reader" not in wm.robots["melfa"].controllers and not c.state.held
         link.send(arm_cmd(ArmCommandKind.STOP, seq=1))
         assert wait_for(lambda: "reader" in wm.robots["melfa"].controllers, 10)
+        # applied before the link goes (a command applied after the hold would take the robot back)
+        assert wait_for(lambda: c.state.arms[0].applied == 1, 10)
     finally:
         link.close()
     # the link went, and with it the robot's only controller: the world holds the robot
