@@ -74,7 +74,6 @@ class LocalPrimitiveRunner:
         self.stop(instance)  # a finished run of the same instance
         # the engine's instance names ("run/path/node#activation") are no key segments: the module is numbered
         name = f"{type}_{len(self.started)}"
-        self._instances[name] = instance
         addr = ModuleAddr(self.robot.name, self._host.config.node, name)
         try:
             prim = self.create(instance, type, params)
@@ -82,6 +81,7 @@ class LocalPrimitiveRunner:
         except (PrimitiveError, ValueError, KeyError) as exc:
             self._events.append(RunnerEvent(instance, Event.ERROR, {}, f"{type}: {exc}"))
             return
+        self._instances[name] = instance
         self.active[instance] = _Active(prim, addr)
         reply = self._host.send_control(f"{self.robot.name}/{name}", Command.RUN, {})
         if not reply.ok and not any(e.instance == instance and e.event is Event.ERROR for e in self._events):

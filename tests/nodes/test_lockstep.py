@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import pytest
@@ -22,7 +24,19 @@ DELAY = 0.03  # s a data message travels, six ticks of a world that would not wa
 
 
 class SlowDataTransport(LocalTransport):
-    """The in-process bus, with module outputs (``.../out``) delivered ``DELAY`` s late on a thread of their own."""
+    """The in-process bus, with module outputs (``.../out``) delivered ``DELAY`` s late, in the order they were
+    sent (a link with latency, as zenoh keeps a publisher's order), by a thread of their own."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._late: queue.Queue[tuple[float, Callable[[bytes], None], bytes]] = queue.Queue()
+        threading.Thread(target=self._deliver, daemon=True).start()
+
+    def _deliver(self) -> None:
+        while True:
+            due, put, data = self._late.get()
+            time.sleep(max(0.0, due - time.monotonic()))
+            put(data)
 
     def publisher(self, key, reliable=True):
         put = super().publisher(key, reliable)
@@ -30,7 +44,7 @@ class SlowDataTransport(LocalTransport):
             return put
 
         def late(data: bytes) -> None:
-            threading.Timer(DELAY, put, (data,)).start()
+            self._late.put((time.monotonic() + DELAY, put, data))
         return late
 
 
