@@ -230,8 +230,10 @@ def _check_wiring(doc: YamlDoc, modules: list[ModuleConfig]) -> None:
     for i, m in enumerate(modules):
         for port, src in m.inputs.items():
             source = here.get((src.robot or m.robot, src.module)) if src.key is None else None
-            outs = {p.name for p in source.cls.outputs} if source is not None else set()
-            if source is not None and src.port not in outs:
+            if source is None:
+                continue
+            outs = {p.name for p in source.cls.outputs}
+            if src.port not in outs:
                 raise doc.error(("modules", i, "inputs", port),
                                 f"module {source.name!r} ({source.cls.__name__}) has no output {src.port!r} "
                                 f"(outputs: {sorted(outs)})")

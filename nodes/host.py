@@ -546,10 +546,11 @@ class ModuleHost:
             if self._node_token is not None:
                 self._node_token.close()
                 self._node_token = None
-            for hm in list(self.modules.values()):
-                for h in hm.handles:
-                    h.close()
-                hm.handles.clear()
+            for hm in list(self.modules.values()):  # each module stopped, its claims and keys released
+                try:
+                    self._retire(hm)
+                except Exception:
+                    self.log.exception("%s: could not be taken down", hm.addr)
             self.clock.close()  # a lockstep node's token too: the world stops waiting for its answers
 
     def _loop(self) -> None:

@@ -169,6 +169,7 @@ statemachine:
 
 
 def test_a_file_that_never_ends_is_read_to_the_limit_and_refused(tmp_path):
+    import contextlib
     import os
     import threading
 
@@ -178,12 +179,10 @@ def test_a_file_that_never_ends_is_read_to_the_limit_and_refused(tmp_path):
     os.mkfifo(fifo)  # reports size 0, as a device does
 
     def feed() -> None:
-        try:
-            with open(fifo, "wb") as f:
-                while True:
-                    f.write(b"<" * 65536)
-        except BrokenPipeError:  # the reader stopped at the limit and closed its end
-            pass
+        # writes until the reader stops at the limit and closes its end
+        with contextlib.suppress(BrokenPipeError), open(fifo, "wb") as f:
+            while True:
+                f.write(b"<" * 65536)
 
     writer = threading.Thread(target=feed, daemon=True)
     writer.start()
