@@ -23,24 +23,15 @@ from contactflow.deploy.security import write_json5, zenoh_config
 from contactflow.deploy.supervisor import Supervisor
 from contactflow.deploy.testing import BEACON, LabDeployment, ProbeClient, lab_manifest
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.procs import free_port
+from contactflow.nodes.procs import free_port_block
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 
 console = Console()
 
 
-def _free_base(n: int) -> int:
-    """A port with ``n`` free-looking successors (bind-checked when used)."""
-    for _ in range(50):
-        p = free_port()
-        if p + n < 65000:
-            return p
-    raise RuntimeError("no free port range")
-
-
 def bring_up_once(m: Manifest, run_dir: Path, timeout: float = 120.0) -> dict[str, float]:
     """Start every node locally under a supervisor; seconds until all nodes / modules are alive."""
-    m = dataclasses.replace(m, topology=dataclasses.replace(m.topology, port=_free_base(len(m.nodes()))))
+    m = dataclasses.replace(m, topology=dataclasses.replace(m.topology, port=free_port_block(len(m.nodes()) + 1)))
     ks = KeySpace(m.site)
     n_nodes = len(m.nodes())
     n_modules = sum(len(n.modules) for n in m.nodes())
@@ -112,7 +103,7 @@ def _collect(probe: ProbeClient, site: str, n: int, timeout: float) -> list[dict
 
 
 def latency_loopback(tmp: Path, n: int) -> dict[str, float]:
-    port = _free_base(2)
+    port = free_port_block(3)
     doc = {"site": "benchlo", "zenoh": {"port": port},
            "hosts": {h: {"address": "127.0.0.1", **spec} for h, spec in HOSTS.items()}}
     (tmp / "lo.yaml").write_text(yaml.safe_dump(doc))

@@ -42,7 +42,7 @@ from contactflow.deploy.manifest import DEFAULT_MANIFEST, Manifest, load_manifes
 from contactflow.embodiments.messages import DepthImage, ObjectPoses
 from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for
+from contactflow.nodes.procs import free_port_block, spawn_node, stop_process, wait_for
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 from contactflow.nodes.wire import WireError, decode
 
@@ -91,9 +91,7 @@ def physical_checks(atd: Atd, frame: TaskFrame, before: Positions, after: Positi
 def deployment(site: str, folder: Path, camera_hz: float = 1.0) -> Manifest:
     """The default manifest (``deploy/manifests/default.yaml``) on this machine: its own site and
     loopback ports, Tombatossals' Kinect stream at ``camera_hz``."""
-    port = free_port()
-    while port > 65000:  # the nodes listen on consecutive ports from it
-        port = free_port()
+    port = free_port_block(32)  # the nodes listen on consecutive ports from it
     text = (DEFAULT_MANIFEST.read_text().replace("site: lab", f"site: {site}").replace("cf/lab/", f"cf/{site}/")
             .replace("port: 7450", f"port: {port}").replace("camera_hz: 1.0", f"camera_hz: {camera_hz}"))
     path = folder / "manifest.yaml"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -18,6 +19,36 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _ephemeral_low() -> int:
+    try:
+        return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
+def free_port_block(n: int, low: int = 20000) -> int:
+    """The first of ``n`` consecutive loopback ports that are all free right now, below the
+    kernel's ephemeral range: a manifest's nodes listen on consecutive ports, and a port taken
+    from the ephemeral range may meanwhile become the source port of some outgoing connection."""
+    high = _ephemeral_low() - n
+    rng = random.Random()
+    for _ in range(200):
+        base = rng.randrange(low, max(high, low + 1))
+        socks = []
+        try:
+            for p in range(base, base + n):
+                s = socket.socket()
+                socks.append(s)
+                s.bind(("127.0.0.1", p))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise RuntimeError(f"no {n} consecutive free ports on loopback in {low}..{high + n}")
 
 
 def write_config(path: Path, config: dict) -> Path:

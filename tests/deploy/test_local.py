@@ -12,13 +12,11 @@ from contactflow.deploy.launcher_cli import app
 from contactflow.deploy.manifest import DEFAULT_MANIFEST, NodeSpec, load_manifest
 from contactflow.deploy.supervisor import Supervisor, pid_alive, read_state
 from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.procs import free_port
+from contactflow.nodes.procs import free_port_block
 
 
 def test_up_local_with_a_router_then_status_and_stop_from_another_shell(tmp_path):
-    port = free_port()
-    while port > 65000:
-        port = free_port()
+    port = free_port_block(32)
     manifest = tmp_path / "two.yaml"
     manifest.write_text(yaml.safe_dump({
         "site": "localtest", "zenoh": {"port": port, "topology": "routers", "routers": ["b"]},
@@ -51,9 +49,7 @@ def test_up_local_with_a_router_then_status_and_stop_from_another_shell(tmp_path
 
 
 def test_the_default_manifest_comes_up_locally_with_its_robots_and_broker(tmp_path):
-    port = free_port()
-    while port > 65000:
-        port = free_port()
+    port = free_port_block(32)
     manifest = tmp_path / "default.yaml"
     manifest.write_text(DEFAULT_MANIFEST.read_text().replace("port: 7450", f"port: {port}"))
     m = load_manifest(manifest)

@@ -1,6 +1,7 @@
 """Real node processes over zenoh on loopback: pipelines, events, control, liveliness, clocks, hostile input."""
 
 import signal
+import socket
 import sys
 import threading
 import time
@@ -27,7 +28,15 @@ from contactflow.nodes.messages import (
     StatusMsg,
     Vector,
 )
-from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
+from contactflow.nodes.procs import (
+    _ephemeral_low,
+    free_port,
+    free_port_block,
+    spawn_node,
+    stop_process,
+    wait_for,
+    write_config,
+)
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 from contactflow.nodes.wire import WireError, decode, encode, stamp
@@ -368,3 +377,15 @@ def test_a_resource_is_arbitrated_between_two_nodes_and_mixing_weights_reach_the
         tool.close()
         monkeypatch.delitem(sys.modules, "arm_cmd", raising=False)
         assert stop_process(proc) == 0
+
+
+def test_a_port_block_is_free_and_below_the_ephemeral_range():
+    base = free_port_block(16)
+    assert base >= 20000 and base + 16 <= _ephemeral_low()
+    held = [socket.socket() for _ in range(16)]
+    try:
+        for i, s in enumerate(held):
+            s.bind(("127.0.0.1", base + i))  # every port of the block binds
+    finally:
+        for s in held:
+            s.close()
