@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -34,7 +35,7 @@ from contactflow.abstraction.translator import (
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.status import Event
 from contactflow.nodes.transport import Handle, Transport
-from contactflow.nodes.wire import WireError, decode, encode
+from contactflow.nodes.wire import Stamper, WireError, decode, encode
 
 
 class Executor(Protocol):
@@ -70,8 +71,10 @@ class RobotAgent:
     """Advertises one robot and runs dispatched tasks on it (one at a time)."""
 
     def __init__(self, profile: RobotProfile, transport: Transport, ks: KeySpace, executor: Executor,
-                 node: str = "") -> None:
+                 node: str = "", source: str = "", now: Callable[[], float] = time.time) -> None:
         self.profile = profile
+        # replies and progress carry the agent module's path and its node's clock
+        self.stamp = Stamper(source or f"{profile.name}/{node or 'agent'}/agent", now)
         self.transport = transport
         self.ks = ks
         self.executor = executor
@@ -115,67 +118,65 @@ class RobotAgent:
 
     # -- queryables ------------------------------------------------------------------------
     def _on_caps(self, key: str, payload: bytes) -> bytes:
-        return encode(self.capabilities())
+        return encode(self.stamp(self.capabilities(), key))  # the request carries nothing the answer depends on
 
     def _on_translate(self, key: str, payload: bytes) -> bytes:
         try:
             req = decode(payload, TranslateRequest, key)
         except WireError as exc:
             self.rejected += 1
-            return encode(Bid(robot=self.profile.name, ok=False, reasons=[str(exc)]))
+            return encode(self.stamp(Bid(robot=self.profile.name, ok=False, reasons=[str(exc)]), key))
         bid, _ = dry_run(self.profile, req.atd, req.file)
         bid.busy = self.busy
-        return encode(bid)
+        return encode(self.stamp(bid, key, [req.hdr.id]))
 
     def _on_run(self, key: str, payload: bytes) -> bytes:
         try:
             req = decode(payload, RunRequest, key)
         except WireError as exc:
             self.rejected += 1
-            return encode(RunReply(ok=False, robot=self.profile.name, error=str(exc)))
+            return encode(self.stamp(RunReply(ok=False, robot=self.profile.name, error=str(exc)), key))
+        reply = self._run(key, req)
+        return encode(self.stamp(reply, key, [req.hdr.id]))
+
+    def _run(self, key: str, req: RunRequest) -> RunReply:
         try:
             tr = received(req.estd, self.profile, f"{key} (task {req.task_id}, {req.file})")
         except EstdError as exc:
             self.rejected += 1
             self.log.warning("%s", exc)
-            return encode(RunReply(ok=False, robot=self.profile.name, error=str(exc)))
+            return RunReply(ok=False, robot=self.profile.name, error=str(exc))
         with self._lock:
             if self._job is not None and self._job.thread.is_alive():
-                return encode(RunReply(ok=False, robot=self.profile.name,
-                                       error=f"busy with task {self._job.task_id}"))
+                return RunReply(ok=False, robot=self.profile.name, error=f"busy with task {self._job.task_id}")
             cancel = threading.Event()
             thread = threading.Thread(target=self._execute, args=(req, tr, cancel),
                                       name=f"agent-{self.profile.name}-{req.task_id}", daemon=True)
             self._job = _Job(req.task_id, req.attempt, cancel, thread)
             thread.start()
-        return encode(RunReply(ok=True, robot=self.profile.name))
+        return RunReply(ok=True, robot=self.profile.name)
 
     def _on_cancel(self, key: str, payload: bytes) -> bytes:
         with self._lock:
             job = self._job
         if job is not None:
             job.cancel.set()
-        return encode(RunReply(ok=job is not None, robot=self.profile.name,
-                               error="" if job else "no task running"))
+        return encode(self.stamp(RunReply(ok=job is not None, robot=self.profile.name,
+                                          error="" if job else "no task running"), key))
 
     # -- execution -------------------------------------------------------------------------
-    def _publish(self, msg: AbstractProgressMsg) -> None:
-        self.transport.publisher(self.ks.progress(msg.task_id))(encode(msg))
-
     def _execute(self, req: RunRequest, tr: Translation, cancel: threading.Event) -> None:
-        pub = self.transport.publisher(self.ks.progress(req.task_id))
-        seq = 0
+        key = self.ks.progress(req.task_id)
+        pub = self.transport.publisher(key)
+        run = [req.hdr.id]  # every report follows from the run request
 
         def report(p: AbstractProgress) -> None:
-            nonlocal seq
-            seq += 1
             msg = AbstractProgressMsg(task_id=req.task_id, robot=self.profile.name, kind=str(p.kind),
                                       state=p.state, transition=p.transition,
                                       event=str(p.event) if p.event else "",
                                       concrete=str(p.concrete) if p.concrete else "", detail=p.detail,
                                       attempt=req.attempt)
-            msg.hdr.seq, msg.hdr.source = seq, f"{self.profile.name}/agent"
-            pub(encode(msg))
+            pub(encode(self.stamp(msg, key, run)))
 
         try:
             outcome = self.executor(tr, report, cancel, dict(req.params))
@@ -184,8 +185,6 @@ class RobotAgent:
             outcome, detail = Event.HARDWARE_FAILURE, f"executor raised {type(exc).__name__}: {exc}"
         else:
             detail = ""
-        seq += 1
         final = AbstractProgressMsg(task_id=req.task_id, robot=self.profile.name, kind="finished",
                                     final=True, outcome=str(outcome), detail=detail, attempt=req.attempt)
-        final.hdr.seq, final.hdr.source = seq, f"{self.profile.name}/agent"
-        pub(encode(final))
+        pub(encode(self.stamp(final, key, run)))

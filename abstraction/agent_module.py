@@ -107,7 +107,8 @@ class RobotAgentModule(Module):
         except ValueError as exc:
             raise ParamError(str(exc)) from None
         self._agent = RobotAgent(PROFILES[self.params.robot], self.io.transport, self.io.keyspace,
-                                 self._executor, node=self.io.node)
+                                 self._executor, node=self.io.node, source=f"{self.io.robot}/{self.io.node}/{self.name}",
+                                 now=lambda: self.io.now)
         self._agent.start()
 
     # -- the executor: the broker thread hands a task to the step loop and waits ------------

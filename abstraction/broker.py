@@ -15,6 +15,8 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
+from collections.abc import Callable
 
 from contactflow.abstraction.atd import AtdError, parse_atd
 from contactflow.abstraction.dispatch import DispatchRefused, TaskRecord, choose
@@ -30,7 +32,7 @@ from contactflow.abstraction.messages import (
 from contactflow.nodes.keys import ANY, KeyExprError, KeySpace, segment
 from contactflow.nodes.status import Event
 from contactflow.nodes.transport import Handle, Transport
-from contactflow.nodes.wire import WireError, decode, encode
+from contactflow.nodes.wire import Stamper, WireError, decode, encode
 
 BROKER = "broker"
 FAILOVER_OUTCOMES = frozenset({str(Event.HARDWARE_FAILURE)})
@@ -39,7 +41,9 @@ FAILOVER_OUTCOMES = frozenset({str(Event.HARDWARE_FAILURE)})
 class Broker:
     """Dispatches abstract tasks to robots over a transport."""
 
-    def __init__(self, transport: Transport, ks: KeySpace, bid_timeout: float = 3.0) -> None:
+    def __init__(self, transport: Transport, ks: KeySpace, bid_timeout: float = 3.0, source: str = "site/broker/broker",
+                 now: Callable[[], float] = time.time) -> None:
+        self.stamp = Stamper(source, now)  # requests, replies and reports carry the broker module's path and clock
         self.transport = transport
         self.ks = ks
         self.bid_timeout = bid_timeout
@@ -75,13 +79,14 @@ class Broker:
             req = decode(payload, DispatchRequest, key)
         except WireError as exc:
             self.rejected += 1
-            return encode(DispatchReply(ok=False, task_id="", error=str(exc)))
+            return encode(self.stamp(DispatchReply(ok=False, task_id="", error=str(exc)), key))
         try:
-            return encode(self.dispatch(req))
+            reply = self.dispatch(req)
         except Exception as exc:  # a caller is answered whatever went wrong, never left to its timeout
             self.log.exception("dispatch of %r", req.task_id[:100])
-            return encode(DispatchReply(ok=False, task_id=req.task_id[:100],
-                                        error=f"broker: dispatch failed: {type(exc).__name__}: {exc}"))
+            reply = DispatchReply(ok=False, task_id=req.task_id[:100],
+                                  error=f"broker: dispatch failed: {type(exc).__name__}: {exc}")
+        return encode(self.stamp(reply, key, [req.hdr.id]))
 
     def dispatch(self, req: DispatchRequest) -> DispatchReply:
         try:  # the id names the task's progress key: refused before anything is reported or kept under it
@@ -112,7 +117,7 @@ class Broker:
 
     def bids(self, task_id: str, atd: str, file: str, target: str) -> list[Bid]:
         robot = target if target not in ("any", "all") else "*"
-        req = encode(TranslateRequest(task_id=task_id, atd=atd, file=file))
+        req = encode(self.stamp(TranslateRequest(task_id=task_id, atd=atd, file=file), "translate"))
         out = []
         for key, payload in self.transport.query(self.ks.robot_service(robot, "translate"), req, self.bid_timeout):
             try:
@@ -156,8 +161,8 @@ class Broker:
         robot = bid.robot
         if bid.estd is None:
             return RunReply(ok=False, robot=robot, error="its bid carried no ESTD")
-        req = encode(RunRequest(task_id=record.task_id, estd=bid.estd, file=record.file, attempt=record.attempt,
-                                params=record.params))
+        req = encode(self.stamp(RunRequest(task_id=record.task_id, estd=bid.estd, file=record.file,
+                                           attempt=record.attempt, params=record.params), "run", [bid.hdr.id]))
         replies = self.transport.query(self.ks.robot_service(robot, "run"), req, self.bid_timeout)
         if not replies:
             return RunReply(ok=False, robot=robot, error="no answer to run")
@@ -240,4 +245,5 @@ class Broker:
                 robot_detail: str = "") -> None:
         msg = AbstractProgressMsg(task_id=task_id, robot=BROKER, kind=kind, detail=detail, final=final,
                                   outcome=outcome, state=robot_detail)
-        self.transport.publisher(self.ks.progress(task_id))(encode(msg))
+        key = self.ks.progress(task_id)
+        self.transport.publisher(key)(encode(self.stamp(msg, key)))

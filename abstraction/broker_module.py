@@ -25,7 +25,8 @@ class BrokerModule(Module):
         self._broker: Broker | None = None
 
     def start(self) -> None:
-        self._broker = Broker(self.io.transport, self.io.keyspace, bid_timeout=self.params.bid_timeout)
+        self._broker = Broker(self.io.transport, self.io.keyspace, bid_timeout=self.params.bid_timeout,
+                              source=f"{self.io.robot}/{self.io.node}/{self.name}", now=lambda: self.io.now)
         self._broker.start()
 
     def step(self) -> Status:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
 import threading
+import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -10,6 +12,7 @@ from dataclasses import dataclass, field
 from contactflow.abstraction.messages import (
     AbstractProgressMsg,
     Capabilities,
+    CapabilitiesRequest,
     DispatchReply,
     DispatchRequest,
     PlanValue,
@@ -17,12 +20,15 @@ from contactflow.abstraction.messages import (
 from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.transport import Transport
-from contactflow.nodes.wire import WireError, decode, encode
+from contactflow.nodes.wire import WireError, decode, encode, stamp
 
 
 def new_task_id(stem: str) -> str:
     safe = "".join(c if c.isalnum() or c in "_-" else "_" for c in stem)[:40] or "task"
     return f"{safe}-{uuid.uuid4().hex[:6]}"
+
+
+_SEQ = itertools.count(1)  # this process's dispatch requests, whichever source names them
 
 
 @dataclass
@@ -48,8 +54,11 @@ def dispatch(transport: Transport, ks: KeySpace, atd: str, file: str, target: st
              params: dict[str, PlanValue] | None = None, task_id: str | None = None,
              on_progress: Callable[[AbstractProgressMsg], None] | None = None,
              on_contact: Callable[[ContactEventMsg], None] | None = None,
-             timeout: float = 10.0) -> TaskFollow:
-    """Send ``atd`` to the broker; progress and contact events stream into the result."""
+             timeout: float = 10.0, source: str = "site/tool/dispatch") -> TaskFollow:
+    """Send ``atd`` to the broker; progress and contact events stream into the result.
+
+    ``source`` names the caller in the request's header (a tool, or robot/node/module).
+    """
     follow = TaskFollow(task_id or new_task_id(file.rsplit("/", 1)[-1].split(".")[0]))
 
     def on_prog(key: str, payload: bytes) -> None:
@@ -75,7 +84,8 @@ def dispatch(transport: Transport, ks: KeySpace, atd: str, file: str, target: st
 
     follow.handles = [transport.subscribe(ks.progress(follow.task_id), on_prog),
                       transport.subscribe(ks.fused("*", "events"), on_ev)]
-    req = DispatchRequest(task_id=follow.task_id, atd=atd, file=file, target=target, params=params or {})
+    req = stamp(DispatchRequest(task_id=follow.task_id, atd=atd, file=file, target=target, params=params or {}),
+                source, next(_SEQ), time.time())
     replies = transport.query(ks.dispatch(), encode(req), timeout=timeout)
     if not replies:
         follow.reply = DispatchReply(ok=False, task_id=follow.task_id, error=f"no broker answers on {ks.dispatch()}")
@@ -96,7 +106,8 @@ def close(follow: TaskFollow) -> None:
 def robots(transport: Transport, ks: KeySpace, timeout: float = 2.0) -> list[Capabilities]:
     """Capabilities of every robot advertising on the site."""
     out = []
-    for key, payload in transport.query(ks.robot_service("*", "caps"), b"", timeout=timeout):
+    for key, payload in transport.query(ks.robot_service("*", "caps"), encode(CapabilitiesRequest()),
+                                      timeout=timeout):
         try:
             out.append(decode(payload, Capabilities, key))
         except WireError:

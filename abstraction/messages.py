@@ -7,26 +7,30 @@ import msgspec
 from contactflow.nodes.wire import Message
 
 
+class CapabilitiesRequest(Message, tag="capabilities_request"):
+    """Ask a robot's agent what it can do (query on ``broker/robots/<robot>/caps``; the answer is `capabilities`)."""
+
+
 class Capabilities(Message, tag="capabilities"):
     """What a robot advertises to the broker (answer of ``broker/robots/<robot>/caps``)."""
 
     robot: str
-    hand: str
-    sensors: list[str]
-    primitives: list[str]
+    hand: str  # the hand's kind
+    sensors: list[str]  # the robot's sensors
+    primitives: list[str]  # the concrete primitive types it runs
     workspace_center: list[float]  # m, world frame
     workspace_radius: float  # m
-    busy: bool = False
-    node: str = ""
+    busy: bool = False  # it runs a task now
+    node: str = ""  # the node its agent runs on
 
 
 class TranslateRequest(Message, tag="translate_request"):
     """Dry run: translate this ATD and bid for it."""
 
     max_bytes = 256 << 10
-    task_id: str
+    task_id: str  # the task's id (see dispatch)
     atd: str  # the ATD text, XML or YAML
-    file: str = "<dispatch>"
+    file: str = "<dispatch>"  # the ATD's file, to name it in messages
 
 
 class EdgeEvents(msgspec.Struct, frozen=True, kw_only=True):
@@ -49,11 +53,11 @@ class Bid(Message, tag="bid"):
     """A robot's answer to a dry run: can it, and how well; with the translation it would run."""
 
     robot: str
-    ok: bool
-    reasons: list[str] = []
-    notes: list[str] = []
+    ok: bool  # it can run the ATD
+    reasons: list[str] = []  # why not, naming ATD states and fields
+    notes: list[str] = []  # remarks of the translation
     estimated_duration: float = 0.0  # s
-    busy: bool = False
+    busy: bool = False  # it runs a task now
     estd: Estd | None = None  # the translation, when ``ok``
 
 
@@ -64,36 +68,44 @@ class RunRequest(Message, tag="run_request"):
     """Run this ESTD (the one the robot's bid carried); the robot checks it before running it."""
 
     max_bytes = 256 << 10
-    task_id: str
-    estd: Estd
+    task_id: str  # the task's id
+    estd: Estd  # the translation to run
     file: str = "<dispatch>"  # the ATD's file, to name it in messages
-    attempt: int = 1
+    attempt: int = 1  # 1, then counts up on failover
     params: dict[str, PlanValue] = {}  # plan parameters (e.g. an object location from perception)
 
 
 class RunReply(Message, tag="run_reply"):
-    ok: bool
+    """A robot's answer to a run request: did it start the task."""
+
+    ok: bool  # the robot started the task
     robot: str
-    error: str = ""
+    error: str = ""  # why not
 
 
 class DispatchRequest(Message, tag="dispatch_request"):
     """Run an ATD on ``target``: ``any`` (best bid), ``all`` (every capable robot) or a robot name."""
 
     max_bytes = 256 << 10
-    task_id: str
-    atd: str
-    file: str = "<dispatch>"
-    target: str = "any"
-    params: dict[str, PlanValue] = {}
+    task_id: str  # chosen by the caller: one key segment, not in use
+    atd: str  # the ATD text, XML or YAML
+    file: str = "<dispatch>"  # the ATD's file, to name it in messages
+    target: str = "any"  # any | all | a robot name
+    params: dict[str, PlanValue] = {}  # plan parameters (e.g. an object location)
 
 
 class DispatchReply(Message, tag="dispatch_reply"):
-    ok: bool
-    task_id: str
-    robots: list[str] = []
-    refusals: dict[str, list[str]] = {}
-    error: str = ""
+    """The broker's answer to a dispatch: which robots run the task, or why none does.
+
+    The task then reports on ``broker/progress/<task_id>``; it has ended when the broker's
+    ``abstract_progress`` with ``final`` true arrives (``outcome`` says how).
+    """
+
+    ok: bool  # the task was dispatched
+    task_id: str  # the request's id
+    robots: list[str] = []  # the robots that run it
+    refusals: dict[str, list[str]] = {}  # robot -> why it cannot run it
+    error: str = ""  # why not dispatched
 
 
 class AbstractProgressMsg(Message, tag="abstract_progress"):
@@ -104,14 +116,14 @@ class AbstractProgressMsg(Message, tag="abstract_progress"):
     the whole task's) last message; ``outcome`` is then the concrete event that ended it.
     """
 
-    task_id: str
+    task_id: str  # the task's id
     robot: str
     kind: str  # started | entered | event | edge | finished | assigned | failover | refused
-    state: str = ""
-    transition: str = ""
+    state: str = ""  # the ATD state concerned
+    transition: str = ""  # the ATD transition taken
     event: str = ""  # abstract event (Table 7.2)
     concrete: str = ""  # concrete event label
-    detail: str = ""
-    final: bool = False
-    outcome: str = ""
-    attempt: int = 1
+    detail: str = ""  # why (a concrete event's detail)
+    final: bool = False  # the robot's (or, from the broker, the task's) last message
+    outcome: str = ""  # the concrete event that ended it: success, failure, error, ...
+    attempt: int = 1  # 1, then counts up on failover

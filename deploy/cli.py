@@ -47,6 +47,7 @@ SUBCOMMANDS = {
     "deploy": ("contactflow.deploy.launcher_cli", "Deploy manifests across hosts."),
     "atd": ("contactflow.abstraction.atd_cli", "Abstract task descriptions: check and translate."),
     "embodiments": ("contactflow.embodiments.cli", "Simulated embodiments: list, show, URDF."),
+    "protocol": ("contactflow.nodes.protocol_cli", "The wire protocol: every message's fields."),
 }
 """Sub-applications contributed by the areas (a ``typer.Typer`` named ``app`` each)."""
 

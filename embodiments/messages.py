@@ -13,8 +13,8 @@ from contactflow.nodes.wire import Message, NDArray
 class JointState(Message, tag="joint_state"):
     """All joints of one robot in one message (thesis §6.3.1), published at 200 Hz."""
 
-    robot: str
-    names: list[str]
+    robot: str  # robot name (one key segment)
+    names: list[str]  # joint names, in the order of the arrays
     position: NDArray  # (n,) float64, rad or m
     velocity: NDArray  # (n,) float64
     effort: NDArray  # (n,) float64, N m or N
@@ -23,47 +23,47 @@ class JointState(Message, tag="joint_state"):
 class JointCommand(Message, tag="joint_command"):
     """A position (and velocity) command for some joints from one source, mixed by ``weight``."""
 
-    names: list[str]
+    names: list[str]  # the joints commanded
     position: NDArray  # (k,) float64
     velocity: NDArray | None = None  # (k,) float64
-    weight: float = 1.0
-    source: str = ""
+    weight: float = 1.0  # mixing weight of this source, (0, 1]
+    source: str = ""  # the commanding module
 
 
 class CartesianTarget(Message, tag="cartesian_target"):
     """A Cartesian controller input: pose (16 values, row-major 4x4), twist or wrench (6 values) in ``frame``."""
 
-    arm: str
+    arm: str  # the arm's name
     mode: str  # pose | twist | wrench | stop
-    frame: str = "world"
-    values: list[float] = []
+    frame: str = "world"  # the frame the values are expressed in
+    values: list[float] = []  # 16 (pose) or 6 (twist, wrench) values; empty for stop
     speed: float = 0.1  # m/s for pose moves
 
 
 class Wrench(Message, tag="wrench"):
     """Wrist F/T reading: force (N) and torque (N m) in world axes at the sensor origin."""
 
-    arm: str
-    sensor_frame: str
-    force: list[float]
-    torque: list[float]
-    estimated: bool = False
+    arm: str  # the arm's name
+    sensor_frame: str  # the F/T sensor's link
+    force: list[float]  # N, world axes
+    torque: list[float]  # N m, world axes, about the sensor origin
+    estimated: bool = False  # solved from joint efforts, not measured
 
 
 class TactileArray(Message, tag="tactile_array"):
     """Pressure images of every pad of one hand: ``pressure`` is (pads, rows, cols), N per taxel."""
 
     max_bytes = 1 << 20
-    hand: str
-    pads: list[str]
-    pressure: NDArray
+    hand: str  # the hand's name
+    pads: list[str]  # pad names, in the order of ``pressure``
+    pressure: NDArray  # (pads, rows, cols) float32, N per taxel
 
 
 class DepthImage(Message, tag="depth_image"):
     """Depth along the optical axis (m, 0 = no return), intrinsics and camera pose."""
 
     max_bytes = 8 << 20
-    camera: str
+    camera: str  # the camera's name
     depth: NDArray  # (H, W) float32
     K: list[float]  # 3x3 row-major
     T_world_cam: list[float]  # 4x4 row-major, optical frame
@@ -79,10 +79,10 @@ class PointCloud(Message, tag="point_cloud"):
     """World-frame points (N, 3) float32; ``origin`` is the sensor's viewpoint [x, y, z] (empty when unknown)."""
 
     max_bytes = 16 << 20
-    points: NDArray
-    frame: str = "world"
-    origin: list[float] = []
-    sensor: str = ""
+    points: NDArray  # (N, 3) float32, m
+    frame: str = "world"  # the frame of ``points``
+    origin: list[float] = []  # m, the sensor's viewpoint; empty when unknown
+    sensor: str = ""  # the sensor that saw them
 
 
 class RobotModel(Message, tag="robot_model"):
@@ -95,13 +95,13 @@ class RobotModel(Message, tag="robot_model"):
 
     max_bytes = 4 << 20
     robot: str
-    t: float
-    links: list[str]
+    t: float  # s, time of the joint state the model was posed from
+    links: list[str]  # a link name per bi-sphere
     c1: NDArray  # (m, 3) float64, m
     r1: NDArray  # (m,) float64, m
     c2: NDArray  # (m, 3) float64, m
     r2: NDArray  # (m,) float64, m
-    frames: list[str] = []
+    frames: list[str] = []  # named frames (sensor links) posed in ``poses``
     poses: NDArray | None = None  # (k, 4, 4) float64, world pose of each of ``frames``
 
 
@@ -110,9 +110,9 @@ class TaxelPoses(Message, tag="taxel_poses"):
 
     max_bytes = 4 << 20
     robot: str
-    hand: str
+    hand: str  # the hand's name
     t: float  # s, time of the joint state the taxels were posed from
-    pads: list[str]
+    pads: list[str]  # pad names, in the order of the arrays
     positions: NDArray  # (pads, rows, cols, 3) float64, m, world
     normals: NDArray  # (pads, rows, cols, 3) float64, unit, world
 
@@ -120,16 +120,16 @@ class TaxelPoses(Message, tag="taxel_poses"):
 class ObjectPoses(Message, tag="object_poses"):
     """Ground truth (evaluation key only): object poses (N, 4, 4)."""
 
-    names: list[str]
-    poses: NDArray
+    names: list[str]  # object names
+    poses: NDArray  # (N, 4, 4) float64, world pose of each object
 
 
 class TrueContacts(Message, tag="true_contacts"):
     """Ground truth (evaluation key only): physics contact points between named bodies."""
 
     max_bytes = 4 << 20
-    body_a: list[str]
-    body_b: list[str]
+    body_a: list[str]  # per contact point: the robot's link
+    body_b: list[str]  # per contact point: the object
     positions: NDArray  # (N, 3)
     normals: NDArray  # (N, 3)
     forces: NDArray  # (N,), N
@@ -141,7 +141,7 @@ class TrueContacts(Message, tag="true_contacts"):
 class ArmState(msgspec.Struct, kw_only=True):
     """One arm's controller as the world ran it this tick."""
 
-    name: str
+    name: str  # the arm's name
     q_cmd: NDArray  # (n,) float64, rad: the joints' commanded position
     status: str  # idle | running | success | failure (nodes.status.Status)
     abort_reason: str = ""  # why the last command failed (no contact, not reached, hardware_failure, ...)
@@ -151,17 +151,17 @@ class ArmState(msgspec.Struct, kw_only=True):
 class HandState(msgspec.Struct, kw_only=True):
     """One hand: encoder readings and its controller's status."""
 
-    name: str
+    name: str  # the hand's name
     positions: NDArray  # (n,) float64, rad or m: finger encoders
-    status: str
+    status: str  # idle | running | success | failure of its controller
     effort: float = 1.0  # 0..1, the finger drives' force limit in force (a gripper's motor effort)
-    applied: int = 0
+    applied: int = 0  # the sender's sequence number of the last hand command the world applied
 
 
 class WrenchSample(msgspec.Struct, kw_only=True):
     """One wrist F/T sample: world axes at the sensor origin, minus the tare."""
 
-    arm: str
+    arm: str  # the arm's name
     force: list[float]  # N
     torque: list[float]  # N m
     frame: str  # sensor link
@@ -172,8 +172,8 @@ class WrenchSample(msgspec.Struct, kw_only=True):
 class TactileSample(msgspec.Struct, kw_only=True):
     """The pressure images of one hand's pads."""
 
-    hand: str
-    pads: list[str]
+    hand: str  # the hand's name
+    pads: list[str]  # pad names, in the order of ``pressure``
     pressure: NDArray  # (pads, rows, cols) float32, N per taxel
 
 
@@ -182,17 +182,17 @@ class RobotState(Message, tag="robot_state"):
 
     max_bytes = 4 << 20
     robot: str
-    tick: int
+    tick: int  # the world tick after which it was taken
     t: float  # s, simulated time after the tick
     names: list[str]  # every active joint
     position: NDArray  # (n,) float64, rad or m
     velocity: NDArray  # (n,) float64
-    arms: list[ArmState]
-    hands: list[HandState]
-    wrenches: list[WrenchSample] = []
-    tactile: list[TactileSample] = []
+    arms: list[ArmState]  # every arm's controller
+    hands: list[HandState]  # every hand
+    wrenches: list[WrenchSample] = []  # every wrist F/T sensor
+    tactile: list[TactileSample] = []  # every hand's tactile pads
     failed: bool = False  # stopped by a hardware fault (the robot does not move again)
-    failure: str = ""
+    failure: str = ""  # what the fault was
     held: bool = False  # held by the world: its controller died or stalled (until a command comes)
     held_at: int = -1  # the tick the hold began (-1: not held); a controller that connected later may take over
     refused: int = 0  # commands refused so far (unknown part, non-finite, outside the joint limits)
@@ -200,6 +200,8 @@ class RobotState(Message, tag="robot_state"):
 
 
 class ArmCommandKind(StrEnum):
+    """What an arm command's ``values`` hold and how the arm's controller runs it."""
+
     JOINTS = "joints"  # values: (n,) joint target, interpolated at ``speed`` rad/s
     WAYPOINTS = "waypoints"  # values: (k, n) joint path, aborted beyond ``abort_force``
     POSE = "pose"  # values: (4, 4) pose of the controlled frame in ``frame``
@@ -215,11 +217,11 @@ class ArmCommand(Message, tag="arm_command"):
 
     max_bytes = 1 << 20
     robot: str
-    arm: str
-    kind: ArmCommandKind
-    seq: int
-    values: NDArray | None = None
-    frame: str = "world"
+    arm: str  # the arm's name
+    kind: ArmCommandKind  # what ``values`` hold
+    seq: int  # the sender's sequence number, echoed as ``applied`` once applied
+    values: NDArray | None = None  # float64; shape by ``kind``
+    frame: str = "world"  # the frame of pose, twist and wrench values
     speed: float = 0.0  # m/s for pose moves, rad/s for joint moves; 0: the arm's default
     duration: float = 0.0  # s a twist lasts; 0: until the next command
     max_force: float = 5.0  # N, guarded moves
@@ -230,10 +232,10 @@ class HandCommand(Message, tag="hand_command"):
     """Finger targets (``values``) or a named preshape of one hand, at ``effort`` of the force limit."""
 
     robot: str
-    hand: str
-    seq: int
-    values: NDArray | None = None
-    preshape: str = ""
+    hand: str  # the hand's name
+    seq: int  # the sender's sequence number, echoed as ``applied`` once applied
+    values: NDArray | None = None  # (n,) float64 finger joint targets, rad or m
+    preshape: str = ""  # a named preshape of the hand (open, closed, ...), instead of values
     effort: float = 1.0  # fraction of the fingers' force limit, (0, 1]
 
 
@@ -248,8 +250,8 @@ class CameraRequest(Message, tag="camera_request"):
     """Ask the world for a frame of a robot's camera at the current tick."""
 
     robot: str
-    camera: str
-    request: int
+    camera: str  # the camera's name
+    request: int  # the requester's number, echoed in the frame
 
 
 class CameraFrame(Message, tag="camera_frame"):
@@ -257,8 +259,8 @@ class CameraFrame(Message, tag="camera_frame"):
 
     max_bytes = 32 << 20
     robot: str
-    camera: str
-    request: int
+    camera: str  # the camera's name
+    request: int  # the request it answers
     t: float  # s, when the frame was taken
     depth: NDArray  # (H, W) float32, m along the optical axis, 0 = no return
     points: NDArray  # (N, 3) float64, world, valid pixels only
@@ -270,7 +272,7 @@ class CameraFrame(Message, tag="camera_frame"):
 class ObstacleMsg(msgspec.Struct, kw_only=True):
     """A fixture of the cell (known layout, not a simulation readout), as the planners use it."""
 
-    name: str
+    name: str  # the fixture's name
     kind: str  # box | cylinder | sphere | capsule
     size: list[float]  # m
     pose: list[float]  # 16 values, row-major world pose
@@ -279,8 +281,12 @@ class ObstacleMsg(msgspec.Struct, kw_only=True):
 class HandPoints(msgspec.Struct, kw_only=True):
     """The space a hand takes around its arm's controlled frame, measured on its collision geometry."""
 
-    arm: str
+    arm: str  # the arm's name
     points: NDArray  # (N, 3) float64, m, in the arm's controlled frame, hand as it started
+
+
+class InfoRequest(Message, tag="info_request"):
+    """Ask a world what one of its robots is (query on ``robot/<robot>/info``; the answer is `robot_info`)."""
 
 
 class RobotInfo(Message, tag="robot_info"):
@@ -290,8 +296,8 @@ class RobotInfo(Message, tag="robot_info"):
     robot: str
     embodiment: str  # registry name
     base: list[float]  # 16 values, row-major world pose of the base
-    fixtures: list[ObstacleMsg] = []
-    hands: list[HandPoints] = []
+    fixtures: list[ObstacleMsg] = []  # the cell's fixtures (table, box walls)
+    hands: list[HandPoints] = []  # each arm's hand volume
     world: str = ""  # the world module's address
     clock: str = "lockstep"  # lockstep | realtime
     control_rate: float = 200.0  # Hz, one tick

@@ -33,6 +33,7 @@ from contactflow.embodiments.messages import (
     HandCommand,
     HandState,
     HeadCommand,
+    InfoRequest,
     RobotInfo,
     RobotState,
     WrenchSample,
@@ -104,7 +105,7 @@ class RobotLink:
             end = time.monotonic() + timeout
             transport = self._transport()
             while self._info is None and transport is not None:
-                replies = transport.query(key, b"", timeout=min(1.0, timeout))
+                replies = transport.query(key, encode(InfoRequest()), timeout=min(1.0, timeout))
                 for rkey, payload in replies:
                     self._info = decode(payload, RobotInfo, rkey)
                 if self._info is None and time.monotonic() > end:

@@ -42,15 +42,15 @@ class HypothesisCloud(Message, tag="hypothesis_cloud"):
 
     max_bytes = 64 << 20
     robot: str
-    generator: str
-    stamp: float
+    generator: str  # the generator's name (tactile, ft, range, ...)
+    stamp: float  # s, time of the sensor reading
     location: NDArray  # (n, 3) float32, m, world frame
     likelihood: NDArray  # (n,) float32 in [0, 1]
     kind: NDArray  # (n,) uint8 HypothesisType
     force: NDArray  # (n,) float32 N, or (0,)
     direction: NDArray  # (n, 3) float32 unit, or (0, 3)
-    link: str = ""
-    frame: str = "world"
+    link: str = ""  # the link the hypotheses lie on, when the generator knows it
+    frame: str = "world"  # always world: fusion works in one frame
 
     @property
     def source(self) -> str:
@@ -99,15 +99,15 @@ class FusedCloud(Message, tag="fused_cloud"):
     """The fused hypotheses H(x) of one integrator cycle (for display and analysis)."""
 
     max_bytes = 64 << 20
-    stamp: float
+    stamp: float  # s, time of the cycle
     location: NDArray  # (k, 3) float32
     likelihood: NDArray  # (k,) float32
     force: NDArray  # (k,) float32
     direction: NDArray  # (k, 3) float32
     sources: NDArray  # (k,) uint64 bitmask over ``columns``
-    columns: list[str]
-    vetoed: int = 0
-    unsupported: int = 0
+    columns: list[str]  # the sources (robot/generator) of the cycle, one bit each
+    vetoed: int = 0  # voxels removed by null hypotheses this cycle
+    unsupported: int = 0  # voxels with support hypotheses only, left out this cycle
 
     @classmethod
     def of(cls, f: Fused) -> FusedCloud:
@@ -123,14 +123,14 @@ class ContactInfo(msgspec.Struct, frozen=True, kw_only=True):
     """One condensed contact."""
 
     location: list[float]  # m, world frame
-    likelihood: float
+    likelihood: float  # in [0, 1]
     sigma: float  # m
     force: float  # N
-    direction: list[float]
-    voxels: int
-    sources: list[str]
-    robot: str = ""
-    link: str = ""
+    direction: list[float]  # unit, world
+    voxels: int  # voxels condensed into it
+    sources: list[str]  # the sources (robot/generator) behind it
+    robot: str = ""  # the robot it touches
+    link: str = ""  # the link it lies on, when known
 
     @classmethod
     def of(cls, c: Contact, columns: list[str]) -> ContactInfo:
@@ -143,20 +143,20 @@ class ContactInfo(msgspec.Struct, frozen=True, kw_only=True):
 class ContactList(Message, tag="contact_list"):
     """The condensed contacts of one cycle, on ``KeySpace.fused(robot, "contacts")``."""
 
-    stamp: float
-    contacts: list[ContactInfo] = []
+    stamp: float  # s, time of the cycle
+    contacts: list[ContactInfo] = []  # the contacts
 
 
 class ContactEventMsg(Message, tag="contact_event"):
     """A contact made or broken, on ``KeySpace.fused(robot, "events")``."""
 
-    event: Event
-    contact_id: int
+    event: Event  # contact_made or contact_broken
+    contact_id: int  # the tracked contact's id (the same for its made and broken)
     robot: str
-    link: str
+    link: str  # the link it lies on, when known
     location: list[float]  # m, world frame
-    likelihood: float
-    t: float
+    likelihood: float  # in [0, 1]
+    t: float  # s, when it was made or broken
 
     def __post_init__(self) -> None:
         if self.event not in (Event.CONTACT_MADE, Event.CONTACT_BROKEN):

@@ -10,6 +10,7 @@ module's exception or a malformed message take the node down.
 from __future__ import annotations
 
 import functools
+import itertools
 import logging
 import math
 import threading
@@ -257,6 +258,7 @@ class ModuleHost:
         self.tick_no = -1  # the world tick a lockstep node steps (-1: not in lockstep)
         self._ticked = False  # the node stepped its modules once
         self.dead = threading.Event()  # the loop died (the node is down, its process should exit non-zero)
+        self._ctl_seqs: dict[str, itertools.count] = {}  # issuer -> sequence of its control requests
 
     # -- set up ---------------------------------------------------------------------------
     def add(self, cfg: ModuleConfig, module: Module | None = None) -> HostedModule:
@@ -320,9 +322,14 @@ class ModuleHost:
                 req = decode(payload, ControlRequest, key)
             except WireError as exc:
                 self._rejected(hm, "control request", exc)
-                return encode(ControlReply(ok=False, error=str(exc), state=hm.state))
-            return encode(self.handle_control(hm, req))
+                return encode(self._reply(hm, ControlReply(ok=False, error=str(exc), state=hm.state), None))
+            return encode(self._reply(hm, self.handle_control(hm, req), req))
         return on_query
+
+    def _reply(self, hm: HostedModule, reply: ControlReply, req: ControlRequest | None) -> ControlReply:
+        """The module's header on its answer: its path, a seq of its own, the node's clock, the request it answers."""
+        return stamp(reply, f"{hm.addr}/ctl", hm.io.next_seq("/ctl"), self.clock.now(),
+                     [req.hdr.id] if req is not None and req.hdr.source else [])
 
     def _rejected(self, hm: HostedModule, what: str, exc: Exception) -> None:
         """Count a message that did not decode; log the first ten and every thousandth (a flood is no log flood)."""
@@ -457,6 +464,8 @@ class ModuleHost:
         robot, _, module = target.rpartition("/")
         robot = robot or default_robot
         req = ControlRequest(cmd=cmd, params=params, issuer=issuer)
+        source = f"{issuer or f'site/{self.config.node}/host'}/ctl"
+        stamp(req, source, next(self._ctl_seqs.setdefault(source, itertools.count(1))), self.clock.now())
         local = self.modules.get((robot, module))
         if local is not None:
             return self.handle_control(local, decode(encode(req), ControlRequest))

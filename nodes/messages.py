@@ -15,22 +15,22 @@ ParamValue = bool | int | float | str | list[float | str]
 class EventMsg(Message, tag="event"):
     """A detected situation (thesis §6.1): an edge label of a task graph."""
 
-    event: Event
+    event: Event  # the event (edge label)
     module: str  # robot/node/module that raised it
-    detail: str = ""
-    values: dict[str, float] = {}
+    detail: str = ""  # human-readable why
+    values: dict[str, float] = {}  # named numbers the event carries (e.g. a detected object's tx, ty, top)
 
 
 class StatusMsg(Message, tag="status"):
     """Published by every module on change and periodically."""
 
-    module: str
-    layer: str
-    state: Status
-    rate_hz: float
-    steps: int = 0
+    module: str  # robot/node/module
+    layer: str  # service | primitive | task (thesis §6.1)
+    state: Status  # the module's state
+    rate_hz: float  # Hz, the module's step rate
+    steps: int = 0  # steps run since it started
     rejected: int = 0  # inputs dropped by validation
-    detail: str = ""
+    detail: str = ""  # why the state is what it is (an error's message)
     gaps: dict[str, int] = {}  # input port -> sequence numbers its sources skipped (lost messages)
 
 
@@ -45,32 +45,34 @@ class Command(StrEnum):
 class ControlRequest(Message, tag="control"):
     """A control message (thesis §6.1): change a module's status or parameters."""
 
-    cmd: Command
-    params: dict[str, ParamValue] = {}
-    issuer: str = ""
+    cmd: Command  # what to do
+    params: dict[str, ParamValue] = {}  # SET: parameter name -> value; RUN: parameters for this run
+    issuer: str = ""  # who asks (robot/node/module or a tool's name), for the log and claims
 
 
 class ControlReply(Message, tag="control_reply"):
-    ok: bool
-    error: str = ""
-    state: Status = Status.IDLE
-    params: dict[str, ParamValue] = {}
+    """The answer to a control request on a module's ``ctl`` key."""
+
+    ok: bool  # the request was carried out
+    error: str = ""  # why not, naming the parameter or state
+    state: Status = Status.IDLE  # the module's state after the request
+    params: dict[str, ParamValue] = {}  # the module's parameters after the request
     description: str = ""  # YAML module description, for DESCRIBE
 
 
 class Mark(msgspec.Struct, frozen=True, kw_only=True):
     """The last message a lockstep node's module published on ``key`` during a tick (its header's source and seq)."""
 
-    key: str
-    source: str
-    seq: int
+    key: str  # the key expression it was published on
+    source: str  # its hdr.source
+    seq: int  # its hdr.seq
 
 
 class Clock(Message, tag="clock"):
     """Simulation clock published by the world; nodes step their modules on it."""
 
     t: float  # s of simulated time
-    real_time_factor: float = 1.0
+    real_time_factor: float = 1.0  # simulated over wall seconds, measured by the world
     tick: int = 0  # control tick of the world; lockstep nodes answer each one
     marks: list[Mark] = []  # what the lockstep nodes published during the previous tick: a subscriber steps once it has them
 
@@ -78,26 +80,28 @@ class Clock(Message, tag="clock"):
 class LockstepAck(Message, tag="lockstep_ack"):
     """A lockstep node stepped its modules for world tick ``tick`` (and sent what they commanded)."""
 
-    node: str
-    tick: int
+    node: str  # the node's name
+    tick: int  # the world tick it stepped
     marks: list[Mark] = []  # the last message of each stream its modules published during the tick
 
 
 class Vector(Message, tag="vector"):
     """A plain numeric vector output (generic service output)."""
 
-    values: list[float]
-    names: list[str] = []
+    values: list[float]  # the numbers
+    names: list[str] = []  # a name per value (empty: unnamed)
 
 
 class Array(Message, tag="array"):
     """A generic array output (images, clouds, grids)."""
 
     max_bytes = 64 << 20
-    array: NDArray
-    frame: str = "world"
+    array: NDArray  # the array
+    frame: str = "world"  # coordinate frame of points in it
 
 
 class Text(Message, tag="text"):
-    text: str
+    """A plain text output (generic service output)."""
+
+    text: str  # the text
 

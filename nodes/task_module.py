@@ -28,17 +28,17 @@ from contactflow.nodes.wire import Message
 class TaskProgressMsg(Message, tag="task_progress"):
     """One progress report of a running task (:class:`~contactflow.nodes.taskengine.Progress`)."""
 
-    kind: str
-    run: str
-    path: list[str]
-    node: str = ""
-    label: str = ""
-    edge: str = ""
-    edge_label: str = ""
-    event: str = ""
-    source: str = ""
-    detail: str = ""
-    implicit: bool = False
+    kind: str  # started | entered | event | edge | finished
+    run: str  # the run's id
+    path: list[str]  # task names and nested node ids down to the node concerned
+    node: str = ""  # the task graph node entered or left
+    label: str = ""  # the caller's name of that node (an ATD state)
+    edge: str = ""  # the edge taken
+    edge_label: str = ""  # the caller's name of the edge (an ATD transition)
+    event: str = ""  # the event that fired the edge or ended the run
+    source: str = ""  # the module (instance) that raised the event
+    detail: str = ""  # why (the event's detail)
+    implicit: bool = False  # a fault exit no edge of the graph declares
 
 
 def progress_msg(p: Progress) -> TaskProgressMsg:

@@ -9,7 +9,9 @@ schema version and array sizes, and refuses payloads larger than the type allows
 
 from __future__ import annotations
 
+import threading
 import time
+from collections.abc import Callable
 from typing import Any, ClassVar, TypeVar
 
 import msgspec
@@ -33,8 +35,8 @@ class WireError(ValueError):
 class MsgId(msgspec.Struct, frozen=True, kw_only=True):
     """Identity of one message: its source (``robot/node/module[/port]``) and sequence."""
 
-    source: str
-    seq: int
+    source: str  # the message's hdr.source
+    seq: int  # the message's hdr.seq
 
 
 class Header(msgspec.Struct, kw_only=True):
@@ -44,12 +46,12 @@ class Header(msgspec.Struct, kw_only=True):
     can be traced back to the sensor reading that caused it (thesis §6.6).
     """
 
-    schema: int = SCHEMA_VERSION
-    source: str = ""
-    seq: int = 0
+    schema: int = SCHEMA_VERSION  # schema version; a different one is refused
+    source: str = ""  # robot/node/module[/port] that produced it
+    seq: int = 0  # counts per source from 1 (gaps reveal loss)
     t_sim: float = 0.0  # s, simulation (or robot) clock
     t_wall: float = 0.0  # s since the Unix epoch
-    inputs: list[MsgId] = []
+    inputs: list[MsgId] = []  # the messages this one was computed from
     tick: int = -1  # the world tick a lockstep node sent it during (subscribers in lockstep see it the tick after); -1: none
 
     def __post_init__(self) -> None:
@@ -73,9 +75,9 @@ class NDArray(msgspec.Struct, frozen=True, kw_only=True):
     ``data`` decodes as a zero-copy view of the received payload.
     """
 
-    dtype: str
-    shape: list[int]
-    data: memoryview
+    dtype: str  # numpy dtype name: bool, (u)int8-64, float16-64
+    shape: list[int]  # dimensions
+    data: memoryview  # C-order little-endian bytes
 
     def __post_init__(self) -> None:
         itemsize = _ITEMSIZE.get(self.dtype)
@@ -151,6 +153,24 @@ def stamp(msg: M, source: str, seq: int, t_sim: float, inputs: list[MsgId] | Non
     if inputs is not None:
         h.inputs = inputs
     return msg
+
+
+class Stamper:
+    """Headers for what a component sends outside a module's ports (replies, reports, progress).
+
+    One ``source`` (the full module path), ``seq`` counted from 1 per key it sends on, ``t_sim``
+    from the node's one clock (``now``) and ``inputs`` naming what the message answers.
+    """
+
+    def __init__(self, source: str, now: Callable[[], float]) -> None:
+        self.source, self.now = source, now
+        self._seq: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, msg: M, key: str = "", inputs: list[MsgId] | None = None) -> M:
+        with self._lock:
+            seq = self._seq[key] = self._seq.get(key, 0) + 1
+        return stamp(msg, self.source, seq, self.now(), inputs)
 
 
 def decode(data: bytes | bytearray | memoryview, type_: type[M], where: str = "") -> M:

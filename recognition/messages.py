@@ -52,10 +52,10 @@ class PointCloud(Message, tag="vision_cloud"):
     """An (N, 3) float32 cloud in the world frame."""
 
     max_bytes = 32 << 20
-    points: NDArray
-    depth_frame: MsgId = NO_FRAME
+    points: NDArray  # (N, 3) float32, m, world
+    depth_frame: MsgId = NO_FRAME  # the depth frame it came from
     depth_t: float | None = None  # s, the depth frame's stamp on its camera's clock (None: unknown)
-    frame: str = "world"
+    frame: str = "world"  # always world
 
     def xyz(self) -> np.ndarray:
         p = self.points.numpy()
@@ -73,12 +73,12 @@ class PointCloud(Message, tag="vision_cloud"):
 class PlaneMsg(Message, tag="vision_plane"):
     """The principal plane ``normal · p + offset = 0`` and its frame (z = normal)."""
 
-    normal: list[float]
-    offset: float
-    origin: list[float]
+    normal: list[float]  # unit, world
+    offset: float  # m
+    origin: list[float]  # m, world: a point of the plane
     frame: list[float]  # row-major 3x3, columns are the plane axes
-    inliers: int
-    depth_frame: MsgId = NO_FRAME
+    inliers: int  # points of the cloud on the plane
+    depth_frame: MsgId = NO_FRAME  # the depth frame it came from
 
     def plane(self) -> Plane:
         return Plane(np.array(self.normal), self.offset, np.array(self.origin), np.reshape(self.frame, (3, 3)),
@@ -93,9 +93,9 @@ class PlaneMsg(Message, tag="vision_plane"):
 class BoxMsg(msgspec.Struct, kw_only=True):
     """An oriented box: centre, row-major rotation (columns = axes) and full extents (m)."""
 
-    center: list[float]
-    rotation: list[float]
-    extent: list[float]
+    center: list[float]  # m, world
+    rotation: list[float]  # row-major 3x3, columns are the box axes
+    extent: list[float]  # m, full extents along the axes
 
     def box(self) -> Box:
         if len(self.center) != 3 or len(self.rotation) != 9 or len(self.extent) != 3:
@@ -111,8 +111,8 @@ class RoiMsg(Message, tag="vision_roi"):
     """Region of interest: the 8 vertices of the box extruded from the plane, and the box."""
 
     vertices: list[float]  # 8 x 3, row-major
-    box: BoxMsg
-    depth_frame: MsgId = NO_FRAME
+    box: BoxMsg  # the region as an oriented box
+    depth_frame: MsgId = NO_FRAME  # the depth frame it came from
 
     @classmethod
     def of(cls, box: Box, depth_frame: MsgId = NO_FRAME) -> RoiMsg:
@@ -127,9 +127,11 @@ class RobotSpheres(Message, tag="vision_robot_spheres"):
 
 
 class SegmentedObject(msgspec.Struct, kw_only=True):
+    """One object's points, centroid and box, world frame."""
+
     points: NDArray  # (N, 3) float32
-    centroid: list[float]
-    box: BoxMsg
+    centroid: list[float]  # m, world
+    box: BoxMsg  # its oriented bounding box
 
     def cluster(self) -> Cluster:
         pts = self.points.numpy().astype(np.float64).reshape(-1, 3)
@@ -140,8 +142,8 @@ class SegmentedObjects(Message, tag="vision_objects"):
     """One segmented cloud per object found in the region of interest (world frame), largest first."""
 
     max_bytes = 32 << 20
-    objects: list[SegmentedObject]
-    depth_frame: MsgId = NO_FRAME
+    objects: list[SegmentedObject]  # the objects
+    depth_frame: MsgId = NO_FRAME  # the depth frame it came from
     depth_t: float | None = None  # s, the depth frame's stamp on its camera's clock (None: unknown)
 
     def clusters(self) -> list[Cluster]:
@@ -159,28 +161,28 @@ class ApproachVectors(Message, tag="vision_approach_vectors"):
 
     positions: NDArray  # (K, 3) m
     directions: NDArray  # (K, 3) unit
-    scores: list[float] = []
-    depth_frame: MsgId = NO_FRAME
+    scores: list[float] = []  # a score per vector, higher is better
+    depth_frame: MsgId = NO_FRAME  # the depth frame it came from
 
 
 class ShapeClass(Message, tag="vision_shape"):
     """V4 shape class of an object (thesis §8.4.2); ``label`` is "unknown" below the 70 % rule."""
 
-    label: str
-    classes: list[str]
-    probabilities: list[float]
-    curvedness: float
-    depth_frame: MsgId = NO_FRAME
+    label: str  # the class, or unknown
+    classes: list[str]  # every class
+    probabilities: list[float]  # a probability per class
+    curvedness: float  # mean curvedness of the object's surface, 1/m
+    depth_frame: MsgId = NO_FRAME  # the depth frame it came from
 
 
 class ObjectIdentity(Message, tag="vision_identity"):
     """LOC object identity (thesis §8.4.3); ``label`` is "unknown" when not confident."""
 
-    label: str
-    confidence: float
-    features: list[float]
-    feature_names: list[str]
-    depth_frame: MsgId = NO_FRAME
+    label: str  # the object, or unknown
+    confidence: float  # in [0, 1]
+    features: list[float]  # the feature vector
+    feature_names: list[str]  # a name per feature
+    depth_frame: MsgId = NO_FRAME  # the depth frame it came from
 
 
 class MeasuredWeight(Message, tag="vision_weight"):

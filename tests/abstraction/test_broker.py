@@ -189,3 +189,23 @@ def test_lost_robot_liveliness_fails_over(site_factory):
     assert follow.outcome == "success"
     assert any(m.kind == "failover" and "liveliness" in m.detail for m in follow.progress)
     assert [m.robot for m in follow.progress if m.final and m.robot != "broker"] == ["melfa"]
+
+
+def test_replies_and_progress_carry_real_headers(site_factory):
+    site = site_factory({"melfa": fake_executor()})
+    follow = site.run(PUSH, target="melfa")
+    assert follow.outcome == "success"
+    reply = follow.reply
+    assert reply.hdr.source == "site/broker/broker" and reply.hdr.seq >= 1 and reply.hdr.t_sim > 0
+    assert len(reply.hdr.inputs) == 1 and reply.hdr.inputs[0].source == "site/tool/dispatch"
+    by_source = {}
+    for m in follow.progress:
+        by_source.setdefault(m.hdr.source, []).append(m)
+        assert m.hdr.t_sim > 0 and m.hdr.t_wall > 0
+    assert set(by_source) == {"site/broker/broker", "melfa/melfa_control/agent"}
+    for msgs in by_source.values():  # counted per source on the task's key, from 1, without gaps
+        assert [m.hdr.seq for m in msgs] == list(range(1, len(msgs) + 1))
+    robot = by_source["melfa/melfa_control/agent"]
+    assert all(m.hdr.inputs and m.hdr.inputs[0].source == "site/broker/broker" for m in robot)  # the run request
+    caps = robots(site.t, KS)
+    assert caps and caps[0].hdr.source == "melfa/melfa_control/agent" and caps[0].hdr.seq >= 1

@@ -12,7 +12,14 @@ from contactflow.embodiments.messages import JointCommand
 from contactflow.nodes.clock import SimClock
 from contactflow.nodes.config import ConfigError, parse_node_config
 from contactflow.nodes.host import ModuleHost, SeqTracker
-from contactflow.nodes.messages import Command, ControlReply, EventMsg, StatusMsg, Vector
+from contactflow.nodes.messages import (
+    Command,
+    ControlReply,
+    ControlRequest,
+    EventMsg,
+    StatusMsg,
+    Vector,
+)
 from contactflow.nodes.module import Layer, LayerError, Module, Port
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.transport import LocalTransport
@@ -177,6 +184,25 @@ def test_online_parameter_change_and_errors():
     assert not missing.ok and "no module answers" in missing.error
     desc = host.send_control("sc", Command.DESCRIBE, {})
     assert "layer: service" in desc.description and "gain" in desc.description
+
+
+def test_a_control_reply_carries_the_module_path_its_own_seq_the_clock_and_the_request():
+    host, clock, _ = make_host(PIPE)
+    run_for(host, clock, 0.5)
+    key = host.ks.control("site", "*", "sc")
+    replies = []
+    for seq in (1, 2):
+        req = stamp(ControlRequest(cmd=Command.SET, params={"gain": 0.25}, issuer="tool"), "site/tool/ctl", seq, 9.0)
+        (rkey, payload), = host.transport.query(key, encode(req))
+        replies.append(decode(payload, ControlReply, rkey))
+    assert all(r.ok for r in replies)
+    assert [r.hdr.source for r in replies] == [f"site/{host.config.node}/sc/ctl"] * 2
+    assert [r.hdr.seq for r in replies] == [1, 2]
+    assert replies[0].hdr.t_sim == pytest.approx(0.5)  # the node's (simulated) clock, not the request's stamp
+    assert [(i.source, i.seq) for r in replies for i in r.hdr.inputs] == [("site/tool/ctl", 1), ("site/tool/ctl", 2)]
+    garbage = host.transport.query(key, b"\x01")
+    bad = decode(garbage[0][1], ControlReply, key)
+    assert not bad.ok and bad.hdr.seq == 3 and bad.hdr.inputs == []
 
 
 def test_stop_and_reset():
