@@ -90,16 +90,20 @@ class RobotAgentModule(Module):
         pub = self.io.transport.publisher(self.io.keyspace.fused(self.params.robot, "events"))
         seq = 0
 
-        def publish(event) -> None:
+        def publish(event, inputs) -> None:
             nonlocal seq
             seq += 1
             msg = stamp(ContactEventMsg.of(event), f"{self.params.robot}/{self.io.node}/{self.name}/fusion",
-                        seq, event.t)
+                        seq, event.t, inputs)
             pub(encode(msg))
+
+        def readings() -> list:  # the robot state the cues were read from
+            state = robot.link.state
+            return [state.hdr.id] if state is not None and state.hdr.source else []
 
         source = f"{self.params.robot}/{self.io.node}/{self.name}"
         return StationFusion(robot, publish, publish_cloud=cloud_publisher(self.io.transport, source),
-                             keyspace=self.io.keyspace)
+                             keyspace=self.io.keyspace, readings=readings)
 
     def start(self) -> None:
         try:

@@ -198,7 +198,8 @@ def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
             return
         with rec.lock:
             rec.contacts.append({"t": round(time.time() - rec.t0, 3), "robot": c.robot, "link": c.link,
-                                 "event": str(c.event), "location": [round(v, 4) for v in c.location]})
+                                 "event": str(c.event), "location": [round(v, 4) for v in c.location],
+                                 "sources": c.sources, "inputs": [f"{i.source}#{i.seq}" for i in c.hdr.inputs]})
         console.print(f"  [magenta]contact[/] {c.robot}/{c.link}: {c.event} at "
                       f"({', '.join(f'{v:.3f}' for v in c.location)})")
 

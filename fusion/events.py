@@ -8,6 +8,7 @@ contact and a smoothed location, so a task can react to "contact made on the thu
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,6 +45,7 @@ class Track:
     seen: int = 1
     last_seen: float = 0.0
     made: bool = False
+    sources: tuple[str, ...] = ()  # the fusion sources behind it when last seen
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,7 @@ class ContactEvent:
     location: np.ndarray
     likelihood: float
     t: float
+    sources: tuple[str, ...] = ()  # the fusion sources (robot/generator) behind the contact
 
 
 @dataclass
@@ -70,8 +73,11 @@ class ContactTracker:
     def made(self) -> list[Track]:
         return [t for t in self.tracks if t.made]
 
-    def update(self, contacts: list[Contact], now: float) -> list[ContactEvent]:
-        """Associate this cycle's contacts with the tracks; the events they cause."""
+    def update(self, contacts: list[Contact], now: float, columns: Sequence[str] = ()) -> list[ContactEvent]:
+        """Associate this cycle's contacts with the tracks; the events they cause.
+
+        ``columns`` names the bits of each contact's ``sources`` (the fused cloud's columns).
+        """
         p = self.params
         events: list[ContactEvent] = []
         free = list(range(len(self.tracks)))
@@ -81,9 +87,10 @@ class ContactTracker:
                 d = float(np.linalg.norm(self.tracks[i].location - c.location))
                 if d <= best_d:
                     best, best_d = i, d
+            sources = tuple(n for i, n in enumerate(columns) if n and (c.sources >> i) & 1)
             if best < 0:
                 self.tracks.append(Track(self._next_id, np.array(c.location, dtype=float), c.robot, c.link,
-                                         c.likelihood, last_seen=now))
+                                         c.likelihood, last_seen=now, sources=sources))
                 self._next_id += 1
                 track = self.tracks[-1]
             else:
@@ -93,6 +100,7 @@ class ContactTracker:
                 track.seen += 1
                 track.last_seen, track.likelihood = now, c.likelihood
                 track.robot, track.link = c.robot or track.robot, c.link or track.link
+                track.sources = sources or track.sources
             if not track.made and track.seen >= p.confirm:
                 track.made = True
                 events.append(self._event(Event.CONTACT_MADE, track, now))
@@ -116,4 +124,4 @@ class ContactTracker:
 
     @staticmethod
     def _event(kind: Event, t: Track, now: float) -> ContactEvent:
-        return ContactEvent(kind, t.id, t.robot, t.link, t.location.copy(), t.likelihood, now)
+        return ContactEvent(kind, t.id, t.robot, t.link, t.location.copy(), t.likelihood, now, t.sources)

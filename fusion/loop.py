@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from contactflow.fusion.condensation import CondensationParams, Contact, condense
 from contactflow.fusion.events import ContactEvent, ContactTracker, TrackerParams
 from contactflow.fusion.hypotheses import Hypotheses
 from contactflow.fusion.integrator import Fused, Integrator, IntegratorParams
+from contactflow.nodes.wire import MsgId
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,10 +40,21 @@ class FusionLoop:
     def __post_init__(self) -> None:
         self.integrator = Integrator(self.integrator_params)
         self.tracker = ContactTracker(self.tracker_params)
+        self._ids: dict[str, MsgId] = {}  # source -> the message its last offered cloud came in
 
-    def offer(self, source: str, cloud: Hypotheses, now: float, robot: str = "", link: str = "") -> None:
-        """A source's cloud for the next cycle (an empty cloud is a reading too: it feels nothing)."""
+    def offer(self, source: str, cloud: Hypotheses, now: float, robot: str = "", link: str = "",
+              msg: MsgId | None = None) -> None:
+        """A source's cloud for the next cycle (an empty cloud is a reading too: it feels nothing).
+
+        ``msg`` is the message the cloud came in, named in the ``inputs`` of what it leads to.
+        """
         self.integrator.offer(source, cloud, now, robot=robot, link=link)
+        if msg is not None:
+            self._ids[source] = msg
+
+    def inputs(self, sources: Sequence[str]) -> list[MsgId]:
+        """The messages of the last clouds of ``sources`` (an event's, a contact's): their provenance."""
+        return [self._ids[s] for s in sources if s in self._ids]
 
     def step(self, now: float) -> Cycle | None:
         """Run a cycle if one is due; None while the integrator waits for its sources."""
@@ -55,7 +68,7 @@ class FusionLoop:
                 return None
             fused = integ.integrate(now)
         contacts = condense(fused, self.condensation)
-        return Cycle(fused, contacts, self.tracker.update(contacts, now))
+        return Cycle(fused, contacts, self.tracker.update(contacts, now, fused.columns))
 
     def retune(self, integrator: IntegratorParams, condensation: CondensationParams, tracker: TrackerParams) -> None:
         """New parameters; a new voxel grid or timing keeps the plugged sources, the space starts empty."""

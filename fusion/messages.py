@@ -157,6 +157,7 @@ class ContactEventMsg(Message, tag="contact_event"):
     location: list[float]  # m, world frame
     likelihood: float  # in [0, 1]
     t: float  # s, when it was made or broken
+    sources: list[str] = []  # the sources (robot/generator) behind the contact; hdr.inputs names their clouds
 
     def __post_init__(self) -> None:
         if self.event not in (Event.CONTACT_MADE, Event.CONTACT_BROKEN):
@@ -165,7 +166,7 @@ class ContactEventMsg(Message, tag="contact_event"):
     @classmethod
     def of(cls, e: ContactEvent) -> ContactEventMsg:
         return cls(event=e.event, contact_id=e.id, robot=e.robot, link=e.link,
-                   location=[float(v) for v in e.location], likelihood=e.likelihood, t=e.t)
+                   location=[float(v) for v in e.location], likelihood=e.likelihood, t=e.t, sources=list(e.sources))
 
 
 __all__ = ["ContactEventMsg", "ContactInfo", "ContactList", "FusedCloud", "HypothesisCloud", "HypothesisType"]

@@ -128,17 +128,17 @@ class ContactFusion(Module):
                 self.rejected += 1
                 self.io.log(f"rejected cloud: {exc}")
                 continue
-            self.loop.offer(msg.source, cloud, now, robot=msg.robot, link=msg.link)
+            self.loop.offer(msg.source, cloud, now, robot=msg.robot, link=msg.link, msg=msg.hdr.id)
         cycle = self.loop.step(now)
         if cycle is None:
             return Status.RUNNING
         fused, contacts = cycle.fused, cycle.contacts
         if self.params.publish_hypotheses:
             self.io.publish("hypotheses", FusedCloud.of(fused))
-        self.io.publish("contacts", ContactList(
-            stamp=now, contacts=[ContactInfo.of(c, fused.columns) for c in contacts]))
+        self.io.publish("contacts", ContactList(stamp=now, contacts=[ContactInfo.of(c, fused.columns) for c in contacts]),
+                        inputs=self.loop.inputs(fused.columns))
         for e in cycle.events:
-            self.io.publish("events", ContactEventMsg.of(e))
+            self.io.publish("events", ContactEventMsg.of(e), inputs=self.loop.inputs(e.sources))
             x, y, z = (float(v) for v in np.asarray(e.location))
             self.io.emit(e.event, f"{e.robot}/{e.link}" if e.link else e.robot,
                          {"id": float(e.id), "x": x, "y": y, "z": z, "likelihood": float(e.likelihood)})

@@ -26,10 +26,11 @@ from contactflow.fusion.messages import HypothesisCloud
 from contactflow.fusion.sim_sources import hand_capsules, taxel_readings, wrist_hypotheses
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.transport import Transport
-from contactflow.nodes.wire import encode, stamp
+from contactflow.nodes.wire import MsgId, encode, stamp
 
-CloudSink = Callable[[str, HypothesisCloud], None]
-"""Receives (key expression, cloud) for every generator cloud of a cycle."""
+CloudSink = Callable[[str, HypothesisCloud, list[MsgId]], MsgId]
+"""Sends (key expression, cloud, the sensor messages it came from) for every generator cloud of a
+cycle; returns the id the cloud went out with."""
 
 
 def cloud_publisher(transport: Transport, source: str) -> CloudSink:
@@ -37,11 +38,12 @@ def cloud_publisher(transport: Transport, source: str) -> CloudSink:
     pubs: dict[str, Callable[[bytes], None]] = {}
     seqs: dict[str, int] = {}  # per key: each stream numbers its own messages, so gaps mean loss
 
-    def send(key: str, cloud: HypothesisCloud) -> None:
+    def send(key: str, cloud: HypothesisCloud, inputs: list[MsgId]) -> MsgId:
         if key not in pubs:
             pubs[key] = transport.publisher(key)
         seqs[key] = seqs.get(key, 0) + 1
-        pubs[key](encode(stamp(cloud, f"{source}/{cloud.generator}", seqs[key], cloud.stamp)))
+        pubs[key](encode(stamp(cloud, f"{source}/{cloud.generator}", seqs[key], cloud.stamp, inputs)))
+        return cloud.hdr.id
 
     return send
 
@@ -101,14 +103,19 @@ def cue_clouds(robot: object, cue: Cue, now: float) -> list[tuple[str, Hypothese
 
 @dataclass
 class StationFusion:
-    """Fuse one simulated robot's cues; ``publish`` receives every contact event."""
+    """Fuse one simulated robot's cues; ``publish`` receives every contact event and its ``inputs``.
+
+    With ``publish_cloud`` the inputs are the messages of the clouds behind the event, and each
+    cloud names the sensor messages it was computed from (``readings``: the robot state read).
+    """
 
     robot: object
-    publish: Callable[[ContactEvent], None]
+    publish: Callable[[ContactEvent, list[MsgId]], None]
     params: StationParams = field(default_factory=StationParams)
     events: list[ContactEvent] = field(default_factory=list)
     publish_cloud: CloudSink | None = None
     keyspace: KeySpace = field(default_factory=KeySpace)
+    readings: Callable[[], list[MsgId]] = list
 
     def __post_init__(self) -> None:
         self.name = self.robot.spec.name
@@ -128,11 +135,12 @@ class StationFusion:
         cycle = self.loop.step(now)  # every source offered this cycle: Algorithm 4.1's wait-all is met
         for ev in cycle.events if cycle is not None else ():
             self.events.append(ev)
-            self.publish(ev)
+            self.publish(ev, self.loop.inputs(ev.sources))
 
     def _offer(self, generator: str, cloud: Hypotheses, now: float, link: str) -> None:
         """Every source offers each cycle (empty when it feels nothing), and its cloud goes out on its key."""
-        self.loop.offer(f"{self.name}/{generator}", cloud, now, self.name, link)
+        msg = None
         if self.publish_cloud is not None:
-            self.publish_cloud(self.keyspace.hypotheses(self.name, generator),
-                               HypothesisCloud.of(cloud, self.name, generator, link))
+            msg = self.publish_cloud(self.keyspace.hypotheses(self.name, generator),
+                                     HypothesisCloud.of(cloud, self.name, generator, link), self.readings())
+        self.loop.offer(f"{self.name}/{generator}", cloud, now, self.name, link, msg)

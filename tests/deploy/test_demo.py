@@ -27,6 +27,11 @@ def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tm
     assert all(c["object"] == "target" and c["distance_after"] <= demo.PLACE_TOLERANCE for c in place)
     entered = {(p["robot"], p["state"]) for p in summary["progress"] if p["kind"] == "entered"}
     assert {r for r, s in entered if s == "let_go"} == set(ROBOTS)
+    # every fused contact event names the hypothesis clouds it came from
+    assert summary["contacts"]
+    for c in summary["contacts"]:
+        assert c["sources"] and len(c["inputs"]) == len(c["sources"]), c
+        assert all(i.startswith(f"{c['robot']}/") and "/agent/" in i for i in c["inputs"]), c
     for name in ("timeline.png", "contacts.png"):
         assert (tmp_path / name).stat().st_size > 10_000
 

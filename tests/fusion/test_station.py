@@ -13,7 +13,7 @@ from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.status import Event
 from contactflow.nodes.testing import FakeIO, run_module
 from contactflow.nodes.transport import LocalTransport
-from contactflow.nodes.wire import decode
+from contactflow.nodes.wire import MsgId, decode
 
 KS = KeySpace("station")
 
@@ -38,7 +38,14 @@ def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
     bus = LocalTransport()
     heard = []
     bus.subscribe(KS.hypotheses("*", "*"), lambda key, data: heard.append((key, decode(data, HypothesisCloud, key))))
-    station = StationFusion(melfa, events.append, publish_cloud=cloud_publisher(bus, "melfa/station"), keyspace=KS)
+    provenance = []
+
+    def publish(event, inputs):
+        events.append(event)
+        provenance.append(inputs)
+
+    station = StationFusion(melfa, publish, publish_cloud=cloud_publisher(bus, "melfa/station"), keyspace=KS,
+                            readings=lambda: [MsgId(source="melfa/world/state", seq=round(melfa.time * 200))])
     arm = melfa.arm("arm")
     melfa.tare_ft("arm")
     start = arm.ee_pose()[:3, 3].copy()
@@ -50,6 +57,15 @@ def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
     made = [e for e in events if e.event == Event.CONTACT_MADE]
     assert made, "no contact made while pressing on the table"
     assert made[0].robot == "melfa" and made[0].link == "gripper"
+    # provenance: the event names the clouds behind it, each cloud the robot state it was read from
+    first = events.index(made[0])
+    assert made[0].sources and set(made[0].sources) <= {"melfa/tactile_arm", "melfa/force_torque_arm"}
+    clouds = {(m.hdr.source, m.hdr.seq): m for _, m in heard}
+    assert len(provenance[first]) == len(made[0].sources)
+    for i in provenance[first]:
+        cloud = clouds[(i.source, i.seq)]
+        assert f"melfa/{cloud.generator}" in made[0].sources and cloud.stamp <= made[0].t
+        assert [r.source for r in cloud.hdr.inputs] == ["melfa/world/state"]
     tip = arm.ee_pose()[:3, 3]
     assert np.linalg.norm(made[0].location[:2] - tip[:2]) < 0.12
     assert abs(made[0].location[2] - 0.75) < 0.08
@@ -77,3 +93,6 @@ def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
         fusion.step()
     remote = [e for e in io.published["events"] if e.event == Event.CONTACT_MADE]
     assert remote and np.linalg.norm(np.array(remote[0].location) - made[0].location) < 0.03
+    assert remote[0].sources and {(i.source, i.seq) for i in remote[0].hdr.inputs} <= set(clouds)
+    assert {clouds[(i.source, i.seq)].generator for i in remote[0].hdr.inputs} == {
+        s.split("/", 1)[1] for s in remote[0].sources}
