@@ -190,11 +190,10 @@ class HostedIO:
         self._hm.counters.published += 1
         self._host.mark(self._hm.out_keys[port], msg.hdr.source, msg.hdr.seq)
 
-    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None,
-             t_sim: float | None = None) -> None:
+    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
         self.emitted.add(event)
         msg = EventMsg(event=event, module=str(self._hm.addr), detail=detail, values=values or {})
-        stamp(msg, str(self._hm.addr), self.next_seq("/evt"), self.now if t_sim is None else t_sim)
+        stamp(msg, str(self._hm.addr), self.next_seq("/evt"), self.now)
         self._hm.event_pub(encode(msg))
 
     def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:

@@ -77,9 +77,8 @@ class ModuleIO(Protocol):
         """Send on an output port; ``inputs`` defaults to the ids of the newest inputs."""
         ...
 
-    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None,
-             t_sim: float | None = None) -> None:
-        """Raise an event (primitives and tasks), stamped with the node's clock or ``t_sim`` (the world's own time)."""
+    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
+        """Raise an event (primitives and tasks), stamped with the node's one clock."""
         ...
 
     def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:

@@ -62,11 +62,10 @@ class FakeIO:
         stamp(msg, f"{self._source()}/{port}", self._seq, self.t, inputs)
         self.published[port].append(decode(encode(msg), type(msg), where=f"fake:{port}"))
 
-    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None,
-             t_sim: float | None = None) -> None:
+    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
         self._seq += 1
         msg = EventMsg(event=event, module=self._source(), detail=detail, values=values or {})
-        self.events.append(stamp(msg, self._source(), self._seq, self.t if t_sim is None else t_sim))
+        self.events.append(stamp(msg, self._source(), self._seq, self.t))
 
     def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:
         if self.module is not None and not self.module.may_command:

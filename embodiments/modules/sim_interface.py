@@ -67,9 +67,8 @@ class _PartIO:
         self._io.publish(port, msg, inputs)
         self.published[port] = msg
 
-    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None,
-             t_sim: float | None = None) -> None:
-        self._io.emit(event, detail, values, t_sim)
+    def emit(self, event: Event, detail: str = "", values: dict[str, float] | None = None) -> None:
+        self._io.emit(event, detail, values)
 
     def command(self, target: str, cmd: Command, params: dict[str, ParamValue] | None = None) -> ControlReply:
         return self._io.command(target, cmd, params)

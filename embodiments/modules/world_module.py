@@ -309,6 +309,10 @@ class WorldModule(Module):
             h.close()
         self._handles.clear()
 
+    def _when(self) -> dict[str, float]:
+        """The simulated time and tick of an event: its header carries the node's (wall) clock, as its status does."""
+        return {"t": self.world.time, "tick": float(self.tick_no)}
+
     # -- the tick -----------------------------------------------------------------------------
     def _await_acks(self) -> None:
         """Wait until every lockstep node answered the current tick (serving camera requests meanwhile)."""
@@ -336,7 +340,7 @@ class WorldModule(Module):
         self.overruns += 1
         detail = f"tick {k}: lockstep node(s) {sorted(missing)} did not answer within {self.params.deadline:g} s"
         self.log.warning(detail)
-        self.io.emit(Event.OVERRUN, detail, t_sim=self.world.time)
+        self.io.emit(Event.OVERRUN, detail, self._when())
         with self._cond:
             for n in missing:  # a stalled node is treated as gone until it answers again
                 self._acks[n] = k
@@ -370,7 +374,7 @@ class WorldModule(Module):
             for name, r in self.robots.items():
                 if not r.sim.failed:
                     r.sim.failed, r.sim.failure = True, f"physics: {type(exc).__name__}: {exc}"
-                    self.io.emit(Event.HARDWARE_FAILURE, f"{name}: {r.sim.failure}"[:500], t_sim=self.world.time)
+                    self.io.emit(Event.HARDWARE_FAILURE, f"{name}: {r.sim.failure}"[:500], self._when())
         self.tick_no += 1
         self._publish_tick()
 
@@ -496,7 +500,7 @@ class WorldModule(Module):
             arm.move_joints(arm.q(), speed=1e6)  # stop where it is; the hands keep their grip
         detail = f"{robot}: held by the world: {why}"
         self.log.warning(detail)
-        self.io.emit(Event.HARDWARE_FAILURE, detail[:500], t_sim=self.world.time)
+        self.io.emit(Event.HARDWARE_FAILURE, detail[:500], self._when())
 
     def _joint_values(self, sim: Any, joints: tuple[str, ...], values: np.ndarray, what: str) -> np.ndarray:
         idx = sim.art.indices(joints)

@@ -208,9 +208,11 @@ def test_the_world_holds_a_robot_whose_controller_is_gone_and_raises_hardware_fa
     token.close()  # the controller dies mid-motion
     assert wait_for(lambda: c.state.held, 10)
     assert wait_for(lambda: any(e.event is Event.HARDWARE_FAILURE and "melfa" in e.detail for e in c.events), 5)
-    # stamped with the world's simulated time, as the robot's states are (not the world node's wall clock)
+    # the header carries the world node's one clock (wall, as its status does); the values the simulated time
     fault = next(e for e in c.events if e.event is Event.HARDWARE_FAILURE)
-    assert fault.hdr.t_sim == pytest.approx(c.state.held_at / wm.params.control_rate + wm._t0_sim, abs=0.05)
+    assert fault.values["t"] == pytest.approx(c.state.held_at / wm.params.control_rate + wm._t0_sim, abs=0.05)
+    assert fault.values["tick"] == pytest.approx(c.state.held_at, abs=10)
+    assert fault.hdr.t_sim == pytest.approx(time.time(), abs=10.0)
     time.sleep(0.5)  # the arm stopped where it was and stays there
     idx = [c.state.names.index(j) for j in wm.robots["melfa"].sim.spec.arm("arm").joints]
     q1 = c.state.position.numpy()[idx].copy()
