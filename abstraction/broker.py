@@ -29,6 +29,7 @@ from contactflow.abstraction.messages import (
     RunRequest,
     TranslateRequest,
 )
+from contactflow.nodes.acl import AccessDenied
 from contactflow.nodes.keys import ANY, KeyExprError, KeySpace, segment
 from contactflow.nodes.status import Event
 from contactflow.nodes.transport import Handle, Transport
@@ -163,7 +164,10 @@ class Broker:
             return RunReply(ok=False, robot=robot, error="its bid carried no ESTD")
         req = encode(self.stamp(RunRequest(task_id=record.task_id, estd=bid.estd, file=record.file,
                                            attempt=record.attempt, params=record.params), "run", [bid.hdr.id]))
-        replies = self.transport.query(self.ks.robot_service(robot, "run"), req, self.bid_timeout)
+        try:
+            replies = self.transport.query(self.ks.robot_service(robot, "run"), req, self.bid_timeout)
+        except AccessDenied as exc:
+            return RunReply(ok=False, robot=robot, error=str(exc))
         if not replies:
             return RunReply(ok=False, robot=robot, error="no answer to run")
         try:

@@ -18,6 +18,7 @@ from contactflow.abstraction.messages import (
     PlanValue,
 )
 from contactflow.fusion.messages import ContactEventMsg
+from contactflow.nodes.acl import AccessDenied
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.transport import Transport
 from contactflow.nodes.wire import WireError, decode, encode, stamp
@@ -86,7 +87,12 @@ def dispatch(transport: Transport, ks: KeySpace, atd: str, file: str, target: st
                       transport.subscribe(ks.fused("*", "events"), on_ev)]
     req = stamp(DispatchRequest(task_id=follow.task_id, atd=atd, file=file, target=target, params=params or {}),
                 source, next(_SEQ), time.time())
-    replies = transport.query(ks.dispatch(), encode(req), timeout=timeout)
+    try:
+        replies = transport.query(ks.dispatch(), encode(req), timeout=timeout)
+    except AccessDenied as exc:
+        follow.reply = DispatchReply(ok=False, task_id=follow.task_id, error=str(exc))
+        follow.done.set()
+        return follow
     if not replies:
         follow.reply = DispatchReply(ok=False, task_id=follow.task_id, error=f"no broker answers on {ks.dispatch()}")
         follow.done.set()

@@ -119,16 +119,22 @@ def access_control(m: Manifest) -> dict[str, Any]:
                ks.evaluation(), ks.progress()] + [ks.fused(ANY, s) for s in ("hypotheses", "contacts", "events")]
     alive = [ks.alive_node(), ks.alive_module(), ks.alive_robot(), ks.claim(ANY, ANY)]
 
-    open_ctl: list[str] = []
-    protected_ctl: dict[str, list[str]] = {}
+    # who may command a module (stop it, change its parameters): the host it runs on, and for a
+    # robot's module the robot's control host; a site module (a broker, a shared service) also
+    # the control hosts, which run the tasks: never any other member host
+    ctl: dict[str, list[str]] = {}
     for n in m.nodes():
         for mod in n.modules:
             robot = mod.get("robot", n.robot)
             key = ks.control(robot, ANY, mod["name"])
-            if robot in m.robots and m.robots[robot].control == n.host:
-                protected_ctl.setdefault(n.host, []).append(key)
+            if robot in m.robots:
+                allowed = {n.host, m.robots[robot].control}
+            elif mod.get("type") == "broker":
+                allowed = {n.host}
             else:
-                open_ctl.append(key)
+                allowed = {n.host} | controls
+            for h in allowed:
+                ctl.setdefault(h, []).append(key)
 
     grants: dict[str, Grants] = {}
     for h in m.hosts:
@@ -136,7 +142,7 @@ def access_control(m: Manifest) -> dict[str, Any]:
             grants[h] = Grants(read=[ks.fused(ANY, "events")])
             continue
         g = Grants(write=list(streams), read=list(streams), live=list(alive),
-                   call=open_ctl + protected_ctl.get(h, []), serve=[ks.control(ANY, ANY, ANY)])
+                   call=list(ctl.get(h, [])), serve=[ks.control(ANY, ANY, ANY)])
         for r in m.robots.values():
             if r.control == h:
                 g.serve += [ks.robot_service(r.name, v) for v in verbs]

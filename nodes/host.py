@@ -20,6 +20,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from contactflow.nodes.acl import AccessDenied
 from contactflow.nodes.clock import LockstepClock, SimClock, WallClock
 from contactflow.nodes.config import ModuleConfig, NodeConfig, mix_problem
 from contactflow.nodes.keys import KeyExprError, KeySpace, ModuleAddr
@@ -469,7 +470,10 @@ class ModuleHost:
         if local is not None:
             return self.handle_control(local, decode(encode(req), ControlRequest))
         key = self.ks.control(robot, "*", module)
-        replies = self.transport.query(key, encode(req), timeout=timeout)
+        try:
+            replies = self.transport.query(key, encode(req), timeout=timeout)
+        except AccessDenied as exc:
+            return ControlReply(ok=False, error=str(exc), state=Status.ERROR)
         if not replies:
             return ControlReply(ok=False, error=f"no module answers on {key}", state=Status.ERROR)
         rkey, payload = replies[0]

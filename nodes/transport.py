@@ -17,6 +17,8 @@ from typing import Protocol
 
 import zenoh
 
+from contactflow.nodes.acl import AccessRules
+
 Callback = Callable[[str, bytes], None]
 Handler = Callable[[str, bytes], bytes]
 AliveCallback = Callable[[str, bool], None]
@@ -37,12 +39,15 @@ class Transport(Protocol):
     def close(self) -> None: ...
 
 
+LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """How a node joins the zenoh network (a deployment manifest fills these per host)."""
 
     mode: str = "peer"  # peer | client | router
-    listen: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()  # a peer without endpoints (and no config file) listens on loopback only
     connect: tuple[str, ...] = ()
     multicast_scouting: bool = False
     config_file: str | None = None  # a zenoh JSON5 file (TLS, auth, access control), applied first
@@ -53,8 +58,11 @@ class ZenohSettings:
         conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
         conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
-        if self.listen:
-            conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        listen = list(self.listen)
+        if not listen and self.mode == "peer" and not self.config_file:
+            listen = [LOOPBACK_ANY_PORT]  # zenoh's own default listens on every interface
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps(listen))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         return conf
@@ -73,13 +81,20 @@ class _Closer:
 class ZenohTransport:
     """One zenoh session; every callback runs on zenoh's threads."""
 
-    def __init__(self, settings: ZenohSettings | None = None) -> None:
+    def __init__(self, settings: ZenohSettings | None = None, guard: bool = True) -> None:
+        """``guard``: refuse at once (``nodes.acl.AccessDenied``) a query the site's access rules refuse
+        this session, instead of letting it time out unanswered (off only for tools that probe
+        the network's enforcement itself)."""
         self.settings = settings or ZenohSettings()
         self.session: zenoh.Session | None = None
+        self.rules: AccessRules | None = None
+        self._guard = guard
 
     def open(self) -> ZenohTransport:
         zenoh.init_log_from_env_or("error")
         self.session = zenoh.open(self.settings.to_config())
+        if self._guard and self.settings.config_file:
+            self.rules = AccessRules.load(self.settings.config_file)
         return self
 
     def settle(self, quiet: float = 0.3, limit: float = 3.0) -> int:
@@ -133,6 +148,8 @@ class ZenohTransport:
         return _Closer(qbl.undeclare)
 
     def query(self, keyexpr: str, payload: bytes, timeout: float = 2.0) -> list[tuple[str, bytes]]:
+        if self.rules is not None:
+            self.rules.check("query", keyexpr)
         out = []
         for reply in self._s.get(keyexpr, payload=payload, timeout=timeout):
             if reply.ok is not None:

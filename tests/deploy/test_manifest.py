@@ -219,3 +219,22 @@ def test_sequence_monitor_reports_gaps_and_accounts_for_every_number():
     t = mon.sources["a"]
     assert t.duplicates == 1 and t.received == 6 and mon.accounted("a")
     assert mon.observe("a", 1) is None and mon.sources["a"].restarts == 1
+
+
+def test_a_site_module_is_commanded_only_by_its_host_and_the_control_hosts_and_the_broker_by_its_host(tmp_path):
+    text = BASE.replace("site: t\n", f"site: t\nsecurity: {{transport: mtls, auth: usrpwd, certs: {tmp_path}, broker: [b]}}\n")
+    text = text.replace("          - {name: f, type: lowpass, inputs: {in: s.signal}}\n",
+                        "          - {name: f, type: lowpass, inputs: {in: s.signal}}\n"
+                        "          - {name: brk, type: broker, robot: site}\n"
+                        "          - {name: svc, type: signal_source, robot: site}\n")
+    text = text.replace("robots:", "  c:\n    address: 10.1.0.3\n    nodes:\n      nc:\n        robot: r\n"
+                        "        modules:\n          - {name: g, type: signal_source}\nrobots:")
+    acl = access_control(parse(text))
+    ks = KeySpace("t")
+    call = lambda h: {k for r in _grants(acl, h) if "query" in r["messages"] and r["flows"] == ["ingress"] for k in r["key_exprs"]}  # noqa: E731
+    broker, service = ks.control("site", "*", "brk"), ks.control("site", "*", "svc")
+    assert broker in call("b") and broker not in call("a") and broker not in call("c")
+    assert service in call("b") and service in call("a") and service not in call("c")
+    # a robot's module: its own host and the robot's control host (a), nobody else
+    assert ks.control("r", "*", "g") in call("c") and ks.control("r", "*", "g") in call("a")
+    assert ks.control("r", "*", "g") not in call("b")
