@@ -10,6 +10,7 @@ transition names on ``broker/progress/<task_id>``.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -55,6 +56,8 @@ def dry_run(profile: RobotProfile, atd_text: str, file: str) -> tuple[Bid, Trans
     if not b.ok or b.translation is None:
         return Bid(robot=profile.name, ok=False, reasons=list(b.reasons)), None
     tr = b.translation
+    if not math.isfinite(b.duration):  # a wire message carries finite numbers only
+        return Bid(robot=profile.name, ok=False, reasons=[f"{file}: no state sequence of the translation reaches success"]), None
     return Bid(robot=profile.name, ok=True, notes=list(tr.notes), estimated_duration=b.duration,
                estd=estd_message(tr)), tr
 

@@ -258,11 +258,28 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
 
 @app.command()
 def demo(out: Path = Path("demo-report"), quick: bool = False,
-         pipeline: Annotated[bool, typer.Option(help="only the two-node service pipeline demo")] = False) -> None:
+         pipeline: Annotated[bool, typer.Option(help="only the two-node service pipeline demo")] = False,
+         site: Annotated[str | None, typer.Option("--site", "-s", help="the demo's site (default: a fresh demoNNNNN)")] = None,
+         connect: Annotated[list[str] | None, typer.Option(
+             "--connect", "-e", help="a zenoh endpoint every demo node also connects to (repeatable)")] = None,
+         listen: Annotated[list[str] | None, typer.Option(
+             "--listen", "-l", help="an endpoint the demo's session listens on for outside clients (repeatable; "
+             "default loopback only)")] = None) -> None:
     """The thesis §7.3 experiment on three simulated robots over zenoh, with a report (README's main command)."""
-    mod = importlib.import_module("contactflow.deploy.pipeline_demo" if pipeline else "contactflow.deploy.demo")
-    code = mod.run(out, quick=quick)
-    raise typer.Exit(code)
+    if pipeline:
+        from contactflow.deploy import pipeline_demo
+
+        raise typer.Exit(pipeline_demo.run(out, quick=quick))
+    from contactflow.deploy import demo as full
+    from contactflow.nodes.keys import KeyExprError, segment
+
+    try:
+        if site is not None:
+            segment(site, "--site")
+    except KeyExprError as exc:
+        console.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
+    raise typer.Exit(full.run(out, quick=quick, site=site, connect=tuple(connect or ()), listen=tuple(listen or ())))
 
 
 def _mount_subcommands() -> None:

@@ -174,22 +174,30 @@ def _plots(out: Path, rec: Record, tasks: list[dict]) -> None:
         plt.close(fig)
 
 
-def run(out: Path, quick: bool = False, console: Console | None = None) -> int:
+def run(out: Path, quick: bool = False, console: Console | None = None, site: str | None = None,
+        connect: tuple[str, ...] = (), listen: tuple[str, ...] = ()) -> int:
     """Run the demo into ``out``; 0 only when both ATDs succeeded on every robot as checked on ground truth.
 
     ``quick`` runs the same experiment with the stations' cameras at a lower rate (less vision work).
+    ``site`` names the key space (default: a fresh ``demoNNNNN``); every node and the demo's own
+    session also connect to ``connect`` (join an existing zenoh network); the demo's session
+    listens on ``listen`` (default: loopback only), so outside clients can attach there.
     """
     console = console or Console()
     out = out.resolve()  # the generated node configurations name their zenoh files by absolute path
     out.mkdir(parents=True, exist_ok=True)
-    site = f"demo{int(time.time()) % 100000}"
+    site = site or f"demo{int(time.time()) % 100000}"
     ks = KeySpace(site)
     m = deployment(site, out / "config", camera_hz=QUICK_CAMERA_HZ if quick else 1.0)
-    launches = render(m, out / "config", local=True)
+    launches = render(m, out / "config", local=True, connect=connect)
     nodes = [ln.node.name for ln in launches]
     rec = Record()
     procs = {ln.node.name: spawn_node(ln.config, out / "logs" / f"{ln.node.name}.log") for ln in launches}
-    tool = ZenohTransport(ZenohSettings(connect=tuple(tool_endpoints(m, local=True)))).open()
+    tool = ZenohTransport(ZenohSettings(connect=(*tool_endpoints(m, local=True), *connect), listen=listen)).open()
+    console.print(f"site [bold]{site}[/]; nodes listen on " + ", ".join(ln.endpoint for ln in launches)
+                  + (f"; the demo listens on {', '.join(listen)}" if listen else "")
+                  + (f" and connects to {', '.join(connect)}" if connect else ""))
+    console.print(f"attach: contactflow ls --site {site} --connect {launches[0].endpoint}")
 
     def on_contact(key: str, payload: bytes) -> None:
         try:

@@ -58,19 +58,25 @@ def _connect(m: Manifest, n: NodeSpec, eps: dict[str, str]) -> list[str]:
     return [eps[x.id] for x in m.nodes() if x.id != n.id and not x.router]
 
 
-def node_document(m: Manifest, n: NodeSpec, eps: dict[str, str], zenoh_file: Path) -> dict:
+def node_document(m: Manifest, n: NodeSpec, eps: dict[str, str], zenoh_file: Path,
+                  connect: tuple[str, ...] = ()) -> dict:
     mode = "router" if n.router else "client" if m.topology.kind == "routers" else "peer"
     return {
         "site": m.site, "node": n.name, "host": n.host, "robot": n.robot, "clock": n.clock,
         **({"cell": n.cell} if n.cell else {}),
-        "zenoh": {"mode": mode, "listen": [eps[n.id]], "connect": _connect(m, n, eps),
+        "zenoh": {"mode": mode, "listen": [eps[n.id]], "connect": _connect(m, n, eps) + list(connect),
                   "multicast_scouting": False, "config_file": str(zenoh_file)},
         "modules": list(n.modules),
     }
 
 
-def render(m: Manifest, run_dir: Path, host: str | None = None, local: bool = False) -> list[Launch]:
-    """Write the configurations of one host's nodes (or all, ``local``) and return launches."""
+def render(m: Manifest, run_dir: Path, host: str | None = None, local: bool = False,
+           connect: tuple[str, ...] = ()) -> list[Launch]:
+    """Write the configurations of one host's nodes (or all, ``local``) and return launches.
+
+    ``connect``: endpoints outside the manifest every node also connects to (a router of a
+    network the deployment joins).
+    """
     if local == (host is not None):
         raise ValueError("render: give exactly one of host or local")
     scope = run_dir / (LOCAL if local else host)
@@ -78,7 +84,7 @@ def render(m: Manifest, run_dir: Path, host: str | None = None, local: bool = Fa
     out = []
     for n in m.nodes(None if local else host):
         zfile = write_json5(scope / "zenoh" / f"{n.name}.json5", zenoh_config(m, n))
-        cfg = write_config(scope / "nodes" / f"{n.name}.yaml", node_document(m, n, eps, zfile))
+        cfg = write_config(scope / "nodes" / f"{n.name}.yaml", node_document(m, n, eps, zfile, connect))
         out.append(Launch(n, cfg, scope / "logs" / f"{n.name}.log", eps[n.id]))
     return out
 

@@ -261,7 +261,7 @@ class CameraFrame(Message, tag="camera_frame"):
     robot: str
     camera: str  # the camera's name
     request: int  # the request it answers
-    t: float  # s, when the frame was taken
+    t: float  # s, when the frame was taken; -1: the camera never delivered one (a lost stream)
     depth: NDArray  # (H, W) float32, m along the optical axis, 0 = no return
     points: NDArray  # (N, 3) float64, world, valid pixels only
     pixels: NDArray  # (N, 2) int32, (row, col) of each point

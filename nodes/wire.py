@@ -9,12 +9,14 @@ schema version and array sizes, and refuses payloads larger than the type allows
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
 from typing import Any, ClassVar, TypeVar
 
 import msgspec
+import msgspec.inspect as mi
 import numpy as np
 
 SCHEMA_VERSION = 1
@@ -173,17 +175,123 @@ class Stamper:
         return stamp(msg, self.source, seq, self.now(), inputs)
 
 
+Check = Callable[[Any], "str | None"]
+"""Finds the first non-finite number in a decoded value: its path (``.a[2].b``), or None."""
+
+_FLOAT_DTYPES = frozenset({"float16", "float32", "float64"})
+_checks: dict[type, Check] = {}
+
+
+def _no_check(value: Any) -> str | None:
+    return None
+
+
+def _check_float(value: Any) -> str | None:
+    return "" if isinstance(value, float) and not math.isfinite(value) else None
+
+
+def _check_array(value: Any) -> str | None:
+    if value.dtype not in _FLOAT_DTYPES or not value.data.nbytes:
+        return None
+    a = value.numpy()
+    return None if np.isfinite(a).all() else f"[{int(np.flatnonzero(~np.isfinite(a.ravel()))[0])}]"
+
+
+def _checker(t: mi.Type) -> Check:
+    """The finiteness check of a value of type ``t`` (built once per message type)."""
+    if isinstance(t, mi.FloatType):
+        return _check_float
+    if isinstance(t, mi.StructType):
+        if t.cls is NDArray:
+            return _check_array
+        return _struct_check(t.cls)
+    if isinstance(t, mi.ListType | mi.VarTupleType):
+        item = _checker(t.item_type)
+        if item is _no_check:
+            return _no_check
+
+        def check_items(value: Any) -> str | None:
+            for i, v in enumerate(value):
+                bad = item(v)
+                if bad is not None:
+                    return f"[{i}]{bad}"
+            return None
+        return check_items
+    if isinstance(t, mi.DictType):
+        val = _checker(t.value_type)
+        if val is _no_check:
+            return _no_check
+
+        def check_values(value: Any) -> str | None:
+            for k, v in value.items():
+                bad = val(v)
+                if bad is not None:
+                    return f"[{k!r}]{bad}"
+            return None
+        return check_values
+    if isinstance(t, mi.UnionType):  # the check of the member the value decoded as
+        parts = [(_python_type(u), c) for u in t.types if (c := _checker(u)) is not _no_check]
+        if not parts:
+            return _no_check
+
+        def check_any(value: Any) -> str | None:
+            for kind, c in parts:
+                if isinstance(value, kind):
+                    return c(value)
+            return None
+        return check_any
+    return _no_check
+
+
+def _python_type(t: mi.Type) -> type | tuple[type, ...]:
+    """What a value of msgspec type ``t`` decodes to (a union member's checks apply to its values only)."""
+    if isinstance(t, mi.StructType):
+        return t.cls
+    if isinstance(t, mi.ListType | mi.VarTupleType):
+        return (list, tuple)
+    if isinstance(t, mi.DictType):
+        return dict
+    return float
+
+
+def _struct_check(cls: type) -> Check:
+    cached = _checks.get(cls)
+    if cached is not None:
+        return cached
+    _checks[cls] = _no_check  # a struct that contains itself is checked one level deep
+    fields = [(f.name, c) for f in mi.type_info(cls).fields
+              if (c := _checker(f.type)) is not _no_check]
+
+    def check(value: Any) -> str | None:
+        for name, c in fields:
+            bad = c(getattr(value, name))
+            if bad is not None:
+                return f".{name}{bad}"
+        return None
+    _checks[cls] = check if fields else _no_check
+    return _checks[cls]
+
+
 def decode(data: bytes | bytearray | memoryview, type_: type[M], where: str = "") -> M:
-    """Decode and validate ``data`` as ``type_``; ``where`` (a key expression) names the place."""
+    """Decode and validate ``data`` as ``type_``; ``where`` (a key expression) names the place.
+
+    A non-finite number anywhere in a message (NaN or infinity in a float field or a float
+    array) is refused like a wrong type: one poisoned reading would stay in a stateful
+    module's estimate (a fused voxel space, a filter) for good.
+    """
     if len(data) > type_.max_bytes:
         raise WireError(f"{where}: payload of {len(data)} bytes exceeds {type_.max_bytes} for {type_.__name__}")
     dec = _decoders.get(type_)
     if dec is None:
         dec = _decoders[type_] = msgspec.msgpack.Decoder(type_)
     try:
-        return dec.decode(data)
+        msg = dec.decode(data)
     except (msgspec.ValidationError, msgspec.DecodeError) as exc:
         raise WireError(f"{where}: invalid {type_.__name__}: {exc}") from None
+    bad = _struct_check(type_)(msg)
+    if bad is not None:
+        raise WireError(f"{where}: invalid {type_.__name__}: {type_.__name__}{bad} is not a finite number")
+    return msg
 
 
 def decode_any(data: bytes | bytearray | memoryview, where: str = "") -> Message:

@@ -585,7 +585,8 @@ class WorldModule(Module):
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:
         frame = r.sim.camera(msg.camera)
-        out = CameraFrame(robot=r.sim.name, camera=msg.camera, request=msg.request, t=frame.t,
+        t = frame.t if np.isfinite(frame.t) else -1.0  # a lost stream that never delivered: stamped -inf here
+        out = CameraFrame(robot=r.sim.name, camera=msg.camera, request=msg.request, t=t,
                           depth=NDArray.of(np.asarray(frame.depth, dtype=np.float32)),
                           points=NDArray.of(np.asarray(frame.points, dtype=np.float64)),
                           pixels=NDArray.of(np.asarray(frame.pixels, dtype=np.int32)),

@@ -2,17 +2,46 @@
 
 import json
 
+import msgpack
+import zenoh
+from rich.console import Console
+
 from contactflow.abstraction.atd import load_atd
 from contactflow.abstraction.frames import WORKCELL
 from contactflow.deploy import demo
+from contactflow.nodes.procs import free_port
 
 ROBOTS = ["baxter", "melfa", "tombatossals"]
 
 
+def _outside_client(endpoint: str, site: str, heard: list):
+    """A client written from docs/protocol.md alone: zenoh and msgpack, no contactflow import."""
+    conf = zenoh.Config()
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", json.dumps(["tcp/127.0.0.1:0"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    session.declare_subscriber(f"cf/{site}/broker/progress/*",
+                               lambda s: heard.append(msgpack.unpackb(s.payload.to_bytes())))
+    return session
+
+
 def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tmp_path):
-    code = demo.run(tmp_path, quick=True)
+    site, endpoint = "demotest", f"tcp/127.0.0.1:{free_port()}"
+    heard: list = []
+    client = _outside_client(endpoint, site, heard)  # it waits for the demo's session to listen
+    console = Console(record=True, width=200)
+    try:
+        code = demo.run(tmp_path, quick=True, console=console, site=site, listen=(endpoint,))
+    finally:
+        client.close()
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert code == 0 and summary["ok"], summary["tasks"]
+    assert f"site {site}; nodes listen on tcp/127.0.0.1:" in console.export_text()
+    # the outside client attached through the demo's listen endpoint and followed both tasks to their ends
+    ends = [m for m in heard if m["type"] == "abstract_progress" and m["robot"] == "broker" and m["final"]]
+    assert sorted(m["outcome"] for m in ends) == ["success", "success"], ends
+    assert all(m["hdr"]["source"] and m["hdr"]["seq"] >= 1 and m["hdr"]["t_sim"] > 0 for m in heard)
     assert len(summary["nodes"]) == 8  # per robot a world and a control node; tombatossals vision2d and vision3d
     assert [t["atd"] for t in summary["tasks"]] == ["push_away.xml", "pick_place_behind.xml"]
     for task in summary["tasks"]:

@@ -205,6 +205,18 @@ def test_a_control_reply_carries_the_module_path_its_own_seq_the_clock_and_the_r
     assert not bad.ok and bad.hdr.seq == 3 and bad.hdr.inputs == []
 
 
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_a_non_finite_reading_is_refused_and_never_reaches_a_stateful_filter(bad):
+    host, clock, seen = make_host(PIPE)
+    t = run_for(host, clock, 0.5)
+    forged = stamp(Vector(values=[bad]), "site/n/src/signal", 10_000, t)
+    host.transport.publisher(host.ks.output("site", "n", "src", "signal"))(encode(forged))
+    run_for(host, clock, 1.0, t0=t)
+    assert host.modules[("site", "lp")].counters.rejected == 1
+    out = [m for k, m in seen if k.endswith("/lp/out/out")]
+    assert len(out) >= 15 and all(np.isfinite(m.values).all() for m in out)  # the filter was never poisoned
+
+
 def test_stop_and_reset():
     host, clock, seen = make_host(PIPE)
     assert host.send_control("src", Command.STOP, {}).state == Status.STOPPED

@@ -1,6 +1,7 @@
 """Wire format: round trips, plain-msgpack readability, and validation of hostile payloads."""
 
 import contextlib
+import math
 
 import msgpack
 import numpy as np
@@ -8,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from contactflow.embodiments.messages import RobotState, WrenchSample
 from contactflow.nodes.messages import Array, ControlRequest, EventMsg, Vector
 from contactflow.nodes.status import Event
 from contactflow.nodes.wire import (
@@ -98,3 +100,33 @@ def test_structured_garbage_raises_only_wire_errors(fields):
     for cls in (EventMsg, Vector, ControlRequest, Array):
         with contextlib.suppress(WireError):
             decode(data, cls, "fuzz")
+
+
+_ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+@settings(max_examples=300, deadline=None)
+@given(values=st.lists(_ANY_FLOAT, max_size=8), extra=st.dictionaries(st.text(max_size=3), _ANY_FLOAT, max_size=3),
+       array=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), max_size=12))
+def test_a_message_is_refused_exactly_when_it_carries_a_non_finite_number(values, extra, array):
+    vec = encode(Vector(values=values))
+    ev = encode(EventMsg(event=Event.SUCCESS, module="m", values=extra))
+    arr = encode(Array(array=NDArray.of(np.asarray(array, dtype=np.float32))))
+    state = encode(RobotState(robot="r", tick=1, t=0.0, names=[], position=NDArray.of(np.zeros(0)),
+                              velocity=NDArray.of(np.zeros(0)), arms=[], hands=[],
+                              wrenches=[WrenchSample(arm="a", force=values[:3], torque=[], frame="f", rotation=[])]))
+    cases = [(vec, Vector, values), (ev, EventMsg, list(extra.values())), (arr, Array, array),
+             (state, RobotState, values[:3])]
+    for payload, type_, numbers in cases:
+        finite = all(math.isfinite(v) for v in numbers)
+        if finite:
+            decode(payload, type_, "k")
+        else:
+            with pytest.raises(WireError, match="is not a finite number"):
+                decode(payload, type_, "cf/s/k")
+
+
+def test_a_non_finite_header_stamp_is_refused():
+    msg = stamp(Vector(values=[1.0]), "a/b/c", 1, float("inf"))
+    with pytest.raises(WireError, match=r"Vector.hdr.t_sim is not a finite number"):
+        decode(encode(msg), Vector, "k")
