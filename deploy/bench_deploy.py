@@ -17,7 +17,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from contactflow.deploy.launcher import render, tool_endpoints
-from contactflow.deploy.manifest import DEFAULT_MANIFEST, Manifest, load_manifest
+from contactflow.deploy.manifest import DEFAULT_MANIFEST, Manifest, load_manifest, on_loopback
 from contactflow.deploy.netns import NetLab, NetnsUnavailable
 from contactflow.deploy.security import write_json5, zenoh_config
 from contactflow.deploy.supervisor import Supervisor
@@ -31,7 +31,7 @@ console = Console()
 
 def bring_up_once(m: Manifest, run_dir: Path, timeout: float = 120.0) -> dict[str, float]:
     """Start every node locally under a supervisor; seconds until all nodes / modules are alive."""
-    m = dataclasses.replace(m, topology=dataclasses.replace(m.topology, port=free_port_block(len(m.nodes()) + 1)))
+    m = dataclasses.replace(on_loopback(m), topology=dataclasses.replace(m.topology, port=free_port_block(len(m.nodes()) + 1)))
     ks = KeySpace(m.site)
     n_nodes = len(m.nodes())
     n_modules = sum(len(n.modules) for n in m.nodes())
@@ -127,7 +127,8 @@ def latency_netns(tmp: Path, n: int) -> dict[str, float]:
     dep = None
     probe = None
     try:
-        m = lab_manifest(tmp / "ns.yaml", lab, HOSTS, site="benchns")
+        # plain tcp, as the loopback run it is compared with (the lab's namespaces are isolated)
+        m = lab_manifest(tmp / "ns.yaml", lab, HOSTS, site="benchns", security={"transport": "tcp", "insecure": True})
         (tmp / "ns-run").mkdir(exist_ok=True)
         dep = LabDeployment(lab, m, tmp / "ns-run")
         dep.up("src")

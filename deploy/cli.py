@@ -39,6 +39,7 @@ BENCHMARKS = {
     "vision": "contactflow.recognition.bench_vision",
     "recognition": "contactflow.recognition.bench_recognition",
     "deploy": "contactflow.deploy.bench_deploy",
+    "fuzz": "contactflow.deploy.bench_fuzz",
 }
 """``contactflow bench NAME`` runs ``run(out_dir, quick)`` of the module named here."""
 

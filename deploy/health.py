@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from contactflow.deploy.launcher import LOCAL, tool_endpoints
-from contactflow.deploy.manifest import Manifest
+from contactflow.deploy.manifest import Manifest, on_loopback
 from contactflow.deploy.security import write_json5, zenoh_config
 from contactflow.deploy.supervisor import SupervisorState, pid_alive, read_state
 from contactflow.nodes.keys import KeySpace
@@ -37,6 +37,8 @@ def scopes(run_dir: Path) -> dict[str, SupervisorState]:
 
 def open_observer(m: Manifest, local: bool, identity: str | None = None) -> ZenohTransport:
     """A peer session joining the deployment as ``identity`` (a host of the manifest)."""
+    if local:
+        m = on_loopback(m)
     who = identity or next(h for h in m.hosts if h not in m.security.observers)
     node = m.nodes(who)[0] if m.nodes(who) else m.nodes()[0]
     with tempfile.TemporaryDirectory(prefix="cf-status-") as tmp:  # holds a password: gone once read

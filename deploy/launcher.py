@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from contactflow.deploy.manifest import Manifest, NodeSpec
+from contactflow.deploy.manifest import Manifest, NodeSpec, on_loopback
 from contactflow.deploy.security import endpoint_proto, write_json5, zenoh_config
 from contactflow.nodes.procs import write_config
 
@@ -41,7 +41,7 @@ def default_run_dir(m: Manifest) -> Path:
 
 def endpoints(m: Manifest, local: bool) -> dict[str, str]:
     """The listen endpoint of every node (``host/node`` -> endpoint)."""
-    proto = endpoint_proto(m)
+    proto = "tcp" if local else endpoint_proto(m)  # a local run is on loopback: plain tcp (manifest.on_loopback)
     out = {}
     for i, n in enumerate(m.nodes()):
         if local:
@@ -80,6 +80,8 @@ def render(m: Manifest, run_dir: Path, host: str | None = None, local: bool = Fa
     if local == (host is not None):
         raise ValueError("render: give exactly one of host or local")
     scope = run_dir / (LOCAL if local else host)
+    if local:
+        m = on_loopback(m)
     eps = endpoints(m, local)
     out = []
     for n in m.nodes(None if local else host):

@@ -33,6 +33,8 @@ lists a sensor must run on the host the robot entry gives for it.
 
 from __future__ import annotations
 
+import dataclasses
+import ipaddress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,7 +45,7 @@ from contactflow.nodes.yamldoc import ConfigError, PathKey, YamlDoc
 
 _TOP = {"site", "zenoh", "security", "hosts", "robots"}
 _ZENOH = {"topology", "routers", "port", "lease_ms"}
-_SECURITY = {"transport", "auth", "certs", "broker", "dispatch_clients", "observers"}
+_SECURITY = {"transport", "auth", "certs", "broker", "dispatch_clients", "observers", "insecure"}
 _HOST = {"address", "roles", "nodes"}
 _NODE = {"robot", "clock", "cell", "port", "sensors", "primitives", "primitive_inputs", "modules"}
 _ROBOT = {"control", "command_ports", "sensors"}
@@ -104,6 +106,7 @@ class Security:
     broker: tuple[str, ...] = ()
     dispatch_clients: tuple[str, ...] = ()
     observers: tuple[str, ...] = ()
+    insecure: bool = False  # plain tcp between hosts, asked for by name (an isolated test network)
 
     @property
     def enabled(self) -> bool:
@@ -315,7 +318,9 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
                     raise doc.error(np_ + ("sensors", i), f"sensor {s!r} is attached to host {r.sensors[s]!r}; "
                                     f"high-bandwidth sources must be read on the host that has them")
 
-    sec = Security()
+    remote = [f"{h.name} ({h.address})" for h in hosts.values() if not _loopback(h.address)]
+    spans = len(hosts) > 1 and bool(remote)  # links cross a network: TLS and passwords unless asked otherwise
+    sec = Security("mtls", "usrpwd", (Path(doc.file).parent / "certs").resolve()) if spans else Security()
     if doc.get(("security",), dict, None) is not None:
         sp: PathKey = ("security",)
         doc.mapping(sp, _SECURITY)
@@ -327,14 +332,33 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
             for i, hname in enumerate(lists[fld]):
                 if hname not in hosts:
                     raise doc.error(sp + (fld, i), f"host {hname!r} is not in hosts")
-        sec = Security(_choice(doc, sp + ("transport",), TRANSPORTS, "tcp"), _choice(doc, sp + ("auth",), AUTHS, "none"),
-                       certs_path.resolve(), lists["broker"], lists["dispatch_clients"], lists["observers"])
+        transport = _choice(doc, sp + ("transport",), TRANSPORTS, "mtls" if spans else "tcp")
+        sec = Security(transport, _choice(doc, sp + ("auth",), AUTHS, "usrpwd" if spans and transport != "tcp" else "none"),
+                       certs_path.resolve(), lists["broker"], lists["dispatch_clients"], lists["observers"],
+                       doc.get(sp + ("insecure",), bool, False))
+        if spans and sec.transport == "tcp" and not sec.insecure:
+            raise doc.error(sp + ("transport",), f"plain tcp would cross the network between hosts "
+                            f"{', '.join(remote)}: only loopback runs it. Use mtls (the default) or tls, and "
+                            f"`contactflow deploy certs {doc.file}`; or set `insecure: true` for an isolated test network")
         if sec.rules and not sec.acl:
             fld = next(f for f in ("broker", "dispatch_clients", "observers") if lists[f])
             raise doc.error(sp + (fld,), f"access rules need every link's peer identified on both ends, which transport "
                             f"{sec.transport!r} with auth {sec.auth!r} cannot do: use transport mtls, or transport tls "
                             f"with auth usrpwd (or drop broker, dispatch_clients and observers to run without access control)")
     return Manifest(site, hosts, robots, topo, sec, doc.file)
+
+
+def _loopback(address: str) -> bool:
+    try:
+        return ipaddress.ip_address(address).is_loopback
+    except ValueError:
+        return address == "localhost"
+
+
+def on_loopback(m: Manifest) -> Manifest:
+    """The manifest as a local run sees it (``--local``, the demo): every node on this machine's
+    loopback, over plain tcp; TLS, passwords and access rules guard the network between hosts."""
+    return dataclasses.replace(m, security=Security())
 
 
 def load_manifest(path: str | Path) -> Manifest:
@@ -344,4 +368,4 @@ def load_manifest(path: str | Path) -> Manifest:
 DEFAULT_MANIFEST = Path(__file__).parent / "manifests" / "default.yaml"
 
 __all__ = ["DEFAULT_MANIFEST", "ConfigError", "HostSpec", "Manifest", "NodeSpec", "RobotSpec", "Security",
-           "Topology", "load_manifest", "parse_manifest"]
+           "Topology", "load_manifest", "on_loopback", "parse_manifest"]

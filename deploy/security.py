@@ -115,9 +115,12 @@ def access_control(m: Manifest) -> dict[str, Any]:
     callers = brokers | set(m.security.dispatch_clients)
     controls = {r.control for r in m.robots.values()}
     verbs = ("caps", "translate", "run", "cancel")
-    streams = [ks.clock(), ks.output(ANY, ANY, ANY, ANY), ks.events(), ks.status(), ks.hypotheses(),
-               ks.evaluation(), ks.progress()] + [ks.fused(ANY, s) for s in ("hypotheses", "contacts", "events")]
-    alive = [ks.alive_node(), ks.alive_module(), ks.alive_robot(), ks.claim(ANY, ANY)]
+    streams = [ks.clock(), ks.clock(ANY), ks.output(ANY, ANY, ANY, ANY), ks.events(), ks.status(), ks.hypotheses(),
+               ks.evaluation(), ks.progress(), ks.lockstep(ANY), ks.lockstep(ANY, ANY)]
+    streams += [ks.fused(ANY, s) for s in ("hypotheses", "contacts", "events")]
+    streams += [ks.robot(ANY, s) for s in ("state", "joints", "camera", "depth")]  # what a world publishes
+    alive = [ks.alive_node(), ks.alive_module(), ks.alive_robot(), ks.claim(ANY, ANY), ks.alive_lockstep(ANY),
+             ks.alive_lockstep(ANY, ANY), ks.alive_controller(ANY, ANY)]
 
     # who may command a module (stop it, change its parameters): the host it runs on, and for a
     # robot's module the robot's control host; a site module (a broker, a shared service) also
@@ -141,13 +144,14 @@ def access_control(m: Manifest) -> dict[str, Any]:
         if h in observers:
             grants[h] = Grants(read=[ks.fused(ANY, "events")])
             continue
-        g = Grants(write=list(streams), read=list(streams), live=list(alive),
-                   call=list(ctl.get(h, [])), serve=[ks.control(ANY, ANY, ANY)])
+        g = Grants(write=list(streams), read=[*streams, ks.robot(ANY, "command")], live=list(alive),
+                   call=[*ctl.get(h, []), ks.robot(ANY, "info")], serve=[ks.control(ANY, ANY, ANY), ks.robot(ANY, "info")])
         for r in m.robots.values():
-            if r.control == h:
+            if r.control == h:  # the robot's controllers: its joint-command ports and its world's command port
                 g.serve += [ks.robot_service(r.name, v) for v in verbs]
+                g.write.append(ks.robot(r.name, "command"))
             else:
-                g.deny_write += [ks.output(r.name, ANY, ANY, p) for p in r.command_ports]
+                g.deny_write += [ks.output(r.name, ANY, ANY, p) for p in r.command_ports] + [ks.robot(r.name, "command")]
         if h in brokers:
             g.serve.append(ks.dispatch())
             g.call += [ks.robot_service(ANY, v) for v in verbs]

@@ -63,6 +63,7 @@ class DepthImage(Message, tag="depth_image"):
     """Depth along the optical axis (m, 0 = no return), intrinsics and camera pose."""
 
     max_bytes = 8 << 20
+    nonfinite = frozenset({"depth"})  # REP 117 depth: NaN no return, -inf too near, +inf too far (or 0: no return)
     camera: str  # the camera's name
     depth: NDArray  # (H, W) float32
     K: list[float]  # 3x3 row-major
@@ -258,6 +259,7 @@ class CameraFrame(Message, tag="camera_frame"):
     """One depth frame, answering :class:`CameraRequest` ``request``."""
 
     max_bytes = 32 << 20
+    nonfinite = frozenset({"depth"})  # as a depth image's
     robot: str
     camera: str  # the camera's name
     request: int  # the request it answers

@@ -118,6 +118,9 @@ class Message(msgspec.Struct, kw_only=True, tag_field="type", tag=True):
     """
 
     max_bytes: ClassVar[int] = 1 << 20
+    nonfinite: ClassVar[frozenset[str]] = frozenset()
+    """Fields whose numbers may be NaN or infinite by their definition (a depth image's pixels);
+    any other non-finite number refuses the message."""
 
     hdr: Header = msgspec.field(default_factory=Header)
 
@@ -259,8 +262,9 @@ def _struct_check(cls: type) -> Check:
     if cached is not None:
         return cached
     _checks[cls] = _no_check  # a struct that contains itself is checked one level deep
+    exempt = getattr(cls, "nonfinite", frozenset())
     fields = [(f.name, c) for f in mi.type_info(cls).fields
-              if (c := _checker(f.type)) is not _no_check]
+              if f.name not in exempt and (c := _checker(f.type)) is not _no_check]
 
     def check(value: Any) -> str | None:
         for name, c in fields:

@@ -103,8 +103,11 @@ def test_render_local_writes_loadable_node_configs_with_a_loopback_mesh(tmp_path
         assert json.loads(Path(cfg.zenoh.config_file).read_text())["transport"]["link"]["tx"]["lease"] == 1000
 
 
+INSECURE = BASE.replace("site: t\n", "site: t\nsecurity: {transport: tcp, insecure: true}\n")
+
+
 def test_render_one_host_uses_the_manifest_addresses(tmp_path):
-    m = parse(BASE)
+    m = parse(INSECURE)
     (ln,) = render(m, tmp_path, host="b")
     cfg = load_node_config(ln.config)
     assert cfg.zenoh.listen == ("tcp/10.1.0.2:7450",) and cfg.zenoh.connect == ("tcp/10.1.0.1:7450",)
@@ -112,7 +115,7 @@ def test_render_one_host_uses_the_manifest_addresses(tmp_path):
 
 
 def test_routers_topology_adds_router_nodes_and_clients(tmp_path):
-    m = parse(BASE.replace("site: t", "site: t\nzenoh: {topology: routers, routers: [a], port: 7600}"))
+    m = parse(INSECURE.replace("site: t", "site: t\nzenoh: {topology: routers, routers: [a], port: 7600}"))
     assert [n.id for n in m.nodes("a")] == ["a/router", "a/na"]
     eps = endpoints(m, local=False)
     assert eps["a/router"] == "tcp/10.1.0.1:7600" and eps["a/na"] == "tcp/10.1.0.1:7601"
@@ -132,8 +135,11 @@ def test_routers_topology_adds_router_nodes_and_clients(tmp_path):
     (("site: t\n", "site: t\nsecurity: {transport: ssl}\n"), "m.yaml:2: security.transport", "not one of"),
     (("address: 10.1.0.2", "address: 10.1.0.1"), "m.yaml:12: hosts.b.address", "already host"),
     (("      nb:", "      na:"), "m.yaml:14: hosts.b.nodes.na", "already defined"),
-    (("site: t\n", "site: t\nsecurity: {transport: tcp, auth: usrpwd, broker: [a]}\n"), "m.yaml:2: security.broker", "identified"),
-    (("site: t\n", "site: t\nsecurity:\n  transport: tls\n  observers: [b]\n"), "m.yaml:4: security.observers", "tls with auth usrpwd"),
+    (("site: t\n", "site: t\nsecurity: {transport: tcp, auth: usrpwd, insecure: true, broker: [a]}\n"),
+     "m.yaml:2: security.broker", "identified"),
+    (("site: t\n", "site: t\nsecurity:\n  transport: tls\n  auth: none\n  observers: [b]\n"), "m.yaml:5: security.observers",
+     "tls with auth usrpwd"),
+    (("site: t\n", "site: t\nsecurity: {transport: tcp}\n"), "m.yaml:2: security.transport", "only loopback runs it"),
 ])
 def test_bad_manifests_name_file_line_and_field(edit, where, words):
     with pytest.raises(ConfigError) as err:
@@ -165,6 +171,14 @@ def test_access_control_rules_follow_the_manifest(tmp_path):
     deny_b = [r for r in _grants(acl, "b") if r["permission"] == "deny"]
     assert any(joints in r["key_exprs"] and "put" in r["messages"] and r["flows"] == ["ingress"] for r in deny_b)
     assert not any(joints in r["key_exprs"] for r in _grants(acl, "a") if r["permission"] == "deny")
+    # a world's robot: every member reads its state and depth; only the control host commands it
+    reads = {k for r in _grants(acl, "b") if "declare_subscriber" in r["messages"] and r["flows"] == ["ingress"]
+             for k in r["key_exprs"]}
+    assert {ks.robot("*", "state"), ks.robot("*", "depth"), ks.clock(), ks.lockstep("*")} <= reads
+    assert any(ks.robot("r", "command") in r["key_exprs"] for r in deny_b)
+    writes_a = {k for r in _grants(acl, "a") if r["permission"] == "allow" and "put" in r["messages"]
+                and r["flows"] == ["ingress"] for k in r["key_exprs"]}
+    assert ks.robot("r", "command") in writes_a
     serve = lambda h: {k for r in _grants(acl, h) if "declare_queryable" in r["messages"] and r["flows"] == ["ingress"] for k in r["key_exprs"]}  # noqa: E731
     assert ks.dispatch() in serve("b") and ks.dispatch() not in serve("a")
     call = lambda h: {k for r in _grants(acl, h) if "query" in r["messages"] and r["flows"] == ["ingress"] for k in r["key_exprs"]}  # noqa: E731
@@ -180,9 +194,9 @@ def test_tls_with_passwords_identifies_listeners_by_certificate_and_openers_by_u
         "host-a": ["a"], "host-b": ["b"], "user-a": ["a"], "user-b": ["b"]}
     assert {p["id"]: p["subjects"] for p in acl["policies"]} == {"policy-a": ["host-a", "user-a"], "policy-b": ["host-b", "user-b"]}
     plain = parse(BASE.replace("site: t\n", "site: t\nsecurity: {transport: tls, auth: usrpwd}\n"))
-    assert plain.security.acl and not parse(BASE).security.acl
+    assert plain.security.acl and not parse(INSECURE).security.acl
     with pytest.raises(SecurityError, match="cannot identify peers"):
-        access_control(parse(BASE))
+        access_control(parse(INSECURE))
 
 
 def test_zenoh_config_needs_certificates_then_zenoh_accepts_it(tmp_path):
@@ -238,3 +252,21 @@ def test_a_site_module_is_commanded_only_by_its_host_and_the_control_hosts_and_t
     # a robot's module: its own host and the robot's control host (a), nobody else
     assert ks.control("r", "*", "g") in call("c") and ks.control("r", "*", "g") in call("a")
     assert ks.control("r", "*", "g") not in call("b")
+
+
+def test_a_manifest_across_hosts_gets_mutual_tls_and_passwords_by_default_and_plain_tcp_only_on_loopback(tmp_path):
+    m = parse(BASE)  # no security section, hosts on a network
+    assert (m.security.transport, m.security.auth) == ("mtls", "usrpwd") and m.security.acl
+    with pytest.raises(SecurityError, match="deploy certs"):
+        render(m, tmp_path, host="a")  # the one extra step: certificates and passwords
+    local = parse(BASE.replace("10.1.0.1", "127.0.0.1").replace("10.1.0.2", "127.0.0.2"))
+    assert local.security.transport == "tcp" and not local.security.enabled
+    insecure = parse(INSECURE)
+    assert insecure.security.transport == "tcp" and insecure.security.insecure and insecure.security.auth == "none"
+    # a local run of a secure manifest is on loopback: plain tcp, no certificates needed
+    launches = render(load_manifest(DEFAULT_MANIFEST), tmp_path / "local", local=True)
+    assert all(ln.endpoint.startswith("tcp/127.0.0.1:") for ln in launches)
+    files = {json.loads(Path(load_node_config(ln.config).zenoh.config_file).read_text()).get("access_control") is None
+             for ln in launches}
+    assert files == {True}
+    assert load_manifest(DEFAULT_MANIFEST).security.transport == "mtls"

@@ -41,7 +41,8 @@ def deployment(tmp_path_factory, lab_factory):
     probes = []
     try:
         m = lab_manifest(tmp / "lab.yaml", lab, HOSTS, site=SITE, zenoh={"topology": "mesh", "lease_ms": 1000},
-                         robots={"r1": {"control": "h3", "sensors": {"ft": "h1"}}})
+                         robots={"r1": {"control": "h3", "sensors": {"ft": "h1"}}},
+                         security={"transport": "tcp", "insecure": True})  # the lab's namespaces are isolated
         dep = LabDeployment(lab, m, tmp / "run")
         (tmp / "run").mkdir()
         for h in ("h1", "h2", "h3"):

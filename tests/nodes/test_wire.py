@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from contactflow.embodiments.messages import RobotState, WrenchSample
+from contactflow.embodiments.messages import DepthImage, RobotState, WrenchSample
 from contactflow.nodes.messages import Array, ControlRequest, EventMsg, Vector
 from contactflow.nodes.status import Event
 from contactflow.nodes.wire import (
@@ -130,3 +130,14 @@ def test_a_non_finite_header_stamp_is_refused():
     msg = stamp(Vector(values=[1.0]), "a/b/c", 1, float("inf"))
     with pytest.raises(WireError, match=r"Vector.hdr.t_sim is not a finite number"):
         decode(encode(msg), Vector, "k")
+
+
+def test_a_depth_image_may_carry_rep117_non_finite_pixels_but_not_a_non_finite_pose():
+    depth = np.ones((4, 5), np.float32)
+    depth[0, 0], depth[1, 1], depth[2, 2] = np.nan, -np.inf, np.inf  # no return, too near, too far
+    msg = decode(encode(DepthImage.of(depth, np.eye(3), np.eye(4))), DepthImage, "k")
+    assert np.isnan(msg.depth.numpy()[0, 0])
+    pose = np.eye(4)
+    pose[0, 3] = np.nan
+    with pytest.raises(WireError, match=r"DepthImage.T_world_cam\[3\] is not a finite number"):
+        decode(encode(DepthImage.of(depth, np.eye(3), pose)), DepthImage, "k")

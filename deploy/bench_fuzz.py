@@ -1,0 +1,153 @@
+"""Benchmark: hostile input against the deployed default manifest (eight node processes on loopback).
+
+Every key the nodes read is sent ``per_key`` payloads (``deploy/fuzz.py``: random bytes,
+random MessagePack, and a message seen live on the key with one field made hostile); every
+queryable gets as many queries. Measured: node processes that died, modules whose step loop
+stopped, the rejects the nodes counted themselves (``rejected`` in module status, ``refused``
+in the world's robot states) and the queries answered. Goal: no death, no stalled loop.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import msgpack
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from contactflow.deploy.demo import QUICK_CAMERA_HZ, ROBOTS, deployment
+from contactflow.deploy.fuzz import payloads
+from contactflow.deploy.launcher import render, tool_endpoints
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.procs import spawn_node, stop_process, wait_for
+from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+
+console = Console()
+
+
+def _kind(ks: KeySpace, key: str) -> str:
+    """The class of a key for the table (``robot/state``, ``m/out``, ``ctl``, ...)."""
+    rest = key.removeprefix(ks.prefix + "/").split("/")
+    if rest[0] == "m":
+        return "m/" + rest[-1] if rest[-2] != "out" else "m/out"
+    if rest[0] == "robot":
+        return "robot/" + rest[-1]
+    if rest[0] == "broker":
+        return "broker/" + (rest[-1] if rest[1] == "robots" else rest[1])
+    return rest[0]
+
+
+class _Counters:
+    """The nodes' own counts, read from their status and robot states."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.rejected: dict[str, int] = {}
+        self.steps: dict[str, int] = {}
+        self.refused: dict[str, int] = {}
+        self.samples: dict[str, bytes] = {}
+
+    def on_sample(self, key: str, payload: bytes) -> None:
+        with self.lock:
+            self.samples.setdefault(key, payload)
+        try:
+            msg = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        except Exception:  # noqa: BLE001 - our own fuzz traffic is seen here too
+            return
+        if not isinstance(msg, dict):
+            return
+        with self.lock:
+            if msg.get("type") == "status" and isinstance(msg.get("module"), str):
+                self.rejected[msg["module"]] = int(msg.get("rejected", 0) or 0)
+                self.steps[msg["module"]] = int(msg.get("steps", 0) or 0)
+            elif msg.get("type") == "robot_state" and isinstance(msg.get("robot"), str):
+                self.refused[msg["robot"]] = int(msg.get("refused", 0) or 0)
+
+    def snapshot(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
+        with self.lock:
+            return dict(self.rejected), dict(self.steps), dict(self.refused)
+
+
+def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
+    n = per_key or (10 if quick else 60)
+    site = f"fuzz{int(time.time()) % 100000}"
+    ks = KeySpace(site)
+    m = deployment(site, out / "fuzz-config", camera_hz=QUICK_CAMERA_HZ)
+    launches = render(m, out / "fuzz-config", local=True)
+    procs = {ln.node.name: spawn_node(ln.config, out / "fuzz-logs" / f"{ln.node.name}.log") for ln in launches}
+    tool = ZenohTransport(ZenohSettings(connect=tuple(tool_endpoints(m, local=True)))).open()
+    counters = _Counters()
+    sub = tool.subscribe(f"{ks.prefix}/**", counters.on_sample)
+    rng = random.Random(7)
+    sent: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    t0 = time.time()
+    try:
+        up = wait_for(lambda: len(tool.alive(ks.alive_robot(), timeout=0.5)) >= len(ROBOTS), timeout=120)
+        if not up:
+            raise RuntimeError(f"the deployment did not come up; see {out / 'fuzz-logs'}")
+        time.sleep(1.5)
+        _, steps_idle, _ = counters.snapshot()
+        time.sleep(3.0)  # live samples of every stream, as templates
+        nodes_before = set(tool.alive(ks.alive_node(), timeout=1.0))
+        modules = sorted(tool.alive(ks.alive_module(), timeout=1.0))
+        rejected0, steps0, refused0 = counters.snapshot()
+        with counters.lock:
+            streams = {k: p for k, p in counters.samples.items() if "/alive/" not in k}
+        for r in ROBOTS:  # commands are only sent while a task runs: no live template
+            streams.setdefault(ks.robot(r, "command"), b"")
+        queries = [ks.dispatch(), *(ks.robot(r, "info") for r in ROBOTS),
+                   *(ks.robot_service(r, v) for r in ROBOTS for v in ("caps", "translate", "run", "cancel")),
+                   *(ks.control(*k.split("/")[-3:]) for k in modules)]
+        pubs = {k: tool.publisher(k) for k in streams}
+        with Progress(console=console, transient=True) as bar:
+            task = bar.add_task(f"fuzzing {len(streams)} streams and {len(queries)} queryables", total=len(pubs) + len(queries))
+            for key, pub in pubs.items():
+                for kind, payload in payloads(rng, streams[key] or None, n):
+                    pub(payload)
+                    sent[_kind(ks, key)][kind] += 1
+                    time.sleep(0.001)  # a flood is the messaging bench's; here every payload is read
+                bar.advance(task)
+            for key in queries:
+                for kind, payload in payloads(rng, None, max(2, n // 5)):
+                    answered = tool.query(key, payload, timeout=0.5)
+                    sent[_kind(ks, key)][kind] += 1
+                    sent[_kind(ks, key)]["answered"] += int(bool(answered))
+                bar.advance(task)
+        time.sleep(4.0)  # the modules report their counts at least every second
+        nodes_after = set(tool.alive(ks.alive_node(), timeout=1.0))
+        rejected1, steps1, refused1 = counters.snapshot()
+        exited = {name: p.poll() for name, p in procs.items() if p.poll() is not None}
+        running = {mod for mod, s in steps0.items() if s > steps_idle.get(mod, s)}  # stepping before the fuzz
+        stalled = sorted(mod for mod in running if steps1.get(mod, 0) <= steps0[mod])
+    finally:
+        sub.close()
+        tool.close()
+        for p in procs.values():
+            stop_process(p)
+    result = {
+        "per_key": n, "seconds": round(time.time() - t0, 1), "streams": len(streams), "queryables": len(queries),
+        "payloads": sum(v for c in sent.values() for k, v in c.items() if k != "answered"),
+        "nodes": len(nodes_before), "node_deaths": len(nodes_before - nodes_after) + len(exited), "exited": exited,
+        "stalled_modules": stalled,
+        "rejected": sum(rejected1.get(k, 0) - rejected0.get(k, 0) for k in rejected1),
+        "refused_commands": sum(refused1.get(r, 0) - refused0.get(r, 0) for r in refused1),
+        "by_key": {k: dict(v) for k, v in sorted(sent.items())},
+    }
+    table = Table(title=f"bench fuzz: {result['payloads']} hostile payloads, {n} per stream key")
+    for col in ("keys", "bytes", "msgpack", "mutated", "queries answered"):
+        table.add_column(col, justify="right" if col != "keys" else "left")
+    for k, c in result["by_key"].items():
+        table.add_row(k, str(c.get("bytes", 0)), str(c.get("msgpack", 0)), str(c.get("mutated", 0)),
+                      str(c.get("answered", "")))
+    console.print(table)
+    console.print(f"node deaths: {result['node_deaths']} of {result['nodes']} (goal 0); stalled modules: "
+                  f"{len(stalled)} (goal 0); rejects counted by the modules: {result['rejected']}; "
+                  f"commands refused by the worlds: {result['refused_commands']}")
+    (out / "fuzz.json").write_text(json.dumps(result, indent=2))
+    return result
