@@ -17,6 +17,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import msgpack
+import numpy as np
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
@@ -24,9 +25,12 @@ from rich.table import Table
 from contactflow.deploy.demo import QUICK_CAMERA_HZ, ROBOTS, deployment
 from contactflow.deploy.fuzz import payloads
 from contactflow.deploy.launcher import render, tool_endpoints
+from contactflow.embodiments import registry
+from contactflow.embodiments.messages import ArmCommand, ArmCommandKind
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import spawn_node, stop_process, wait_for
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+from contactflow.nodes.wire import NDArray, encode, stamp
 
 console = Console()
 
@@ -62,16 +66,30 @@ class _Counters:
             return
         if not isinstance(msg, dict):
             return
-        with self.lock:
+        counts = {k: v for k, v in msg.items() if isinstance(v, int) and not isinstance(v, bool)}
+        with self.lock:  # forged ones are overwritten by the real ones, which come every second
             if msg.get("type") == "status" and isinstance(msg.get("module"), str):
-                self.rejected[msg["module"]] = int(msg.get("rejected", 0) or 0)
-                self.steps[msg["module"]] = int(msg.get("steps", 0) or 0)
+                self.rejected[msg["module"]] = counts.get("rejected", 0)
+                self.steps[msg["module"]] = counts.get("steps", 0)
             elif msg.get("type") == "robot_state" and isinstance(msg.get("robot"), str):
-                self.refused[msg["robot"]] = int(msg.get("refused", 0) or 0)
+                self.refused[msg["robot"]] = counts.get("refused", 0)
 
-    def snapshot(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
+    def snapshot(self, known: tuple[dict, dict, dict] | None = None) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
+        """The counts per module and robot; with ``known``, of those names only (not forged ones)."""
         with self.lock:
-            return dict(self.rejected), dict(self.steps), dict(self.refused)
+            now = dict(self.rejected), dict(self.steps), dict(self.refused)
+        if known is None:
+            return now
+        rejected, steps, refused = ({k: v for k, v in d.items() if k in names} for d, names in zip(now, known, strict=True))
+        return rejected, steps, refused
+
+
+def _command(robot: str) -> bytes:
+    """A valid command for ``robot``'s first arm (hold where the joints are zero), as a mutation template."""
+    spec = registry.get(robot)
+    arm = spec.arms[0]
+    return encode(stamp(ArmCommand(robot=robot, arm=arm.name, kind=ArmCommandKind.JOINTS, seq=1,
+                                   values=NDArray.of(np.zeros(len(arm.joints)))), "site/fuzz/fuzz/cmd", 1, 0.0))
 
 
 def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
@@ -96,11 +114,12 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
         time.sleep(3.0)  # live samples of every stream, as templates
         nodes_before = set(tool.alive(ks.alive_node(), timeout=1.0))
         modules = sorted(tool.alive(ks.alive_module(), timeout=1.0))
-        rejected0, steps0, refused0 = counters.snapshot()
+        before = counters.snapshot()
+        rejected0, steps0, refused0 = before
         with counters.lock:
             streams = {k: p for k, p in counters.samples.items() if "/alive/" not in k}
-        for r in ROBOTS:  # commands are only sent while a task runs: no live template
-            streams.setdefault(ks.robot(r, "command"), b"")
+        for r in ROBOTS:  # commands are only sent while a task runs: a valid one is the template
+            streams.setdefault(ks.robot(r, "command"), _command(r))
         queries = [ks.dispatch(), *(ks.robot(r, "info") for r in ROBOTS),
                    *(ks.robot_service(r, v) for r in ROBOTS for v in ("caps", "translate", "run", "cancel")),
                    *(ks.control(*k.split("/")[-3:]) for k in modules)]
@@ -121,7 +140,7 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
                 bar.advance(task)
         time.sleep(4.0)  # the modules report their counts at least every second
         nodes_after = set(tool.alive(ks.alive_node(), timeout=1.0))
-        rejected1, steps1, refused1 = counters.snapshot()
+        rejected1, steps1, refused1 = counters.snapshot(before)
         exited = {name: p.poll() for name, p in procs.items() if p.poll() is not None}
         running = {mod for mod, s in steps0.items() if s > steps_idle.get(mod, s)}  # stepping before the fuzz
         stalled = sorted(mod for mod in running if steps1.get(mod, 0) <= steps0[mod])
