@@ -85,6 +85,7 @@ class _Robot:
     arm_seq: dict[str, int] = field(default_factory=dict)
     hand_seq: dict[str, int] = field(default_factory=dict)
     controllers: set[str] = field(default_factory=set)  # nodes holding alive/controller/<robot>/<node>
+    gone: set[str] = field(default_factory=set)  # controller nodes whose token dropped (until it is back)
     held: bool = False
     held_at: int = -1
     refused: int = 0
@@ -275,8 +276,10 @@ class WorldModule(Module):
                 return
             if alive:
                 r.controllers.add(node)
+                r.gone.discard(node)
             elif node in r.controllers:
                 r.controllers.discard(node)
+                r.gone.add(node)
                 if not r.controllers:
                     self._holds.append((robot, f"its controller node {node!r} is gone"))
             self._cond.notify_all()
@@ -474,6 +477,12 @@ class WorldModule(Module):
         r = self.robots.get(msg.robot)
         if r is None:
             self._refuse(msg.robot, f"{type(msg).__name__}: no robot {msg.robot!r} in this world ({sorted(self.robots)})")
+            return
+        sender = msg.hdr.source.split("/")[1] if msg.hdr.source.count("/") >= 1 else ""
+        if r.held and sender in r.gone and not isinstance(msg, CameraRequest):
+            # sent before its node died and delivered after: it must not take the held robot back
+            self._refuse(msg.robot, f"{msg.robot}: {type(msg).__name__} from node {sender!r}, whose controller "
+                                    f"token is gone: the robot stays held")
             return
         try:
             if isinstance(msg, CameraRequest):

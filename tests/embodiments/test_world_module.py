@@ -27,7 +27,7 @@ from contactflow.nodes.node import Node
 from contactflow.nodes.procs import free_port, wait_for
 from contactflow.nodes.status import Event
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
-from contactflow.nodes.wire import NDArray, decode, encode
+from contactflow.nodes.wire import NDArray, decode, encode, stamp
 from contactflow.nodes.yamldoc import ConfigError, YamlDoc
 
 SCENE = """\
@@ -219,8 +219,14 @@ def test_the_world_holds_a_robot_whose_controller_is_gone_and_raises_hardware_fa
     time.sleep(0.5)
     assert np.abs(c.state.position.numpy()[idx] - q1).max() < 1e-3
     assert np.abs(c.state.velocity.numpy()[idx]).max() < 0.01
+    # a command the dead node sent late does not take the robot back (it is refused and counted)
+    refused = c.state.refused
+    c.send(stamp(arm_cmd(ArmCommandKind.TWIST, [0.0, 0.0, -0.03, 0.0, 0.0, 0.0], seq=2), "melfa/tester/m/cmd", 2, 0.0))
+    assert wait_for(lambda: c.state.refused == refused + 1, 10)
+    time.sleep(0.3)
+    assert c.state.held and np.abs(c.state.velocity.numpy()[idx]).max() < 0.01
     # a new controller's command takes the robot back
-    c.send(arm_cmd(ArmCommandKind.STOP, seq=2))
+    c.send(stamp(arm_cmd(ArmCommandKind.STOP, seq=3), "melfa/newcomer/m/cmd", 1, 0.0))
     assert wait_for(lambda: not c.state.held, 10)
 
 
