@@ -209,7 +209,8 @@ def _wire_primitives(doc: YamlDoc, path: PathKey, modules: list[dict[str, Any]])
                 m["inputs"] = dict(inputs)
 
 
-def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, port: int) -> NodeSpec:
+def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, port: int,
+                wired: dict[PathKey, tuple[NodeConfig, int]]) -> NodeSpec:
     doc.mapping(path, _NODE)
     robot = _name(doc, path + ("robot",), doc.get(path + ("robot",), str, "site"), "robot")
     clock = _choice(doc, path + ("clock",), ("wall", "sim", "lockstep"), "wall")
@@ -231,10 +232,31 @@ def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, po
         except KeyError as exc:
             raise doc.error(path + ("robot",), str(exc).strip("'\"")) from None
     _wire_primitives(doc, path, generated)
+    written = len(modules)
     modules += generated
-    _check_node_modules(doc, path, site, host, name, robot, clock, modules)
+    parsed = _check_node_modules(doc, path, site, host, name, robot, clock, modules)
+    wired[path] = (parsed, written)
     return NodeSpec(host, name, robot, clock, port, _strs(doc, path + ("sensors",)), tuple(modules), doc.line(path),
                     cell=cell)
+
+
+def _check_site_wiring(doc: YamlDoc, wired: dict[PathKey, tuple[NodeConfig, int]]) -> None:
+    """Every input wired to ``module.port`` names a module of the site that has that output (on any node)."""
+    site = {(m.robot, m.name): m for cfg, _ in wired.values() for m in cfg.modules}
+    for path, (cfg, written) in wired.items():
+        for i, m in enumerate(cfg.modules):
+            for port, src in m.inputs.items():
+                if src.key is not None:
+                    continue
+                where = path + ("modules", i, "inputs", port) if i < written else path + ("primitive_inputs", m.type, port)
+                robot = src.robot or m.robot
+                source = site.get((robot, src.module))
+                if source is None:
+                    raise doc.error(where, f"no module {src.module!r} of robot {robot!r} runs in this manifest")
+                outs = {p.name for p in source.cls.outputs}
+                if src.port not in outs:
+                    raise doc.error(where, f"module {source.name!r} ({source.cls.__name__}) has no output "
+                                           f"{src.port!r} (outputs: {sorted(outs)})")
 
 
 def parse_manifest(doc: YamlDoc) -> Manifest:
@@ -252,6 +274,7 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
     hosts: dict[str, HostSpec] = {}
     addresses: dict[str, str] = {}
     node_names: dict[str, str] = {}
+    wired: dict[PathKey, tuple[NodeConfig, int]] = {}  # node path -> its modules, and how many the YAML lists
     for hname in doc.get(("hosts",), dict):
         hp: PathKey = ("hosts", hname)
         _name(doc, hp, hname, "host")
@@ -270,7 +293,7 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
             if nname == ROUTER_NODE:
                 raise doc.error(np_, f"node name {ROUTER_NODE!r} is reserved for the routers the launcher adds")
             node_names[nname] = hname
-            spec = _parse_node(doc, np_, site, hname, nname, next_port)
+            spec = _parse_node(doc, np_, site, hname, nname, next_port, wired)
             if any(n.port == spec.port for n in nodes):
                 raise doc.error(np_ + ("port",), f"port {spec.port} is used by another node of host {hname!r}")
             nodes.append(spec)
@@ -280,6 +303,7 @@ def parse_manifest(doc: YamlDoc) -> Manifest:
         hosts[hname] = HostSpec(hname, address, _strs(doc, hp + ("roles",)), tuple(nodes))
     if not hosts:
         raise doc.error(("hosts",), "a manifest needs at least one host")
+    _check_site_wiring(doc, wired)
     for i, r in enumerate(topo.routers):
         if r not in hosts:
             raise doc.error(("zenoh", "routers", i), f"router host {r!r} is not in hosts")

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from contactflow.embodiments.primitives.base import Capability, Primitive, PrimitiveError
 from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups, held_fingers
 from contactflow.embodiments.registry import GRASP_CORRECTIONS
+from contactflow.embodiments.remote import RemoteError
 from contactflow.nodes.status import Event
 
 
@@ -494,8 +495,14 @@ class RobustGrasp(Primitive):
         (the closing fingers push objects 5-15 cm); over the next search offset when the look shows nothing."""
         p = self.params
         assert self.T_start is not None
-        frame = self.r.camera(p.search_camera)
-        pts = np.asarray(frame.points)
+        try:
+            frame = self.r.camera(p.search_camera)
+        except RemoteError as exc:  # no frame came: the look sees nothing, the offsets remain
+            if self.io is not None:
+                self.io.log(f"closed on nothing: look {self.looks} failed ({exc})")
+            self.looks = p.max_looks  # a camera that did not answer is not asked again this grasp
+            frame = None
+        pts = np.asarray(frame.points) if frame is not None else np.zeros((0, 3))
         model = getattr(self.r, "spherical", None)
         if model is not None and len(pts):
             pts = pts[model.distance(pts) > p.self_margin]  # the arm and hand are not the object

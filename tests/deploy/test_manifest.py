@@ -128,6 +128,11 @@ def test_routers_topology_adds_router_nodes_and_clients(tmp_path):
     (("    address: 10.1.0.2\n", "    address: 10.1.0.2\n    colour: red\n"), "m.yaml:13: hosts.b.colour", "unknown field"),
     (("type: lowpass", "type: no_such_module"), "m.yaml:17: hosts.b.nodes.nb.modules[0].type", "unknown module type"),
     (("inputs: {in: s.signal}", "inputs: {nope: s.signal}"), "m.yaml:17: hosts.b.nodes.nb.modules[0].inputs.nope", "no input"),
+    # wired across nodes: the source module must run somewhere in the manifest and have the output
+    (("inputs: {in: s.signal}", "inputs: {in: s.nosuch}"), "m.yaml:17: hosts.b.nodes.nb.modules[0].inputs.in",
+     "has no output 'nosuch'"),
+    (("inputs: {in: s.signal}", "inputs: {in: zz.signal}"), "m.yaml:17: hosts.b.nodes.nb.modules[0].inputs.in",
+     "no module 'zz' of robot 'r'"),
     (("{cam: a}", "{cam: b}"), "m.yaml:8: hosts.a.nodes.na.sensors[0]", "high-bandwidth"),
     (("        sensors: [cam]\n", "        sensors: [cam]\n        primitive_inputs: {detect_objects: {objects: o.objects}}\n"),
      "m.yaml:9: hosts.a.nodes.na.primitive_inputs.detect_objects", "host no 'detect_objects'"),

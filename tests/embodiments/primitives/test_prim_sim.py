@@ -7,6 +7,7 @@ import numpy as np
 from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
 from contactflow.embodiments.primitives.robust_grasp import RobustGrasp
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
+from contactflow.embodiments.remote import RemoteError
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import World, WorldParams, box, cylinder
 from contactflow.nodes.status import Event
@@ -118,6 +119,18 @@ def test_robust_grasp_that_closed_on_nothing_looks_for_the_object_and_grasps_it(
             assert robot.ground_truth().object_poses["blk"][2, 3] > 0.776 + 0.06
         else:  # without the camera, and no search offsets, the miss is the grasp's failure
             assert end.event is Event.FAILURE and end.values["looks"] == 0 and end.values["searches"] == 0, end
+    # a camera that gives no frame: the look sees nothing and the grasp goes on with its offsets, no error
+    robot, runner = block_scene()
+
+    def no_frame(name: str = "kinect"):
+        raise RemoteError(f"robot tombatossals: no frame of camera {name!r} within 30 s")
+
+    robot.camera = no_frame
+    run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.42, 0.92)))})
+    ev = run_primitive(runner, "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "search_camera": "kinect",
+                                                "search_offsets": []}, max_time=60)
+    end = outcome(ev)
+    assert end.event is Event.FAILURE and end.values["looks"] == 2 and "sees no object" in end.detail, end
 
 
 def _hand_efforts(robot: SimRobot) -> float:
