@@ -28,7 +28,10 @@ Example (``deploy/manifests/default.yaml`` is the full thesis layout)::
         sensors: {arm_left: control, kinect: vision3d}
 
 High-bandwidth sources stay on the host that owns them (thesis App. A.1.4): a node that
-lists a sensor must run on the host the robot entry gives for it.
+lists a sensor must run on the host the robot entry gives for it. Hosts on a network get
+``mtls`` and ``usrpwd`` unless ``security`` says otherwise; plain ``tcp`` between hosts needs
+``insecure: true``; a local run (:func:`on_loopback`) is plain tcp on loopback. An input wired
+to ``module.port`` must name a module of the site with that output.
 """
 
 from __future__ import annotations

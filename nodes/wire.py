@@ -183,6 +183,8 @@ Check = Callable[[Any], "str | None"]
 
 _FLOAT_DTYPES = frozenset({"float16", "float32", "float64"})
 _checks: dict[type, Check] = {}
+_checks_lock = threading.RLock()
+_building: set[type] = set()
 
 
 def _no_check(value: Any) -> str | None:
@@ -261,19 +263,28 @@ def _struct_check(cls: type) -> Check:
     cached = _checks.get(cls)
     if cached is not None:
         return cached
-    _checks[cls] = _no_check  # a struct that contains itself is checked one level deep
-    exempt = getattr(cls, "nonfinite", frozenset())
-    fields = [(f.name, c) for f in mi.type_info(cls).fields
-              if f.name not in exempt and (c := _checker(f.type)) is not _no_check]
+    with _checks_lock:  # zenoh threads decode at once: none may see the placeholder of a check being built
+        if cls in _building:
+            return _no_check  # a struct that contains itself is checked one level deep
+        cached = _checks.get(cls)
+        if cached is not None:
+            return cached
+        _building.add(cls)
+        try:
+            exempt = getattr(cls, "nonfinite", frozenset())
+            fields = [(f.name, c) for f in mi.type_info(cls).fields
+                      if f.name not in exempt and (c := _checker(f.type)) is not _no_check]
+        finally:
+            _building.discard(cls)
 
-    def check(value: Any) -> str | None:
-        for name, c in fields:
-            bad = c(getattr(value, name))
-            if bad is not None:
-                return f".{name}{bad}"
-        return None
-    _checks[cls] = check if fields else _no_check
-    return _checks[cls]
+        def check(value: Any) -> str | None:
+            for name, c in fields:
+                bad = c(getattr(value, name))
+                if bad is not None:
+                    return f".{name}{bad}"
+            return None
+        _checks[cls] = check if fields else _no_check
+        return _checks[cls]
 
 
 def decode(data: bytes | bytearray | memoryview, type_: type[M], where: str = "") -> M:
