@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
@@ -9,6 +10,15 @@ from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.messages import Clock, LockstepAck, Mark
 from contactflow.nodes.transport import Handle, Transport
 from contactflow.nodes.wire import WireError, decode, encode, stamp
+
+log = logging.getLogger("contactflow.clock")
+
+MAX_TIME_JUMP = 3600.0  # s of simulated time one clock message may move a running clock ahead
+MAX_TICK_JUMP = 1 << 24  # world ticks one clock message may move a running lockstep clock ahead
+"""A clock message beyond these is refused and counted (``rejected``): one forged far-ahead time
+or tick would otherwise become the clock, every real message after it would look old, and the
+node would stay up with a dead loop. The first message of a clock is taken as it is (a node may
+join a world that has run for hours)."""
 
 
 class WallClock:
@@ -35,6 +45,7 @@ class SimClock:
 
     def __init__(self, transport: Transport, ks: KeySpace, cell: str = "") -> None:
         self._t = 0.0
+        self._heard = False  # a clock message was taken: later ones are bounded by MAX_TIME_JUMP
         self._cond = threading.Condition()
         self.rejected = 0
         self._sub: Handle = transport.subscribe(ks.clock(cell), self._on_clock)
@@ -46,8 +57,18 @@ class SimClock:
             self.rejected += 1
             return
         with self._cond:
+            if self._heard and msg.t > self._t + MAX_TIME_JUMP:
+                self._refuse(key, f"t={msg.t:g} s is more than {MAX_TIME_JUMP:g} s ahead of {self._t:g} s")
+                return
             if self._advance(msg):
+                self._heard = True
                 self._cond.notify_all()
+
+    def _refuse(self, key: str, why: str) -> None:
+        """Count a clock message that would move the clock too far; log the first ten and every thousandth."""
+        self.rejected += 1
+        if self.rejected <= 10 or self.rejected % 1000 == 0:
+            log.warning("%s: clock message refused (%d so far): %s", key, self.rejected, why)
 
     def _advance(self, msg: Clock) -> bool:
         """Take the time of ``msg`` (under the lock); whether the clock moved."""
@@ -98,6 +119,9 @@ class LockstepClock(SimClock):
         self._token: Handle = transport.token(ks.alive_lockstep(node, cell))
 
     def _advance(self, msg: Clock) -> bool:
+        if self._tick >= 0 and msg.tick > self._tick + MAX_TICK_JUMP:
+            self._refuse("clock", f"tick {msg.tick} is more than {MAX_TICK_JUMP} ahead of tick {self._tick}")
+            return False
         if msg.tick > self._tick:
             self._tick, self._t, self._marks = msg.tick, max(self._t, msg.t), msg.marks
             return True

@@ -133,6 +133,7 @@ class WorldModule(Module):
         self.robots: dict[str, _Robot] = {}
         self.tick_no = 0
         self.overruns = 0
+        self.refused_acks = 0  # acks for ticks the world had not published (forged)
         self.refused_unknown = 0
         self._commands: deque[ArmCommand | HandCommand | HeadCommand] = deque()
         self._requests: deque[CameraRequest] = deque()
@@ -251,6 +252,12 @@ class WorldModule(Module):
         except WireError:
             return
         with self._cond:
+            if ack.tick > self.tick_no:  # no node can answer a tick not published yet: forged
+                self.refused_acks += 1
+                if self.refused_acks <= 10:
+                    self.log.warning("%s: refused an ack of node %r for tick %d (the world is at tick %d)",
+                                     key, ack.node, ack.tick, self.tick_no)
+                return
             for m in ack.marks:
                 if m.seq > self._marks.get((m.key, m.source), 0):
                     self._marks[(m.key, m.source)] = m.seq

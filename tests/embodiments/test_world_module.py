@@ -193,6 +193,12 @@ def test_a_lockstep_node_holds_the_world_at_each_tick_until_it_answers(world):
     # what the node said it sent during tick k+1 comes with tick k+2 (its subscribers wait for it), and only then
     marks = {m.tick: m.marks for m in c.clocks if m.tick > k}
     assert marks[k + 2] == [sent] and marks[k + 1] == [] and marks[k + 3] == []
+    # a forged answer for a tick far ahead is refused: the world still waits for the node's real answer
+    c.ack(2**62)
+    time.sleep(0.5)
+    assert wm.tick_no == k + 3 and wm.refused_acks == 1
+    c.ack(k + 3)
+    assert wait_for(lambda: wm.tick_no == k + 4, 5)
     token.close()  # gone: the world runs on without it
     assert wait_for(lambda: wm.tick_no > k + 50, 10)
     assert wm.overruns == 0
