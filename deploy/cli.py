@@ -6,6 +6,7 @@ import importlib
 import inspect
 import json
 import logging
+import math
 import os
 import sys
 import threading
@@ -201,6 +202,81 @@ def echo(keyexpr: Annotated[str, typer.Argument(help="key expression, e.g. 'cf/d
     finally:
         sub.close()
         t.close()
+
+
+@app.command()
+def record(keys: Annotated[list[str] | None, typer.Argument(help="key expressions (default: the whole site, cf/<site>/**)")] = None,
+           out: Annotated[Path, typer.Option("--out", "-o", help="the MCAP file to write")] = Path("run.mcap"),
+           site: Site = None, connect: Connect = None,
+           duration: Annotated[float, typer.Option(help="s to record (0: until Ctrl-C)")] = 0.0,
+           view: Annotated[bool, typer.Option(help="also write the Foxglove view channels")] = True) -> None:
+    """Record the key space into an MCAP file (JSON channels per key, plus Foxglove view channels)."""
+    from rich.live import Live
+
+    from contactflow.deploy.recorder import Recorder
+
+    site = site or default_site()
+    t = open_tool_session(connect)
+    rec = Recorder(t, keys or [f"{KeySpace(site).prefix}/**"], out, site, view=view).start()
+    end = time.monotonic() + duration if duration > 0 else math.inf
+
+    def line() -> str:
+        s = rec.stats
+        return (f"recording {escape(str(out))}: {s.recorded} messages, {s.bytes / 1e6:.1f} MB, "
+                f"{s.dropped} dropped, {s.lost} lost, {s.rejected} rejected")
+    try:
+        with Live(line(), console=console, refresh_per_second=4) as live:
+            while time.monotonic() < end:
+                time.sleep(0.25)
+                live.update(line())
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stats = rec.stop()
+        t.close()
+    console.print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB): " + ", ".join(f"{k} {v:g}" for k, v in stats.as_dict().items()))
+
+
+@app.command()
+def replay(recording: Annotated[Path, typer.Argument(help="an MCAP file written by contactflow record")],
+           rate: Annotated[float, typer.Option(help="x recorded speed (0: as fast as possible)")] = 1.0,
+           site: Annotated[str | None, typer.Option("--site", "-s", help="the site to publish on (default: the recorded one)")] = None,
+           key: Annotated[list[str] | None, typer.Option("--key", "-k", help="replay only this recorded key (repeatable)")] = None,
+           force: Annotated[bool, typer.Option(help="replay even where live publishers use the recorded keys")] = False,
+           connect: Connect = None) -> None:
+    """Republish a recording on a site, its clock among it, so modules run again on recorded sensors."""
+    from rich.progress import Progress, TextColumn
+
+    from contactflow.deploy.recording import Recording, RecordingError
+    from contactflow.deploy.replayer import Replayer, ReplayError
+
+    try:
+        rec = Recording.open(recording)
+        unknown = sorted(set(key or ()) - set(rec.channels))
+        if unknown:
+            raise RecordingError(f"{recording}: no channel for key {unknown[0]!r} (keys: {', '.join(sorted(rec.channels)[:8])} ...)")
+    except RecordingError as exc:
+        console.print(f"[red]{escape(str(exc))}[/]")
+        raise typer.Exit(2) from None
+    t = open_tool_session(connect)
+    try:
+        player = Replayer(t, rec, site, rate, set(key) if key else None)
+        live = player.check(force)
+        if live:
+            console.print(f"[yellow]warning: live publishers on {len(live)} recorded keys; replaying anyway (--force)[/]")
+        span = (rec.end_ns - rec.start_ns) / 1e9
+        console.print(f"replaying {sum(rec.counts.values())} messages ({span:.1f} s) of site {rec.site!r} on {player.site!r}")
+        with Progress(*Progress.get_default_columns(), TextColumn("{task.fields[n]} messages"), console=console) as bar:
+            task = bar.add_task("replay", total=max(span, 1e-9), n=0)
+            stats = player.run(lambda n, t_rec: bar.update(task, completed=t_rec, n=n))
+    except ReplayError as exc:
+        console.print(f"[red]{escape(str(exc))}[/]")
+        raise typer.Exit(2) from None
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    finally:
+        t.close()
+    console.print(f"replayed {stats.messages} messages in {stats.seconds:.1f} s ({stats.speed:.2f}x real time)")
 
 
 @app.command()

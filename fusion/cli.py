@@ -1,20 +1,24 @@
-"""``contactflow contacts``: watch fused contact events live."""
+"""``contactflow contacts``: watch fused contact events live, re-fuse a recording offline."""
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.table import Table
 
 from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.params import params_dict
 from contactflow.nodes.session import default_site, open_tool_session
 from contactflow.nodes.status import Event
-from contactflow.nodes.transport import Handle, Transport
+from contactflow.nodes.transport import Handle, Transport, key_matches
 from contactflow.nodes.wire import WireError, decode
 
 app = typer.Typer(help="Fused contact events (thesis ch. 4).", no_args_is_help=True)
@@ -82,3 +86,64 @@ def watch(
         sub.close()
         transport.close()
     console.print(f"{count} events")
+
+
+def _pairs(items: list[str] | None, what: str) -> dict[str, str]:
+    out = {}
+    for item in items or ():
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise typer.BadParameter(f"{item!r}: expected NAME=VALUE", param_hint=what)
+        out[name.strip()] = value.strip()
+    return out
+
+
+@app.command()
+def refuse(recording: Annotated[Path, typer.Argument(help="an MCAP file written by contactflow record")],
+           set_: Annotated[list[str] | None, typer.Option("--set", help="fusion parameter NAME=VALUE (repeatable), e.g. voxel_size=0.01")] = None,
+           weight: Annotated[list[str] | None, typer.Option(help="generator weight GENERATOR=FACTOR on its likelihoods (repeatable)")] = None,
+           robot: Annotated[str, typer.Option(help="the fused stream's robot segment (site: a shared integrator)")] = "*",
+           window: Annotated[float, typer.Option(help="s, largest time difference of a matched pair")] = 0.1,
+           radius: Annotated[float, typer.Option(help="m, largest location difference of a matched pair")] = 0.03,
+           out: Annotated[Path | None, typer.Option(help="write the comparison as JSON here")] = None) -> None:
+    """Re-fuse a recording's hypothesis clouds with other parameters and compare with its recorded events."""
+    from contactflow.deploy.recording import Recording, RecordingError
+    from contactflow.fusion.messages import HypothesisCloud
+    from contactflow.fusion.refusion import EventRecord, compare, refuse
+    from contactflow.fusion.service import FusionParams
+    from contactflow.nodes.params import ParamError, replace_params
+
+    try:
+        params = replace_params(FusionParams(), dict(_pairs(set_, "--set")), where="--set ")
+        weights = {g: float(v) for g, v in _pairs(weight, "--weight").items()}
+        rec = Recording.open(recording)
+    except (ParamError, RecordingError, ValueError) as exc:
+        console.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
+    ks = KeySpace(rec.site)
+    events_key = ks.fused(robot, "events")
+    clouds, recorded = [], []
+    for s in rec.samples():
+        if isinstance(s.msg, HypothesisCloud):
+            clouds.append(s.msg)
+        elif isinstance(s.msg, ContactEventMsg) and key_matches(events_key, s.key):
+            recorded.append(EventRecord.of(s.msg))
+    try:
+        refused = refuse(clouds, params, weights)
+    except (ValueError, WireError) as exc:
+        console.print(f"[red]{exc}[/]")
+        raise typer.Exit(2) from None
+    cmp = compare(recorded, refused, window, radius)
+    table = Table(title=f"re-fusion of {recording.name}: {len(clouds)} clouds")
+    for col in ("", "recorded", "re-fused"):
+        table.add_column(col)
+    for kind in sorted(set(cmp.recorded) | set(cmp.refused)):
+        table.add_row(kind, str(cmp.recorded.get(kind, 0)), str(cmp.refused.get(kind, 0)))
+    console.print(table)
+    console.print(f"matched {cmp.matched} (within {window:g} s, {radius:g} m): |dt| mean {cmp.dt_mean * 1e3:.1f} ms, "
+                  f"max {cmp.dt_max * 1e3:.1f} ms; distance mean {cmp.dist_mean * 1e3:.1f} mm, max {cmp.dist_max * 1e3:.1f} mm; "
+                  f"unmatched {len(cmp.unmatched_recorded)} recorded, {len(cmp.unmatched_refused)} re-fused")
+    if out is not None:
+        out.write_text(json.dumps({"recording": str(recording), "clouds": len(clouds), "params": params_dict(params),
+                                   "weights": weights, **cmp.as_dict()}, indent=2))
+

@@ -57,7 +57,10 @@ def deployment(tmp_path_factory, lab_factory):
             time.sleep(0.1)
         seen = {"/".join(e["key"].split("/")[-2:]) for e in obs.events(alive, "alive") if e["up"]}
         assert seen >= wanted, f"nodes up: {seen}\n{dep.logs()}"
-        peer = ProbeClient(lab.wrap("h2", []), [f"tcp/{lab.addresses['h2']}:7450"], name="h2probe")
+        # a member on h2 connects to every node, as the site's tools do (tool_endpoints): zenoh 1.10
+        # sometimes does not relay a token declared again after a heal to a session that reaches
+        # h1 only through h2's node (seen in 1 of ~10 runs, while h1's data flowed through h2 again)
+        peer = ProbeClient(lab.wrap("h2", []), eps, name="h2probe")
         probes.append(peer)
         yield lab, m, dep, obs, alive, peer
     finally:

@@ -1,0 +1,126 @@
+"""Records key expressions of a site into an MCAP file (``contactflow record``).
+
+zenoh callbacks only queue the payload; one writer thread decodes, writes the key-space
+channel and the Foxglove view channels. A full queue drops (counted), a payload the wire
+refuses is counted and left out, and a gap in a source's sequence numbers counts as lost.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from contactflow.deploy.foxglove_view import ViewTranslator
+from contactflow.deploy.recording import RecordingWriter, message_types
+from contactflow.deploy.seqcheck import SequenceMonitor
+from contactflow.embodiments.messages import InfoRequest, RobotInfo, RobotState
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.transport import Handle, Transport
+from contactflow.nodes.wire import WireError, decode, decode_any, encode
+
+log = logging.getLogger("contactflow.record")
+
+
+@dataclass
+class RecorderStats:
+    """What a recorder saw and wrote."""
+
+    received: int = 0  # samples the subscriptions delivered
+    recorded: int = 0  # key-space messages written
+    view: int = 0  # Foxglove view messages written
+    dropped: int = 0  # samples the recorder's queue had no room for
+    rejected: int = 0  # payloads the wire refuses (not MessagePack, unknown type, invalid fields)
+    lost: int = 0  # messages missing from a source's sequence numbers
+    bytes: int = 0  # wire bytes received
+    seconds: float = 0.0  # s, recording time
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+class Recorder:
+    """Subscribes to ``keys`` and writes what arrives into ``path`` until ``stop``."""
+
+    def __init__(self, transport: Transport, keys: list[str], path: Path, site: str, view: bool = True,
+                 queue_size: int = 200_000) -> None:
+        self.transport = transport
+        self.keys = list(keys)
+        self.path = Path(path)
+        self.ks = KeySpace(site)
+        self.view = ViewTranslator() if view else None
+        self.stats = RecorderStats()
+        self._queue: queue.Queue[tuple[str, bytes, int] | None] = queue.Queue(maxsize=queue_size)
+        self._writer = RecordingWriter(self.path, site)
+        self._seqs = SequenceMonitor()
+        self._handles: list[Handle] = []
+        self._thread: threading.Thread | None = None
+        self._robots: set[str] = set()
+        self._t0 = 0.0
+
+    def start(self) -> Recorder:
+        message_types()
+        self._writer.open()
+        self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
+        self._thread.start()
+        self._t0 = time.monotonic()
+        self._handles = [self.transport.subscribe(k, self._on_sample) for k in self.keys]
+        return self
+
+    def _on_sample(self, key: str, payload: bytes) -> None:
+        self.stats.received += 1
+        self.stats.bytes += len(payload)
+        try:
+            self._queue.put_nowait((key, payload, time.time_ns()))
+        except queue.Full:
+            self.stats.dropped += 1
+
+    def _run(self) -> None:
+        while (item := self._queue.get()) is not None:
+            key, payload, t_ns = item
+            try:
+                msg = decode_any(payload, key)
+            except WireError as exc:
+                self.stats.rejected += 1
+                log.debug("%s", exc)
+                continue
+            gap = self._seqs.observe(f"{key} {msg.hdr.source}", msg.hdr.seq) if msg.hdr.seq > 0 else None
+            if gap is not None:
+                self.stats.lost += gap.count
+            self._writer.write(key, msg, t_ns, len(payload))
+            self.stats.recorded += 1
+            if self.view is not None:
+                if isinstance(msg, RobotState) and msg.robot not in self._robots:
+                    self._learn(msg.robot, t_ns)
+                for topic, vmsg in self.view.translate(key, msg):
+                    self._writer.write_view(topic, vmsg, t_ns)
+                    self.stats.view += 1
+
+    def _learn(self, robot: str, t_ns: int) -> None:
+        """Ask the robot's world what it is, for its links' frames (once; a robot nobody answers for has none)."""
+        self._robots.add(robot)
+        assert self.view is not None
+        key = self.ks.robot(robot, "info")
+        try:
+            replies = self.transport.query(key, encode(InfoRequest()), timeout=2.0)
+            for rkey, payload in replies[:1]:
+                for topic, vmsg in self.view.add_robot(decode(payload, RobotInfo, rkey)):
+                    self._writer.write_view(topic, vmsg, t_ns)
+        except Exception as exc:  # the view is a convenience: the key-space channels are recorded anyway
+            log.warning("no frames for robot %s: %s", robot, exc)
+
+    def stop(self) -> RecorderStats:
+        """Unsubscribe, write what is queued and finish the file (a valid MCAP file)."""
+        for h in self._handles:
+            h.close()
+        self._handles = []
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
+        self._writer.close()
+        self.stats.seconds = time.monotonic() - self._t0
+        return self.stats

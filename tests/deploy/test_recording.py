@@ -1,0 +1,236 @@
+"""Recording the key space to MCAP, reading it back, re-fusion, replay into a fusion node, the live Foxglove view."""
+
+import json
+import threading
+import time
+from collections import Counter
+
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from contactflow.deploy.recorder import Recorder
+from contactflow.deploy.recording import Recording, RecordingError
+from contactflow.deploy.replayer import Replayer, ReplayError
+from contactflow.deploy.testing import TAP_PAD
+from contactflow.fusion.messages import ContactEventMsg, HypothesisCloud
+from contactflow.fusion.refusion import EventRecord, compare, refuse
+from contactflow.fusion.service import FusionParams
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.params import replace_params
+from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
+from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+from contactflow.nodes.wire import decode_any
+
+SITE = "rec"
+KS = KeySpace(SITE)
+FUSION = {"robot": "r1", "sources": "r1/*", "rate_hz": 50, "timeout": 0.1, "hold": 0.05}
+# a pad pressed and released every 0.4 s, turned into hypotheses by the tactile generator and fused:
+# ~5 contact events per second on the fused events key
+SENSING = [
+    {"name": "pad", "type": TAP_PAD, "params": {"robot": "r1", "press_s": 0.2, "release_s": 0.2}},
+    {"name": "tactile", "type": "tactile_hypotheses", "inputs": {"tactile": "pad.tactile", "taxels": "pad.taxels"},
+     "params": {"robot": "r1"}},
+]
+FUSING = [{"name": "fusion", "type": "contact_fusion", "params": FUSION}]
+
+
+def _node(tmp, site, modules, name, clock="wall"):
+    port = free_port()
+    cfg = {"site": site, "node": name, "host": "box", "clock": clock,
+           "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"], "multicast_scouting": False},
+           "modules": modules}
+    proc = spawn_node(write_config(tmp / f"{name}.yaml", cfg), tmp / f"{name}.log")
+    tool = ZenohTransport(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",))).open()
+    if not wait_for(lambda: len(tool.alive(KeySpace(site).alive_module(), timeout=0.5)) == len(modules), timeout=30):
+        tool.close()
+        stop_process(proc)
+        raise AssertionError((tmp / f"{name}.log").read_text()[-3000:])
+    return proc, tool
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """3 s of a sensing-and-fusion node recorded, with what an independent subscriber counted per key."""
+    tmp = tmp_path_factory.mktemp("recording")
+    proc, tool = _node(tmp, SITE, SENSING + FUSING, "sense")
+    seen: Counter = Counter()
+    lock = threading.Lock()
+
+    def count(key, payload):
+        decode_any(payload, key)
+        with lock:
+            seen[key] += 1
+    try:
+        rec = Recorder(tool, [f"{KS.prefix}/contacts/**"], tmp / "run.mcap", SITE).start()
+        sub = tool.subscribe(f"{KS.prefix}/contacts/**", count)
+        time.sleep(3.0)
+        sub.close()
+        stats = rec.stop()
+        with lock:
+            counted = dict(seen)
+        yield tmp, tmp / "run.mcap", stats, counted
+    finally:
+        tool.close()
+        stop_process(proc)
+
+
+def test_a_recording_reads_back_with_a_channel_and_schema_per_key(recorded):
+    tmp, path, stats, counted = recorded
+    assert stats.dropped == 0 and stats.rejected == 0 and stats.lost == 0, stats
+    rec = Recording.open(path)
+    assert rec.site == SITE
+    events_key, cloud_key = KS.fused("r1", "events"), KS.hypotheses("r1", "tactile")
+    assert rec.channels[events_key] == "contact_event" and rec.channels[cloud_key] == "hypothesis_cloud"
+    assert rec.counts[events_key] >= 8, rec.counts  # ~5 events/s for 3 s
+    # the recorder and an independent subscriber started a moment apart: every key's count within a few
+    for key, n in counted.items():
+        assert abs(rec.counts.get(key, 0) - n) <= 3, (key, rec.counts.get(key), n)
+    assert sum(rec.counts.values()) == stats.recorded
+    assert {"/contacts/events", "/contacts/hypotheses", "/contacts/fused"} <= set(rec.view_topics)
+
+    # the plain mcap reader: JSON schema per key, JSON messages, sequence per channel from 1
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        by_topic = {c.topic: c for c in summary.channels.values()}
+        ch = by_topic[events_key]
+        schema = summary.schemas[ch.schema_id]
+        assert (schema.name, schema.encoding, ch.message_encoding) == ("contactflow.contact_event", "jsonschema", "json")
+        assert json.loads(schema.data)["type"] == "object" and "location" in json.loads(schema.data)["properties"]
+        assert summary.schemas[by_topic["/contacts/hypotheses"].schema_id].name == "foxglove.PointCloud"
+        f.seek(0)
+        msgs = [(m.sequence, json.loads(m.data)) for _, c, m in make_reader(f).iter_messages(topics=[events_key])]
+    assert [s for s, _ in msgs] == list(range(1, len(msgs) + 1))
+    assert {m["event"] for _, m in msgs} == {"contact_made", "contact_broken"}
+
+    samples = list(rec.samples({events_key}))
+    assert len(samples) == rec.counts[events_key] and all(isinstance(s.msg, ContactEventMsg) for s in samples)
+    assert [s.log_ns for s in samples] == sorted(s.log_ns for s in samples)
+
+
+def _events_and_clouds(rec):
+    clouds, events = [], []
+    for s in rec.samples():
+        if isinstance(s.msg, HypothesisCloud):
+            clouds.append(s.msg)
+        elif isinstance(s.msg, ContactEventMsg):
+            events.append(EventRecord.of(s.msg))
+    return clouds, events
+
+
+def test_refusion_with_the_recorded_parameters_reproduces_the_recorded_events(recorded):
+    _, path, _, _ = recorded
+    clouds, events = _events_and_clouds(Recording.open(path))
+    params = replace_params(FusionParams(), FUSION)
+    again = refuse(clouds, params)
+    cmp = compare(events, again, window=0.05, radius=0.005)
+    # the first and last recorded events may lack their cloud (the recording starts and stops mid-press)
+    assert cmp.matched >= len(events) - 2 and len(cmp.unmatched_refused) <= 2, cmp.as_dict()
+    assert cmp.dt_max <= 0.05 and cmp.dist_max <= 0.005
+    # a cluster must now weigh more than the whole pad: the same clouds make no contact
+    assert refuse(clouds, replace_params(params, {"min_mass": 1e6})) == []
+    # halving the tactile likelihoods below the floor, too
+    assert len(refuse(clouds, replace_params(params, {"threshold": 0.9}), {"tactile": 0.5})) == 0
+
+
+def test_replaying_the_clouds_into_a_fusion_node_reproduces_the_contact_events(recorded):
+    tmp, path, _, _ = recorded
+    rec = Recording.open(path)
+    _, recorded_events = _events_and_clouds(rec)
+    site = "rep"
+    proc, tool = _node(tmp, site, FUSING, "refuse", clock="sim")  # on the replay's clock: the recorded time
+    got = []
+
+    def on_event(key, payload):
+        got.append(EventRecord.of(decode_any(payload, key)))
+    try:
+        sub = tool.subscribe(KeySpace(site).fused("r1", "events"), on_event)
+        clouds = {k for k, tag in rec.channels.items() if tag == "hypothesis_cloud"}
+        player = Replayer(tool, rec, site=site, keys=clouds)
+        assert player.check() == []  # nobody publishes clouds on the new site
+        assert player.makes_clock  # the recording has none: its nodes ran on the wall clock
+        stats = player.run()
+        time.sleep(0.5)
+        sub.close()
+    finally:
+        tool.close()
+        stop_process(proc)
+    assert stats.messages == sum(rec.counts[k] for k in clouds)
+    assert 0.8 < stats.speed < 1.2 and stats.clock_ticks > 100, stats.as_dict()
+    cmp = compare(recorded_events, got, window=0.1, radius=0.005)
+    assert cmp.matched >= len(recorded_events) - 2 and len(cmp.unmatched_refused) <= 2, cmp.as_dict()
+
+
+def test_replay_onto_a_site_with_live_publishers_on_the_recorded_keys_is_refused_unless_forced(recorded, tmp_path):
+    _, path, _, _ = recorded
+    rec = Recording.open(path)
+    proc, tool = _node(tmp_path, SITE, SENSING, "live")
+    try:
+        player = Replayer(tool, rec, rate=0)
+        with pytest.raises(ReplayError, match=r"live publishers on \d+ recorded keys.*--force"):
+            player.check()
+        assert KS.hypotheses("r1", "tactile") in player.check(force=True)
+    finally:
+        tool.close()
+        stop_process(proc)
+
+
+def test_truncated_foreign_and_non_mcap_files_are_refused_naming_the_file(recorded, tmp_path):
+    _, path, _, _ = recorded
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(RecordingError, match=r"cut\.mcap: truncated"):
+        Recording.open(cut)
+    foreign = tmp_path / "foreign.mcap"
+    with open(foreign, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("x", "jsonschema", b"{}")
+        cid = w.register_channel("/x", "json", sid)
+        w.add_message(cid, 1, b"{}", 1)
+        w.finish()
+    with pytest.raises(RecordingError, match=r"foreign\.mcap: not a contactflow recording"):
+        Recording.open(foreign)
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    with pytest.raises(RecordingError, match=r"notes\.txt: not an MCAP file"):
+        Recording.open(text)
+    with pytest.raises(RecordingError, match=r"absent\.mcap"):
+        Recording.open(tmp_path / "absent.mcap")
+
+
+def test_the_live_view_serves_the_advertised_channels_to_a_websocket_client(tmp_path):
+    from websockets.sync.client import connect
+
+    port = free_port()
+    view = {"name": "view", "type": "foxglove_view", "params": {"port": port}}
+    proc, tool = _node(tmp_path, "viewsite", [*SENSING, {**FUSING[0], "params": {**FUSION}}, view], "view")
+    try:
+        topics: set[str] = set()
+        with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], open_timeout=10) as ws:
+            assert ws.subprotocol == "foxglove.sdk.v1"
+            info = json.loads(ws.recv(timeout=5))
+            assert info["op"] == "serverInfo"
+            end = time.monotonic() + 10
+            wanted = {"/contacts/events", "/contacts/hypotheses", "/contacts/fused"}
+            subscribed = set()
+            binary = 0
+            while time.monotonic() < end and (not wanted <= topics or binary < 3):
+                msg = ws.recv(timeout=max(0.1, end - time.monotonic()))
+                if isinstance(msg, bytes):
+                    binary += 1  # a message data frame of a subscribed channel
+                    continue
+                m = json.loads(msg)
+                if m["op"] == "advertise":
+                    new = [c for c in m["channels"] if c["topic"] in wanted and c["topic"] not in subscribed]
+                    topics |= {c["topic"] for c in m["channels"]}
+                    if new:
+                        ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                            {"id": len(subscribed) + i, "channelId": c["id"]} for i, c in enumerate(new)]}))
+                        subscribed |= {c["topic"] for c in new}
+        assert wanted <= topics, topics
+        assert binary >= 3, "no message data reached the subscribed client"
+    finally:
+        tool.close()
+        stop_process(proc)
