@@ -41,6 +41,7 @@ BENCHMARKS = {
     "recognition": "contactflow.recognition.bench_recognition",
     "deploy": "contactflow.deploy.bench_deploy",
     "fuzz": "contactflow.deploy.bench_fuzz",
+    "record": "contactflow.deploy.bench_record",
 }
 """``contactflow bench NAME`` runs ``run(out_dir, quick)`` of the module named here."""
 
@@ -341,7 +342,8 @@ def demo(out: Path = Path("demo-report"), quick: bool = False,
              "--connect", "-e", help="a zenoh endpoint every demo node also connects to (repeatable)")] = None,
          listen: Annotated[list[str] | None, typer.Option(
              "--listen", "-l", help="an endpoint the demo's session listens on for outside clients (repeatable; "
-             "default loopback only)")] = None) -> None:
+             "default loopback only)")] = None,
+         record: Annotated[bool, typer.Option(help="record the key space into OUT/demo.mcap (open it in Foxglove)")] = False) -> None:
     """The thesis §7.3 experiment on three simulated robots over zenoh, with a report (README's main command)."""
     if pipeline:
         from contactflow.deploy import pipeline_demo
@@ -356,7 +358,8 @@ def demo(out: Path = Path("demo-report"), quick: bool = False,
     except KeyExprError as exc:
         console.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
-    raise typer.Exit(full.run(out, quick=quick, site=site, connect=tuple(connect or ()), listen=tuple(listen or ())))
+    raise typer.Exit(full.run(out, quick=quick, site=site, connect=tuple(connect or ()), listen=tuple(listen or ()),
+                              record=record))
 
 
 def _mount_subcommands() -> None:

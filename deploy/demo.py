@@ -39,6 +39,7 @@ from contactflow.abstraction.primitives import AbstractPrimitive
 from contactflow.abstraction.profiles import PROFILES
 from contactflow.deploy.launcher import render, tool_endpoints
 from contactflow.deploy.manifest import DEFAULT_MANIFEST, Manifest, load_manifest
+from contactflow.deploy.recorder import Recorder
 from contactflow.embodiments.messages import DepthImage, ObjectPoses
 from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.keys import KeySpace
@@ -175,13 +176,14 @@ def _plots(out: Path, rec: Record, tasks: list[dict]) -> None:
 
 
 def run(out: Path, quick: bool = False, console: Console | None = None, site: str | None = None,
-        connect: tuple[str, ...] = (), listen: tuple[str, ...] = ()) -> int:
+        connect: tuple[str, ...] = (), listen: tuple[str, ...] = (), record: bool = False) -> int:
     """Run the demo into ``out``; 0 only when both ATDs succeeded on every robot as checked on ground truth.
 
     ``quick`` runs the same experiment with the stations' cameras at a lower rate (less vision work).
     ``site`` names the key space (default: a fresh ``demoNNNNN``); every node and the demo's own
     session also connect to ``connect`` (join an existing zenoh network); the demo's session
     listens on ``listen`` (default: loopback only), so outside clients can attach there.
+    ``record``: the whole key space goes into ``out/demo.mcap`` (``contactflow record``).
     """
     console = console or Console()
     out = out.resolve()  # the generated node configurations name their zenoh files by absolute path
@@ -257,6 +259,7 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
             tool.subscribe(ks.output("tombatossals", "*", "objects", "objects"), on_objects),
             tool.subscribe(ks.robot("tombatossals", "depth"), on_depth),
             tool.subscribe(ks.evaluation("*", "object_poses"), on_truth)]
+    recorder = Recorder(tool, [f"{ks.prefix}/**"], out / "demo.mcap", site).start() if record else None
     tasks: list[dict] = []
     code = 1
     try:
@@ -319,6 +322,7 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
     finally:
         for s in subs:
             s.close()
+        recorded = recorder.stop().as_dict() if recorder is not None else None
         tool.close()
         for p in procs.values():
             stop_process(p)
@@ -328,7 +332,8 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
                    "tasks": tasks, "contact_events": len(rec.contacts),
                    "contacts_by_robot": {r: sum(c["robot"] == r for c in rec.contacts) for r in ROBOTS},
                    "vision_objects_seen": rec.objects[-10:], "camera_frames": len(rec.frames),
-                   "progress": rec.progress, "contacts": rec.contacts}
+                   "progress": rec.progress, "contacts": rec.contacts,
+                   **({"recording": {"file": "demo.mcap", **recorded}} if recorded is not None else {})}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     console.rule("report")
     for t in tasks:
@@ -341,5 +346,6 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
     if code:
         console.print("[red]the demo failed:[/] not every task ended in success on every robot "
                       "with the expected physical result")
-    console.print(f"{len(rec.contacts)} contact events; report in {out} (summary.json, timeline.png, contacts.png)")
+    console.print(f"{len(rec.contacts)} contact events; report in {out} (summary.json, timeline.png, contacts.png"
+                  + (f", demo.mcap: {recorded['recorded']:.0f} messages)" if recorded is not None else ")"))
     return code

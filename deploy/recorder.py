@@ -20,7 +20,7 @@ from contactflow.deploy.seqcheck import SequenceMonitor
 from contactflow.embodiments.messages import InfoRequest, RobotInfo, RobotState
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.transport import Handle, Transport
-from contactflow.nodes.wire import WireError, decode, decode_any, encode
+from contactflow.nodes.wire import Message, WireError, decode, decode_any, encode
 
 log = logging.getLogger("contactflow.record")
 
@@ -35,6 +35,7 @@ class RecorderStats:
     dropped: int = 0  # samples the recorder's queue had no room for
     rejected: int = 0  # payloads the wire refuses (not MessagePack, unknown type, invalid fields)
     lost: int = 0  # messages missing from a source's sequence numbers
+    unviewed: int = 0  # recorded messages the view channels could not show
     bytes: int = 0  # wire bytes received
     seconds: float = 0.0  # s, recording time
 
@@ -60,6 +61,7 @@ class Recorder:
         self._thread: threading.Thread | None = None
         self._robots: set[str] = set()
         self._t0 = 0.0
+        self._count = threading.Lock()
 
     def start(self) -> Recorder:
         message_types()
@@ -71,12 +73,13 @@ class Recorder:
         return self
 
     def _on_sample(self, key: str, payload: bytes) -> None:
-        self.stats.received += 1
-        self.stats.bytes += len(payload)
-        try:
-            self._queue.put_nowait((key, payload, time.time_ns()))
-        except queue.Full:
-            self.stats.dropped += 1
+        with self._count:  # zenoh may call the subscriptions of several keys at once
+            self.stats.received += 1
+            self.stats.bytes += len(payload)
+            try:
+                self._queue.put_nowait((key, payload, time.time_ns()))
+            except queue.Full:
+                self.stats.dropped += 1
 
     def _run(self) -> None:
         while (item := self._queue.get()) is not None:
@@ -93,11 +96,20 @@ class Recorder:
             self._writer.write(key, msg, t_ns, len(payload))
             self.stats.recorded += 1
             if self.view is not None:
-                if isinstance(msg, RobotState) and msg.robot not in self._robots:
-                    self._learn(msg.robot, t_ns)
-                for topic, vmsg in self.view.translate(key, msg):
-                    self._writer.write_view(topic, vmsg, t_ns)
-                    self.stats.view += 1
+                try:
+                    self._show(key, msg, t_ns)
+                except Exception:  # a message the view cannot draw (a robot model that fails to load) is recorded anyway
+                    self.stats.unviewed += 1
+                    if self.stats.unviewed == 1:
+                        log.exception("%s: not drawn in the view channels", key)
+
+    def _show(self, key: str, msg: Message, t_ns: int) -> None:
+        assert self.view is not None
+        if isinstance(msg, RobotState) and msg.robot not in self._robots:
+            self._learn(msg.robot, t_ns)
+        for topic, vmsg in self.view.translate(key, msg):
+            self._writer.write_view(topic, vmsg, t_ns)
+            self.stats.view += 1
 
     def _learn(self, robot: str, t_ns: int) -> None:
         """Ask the robot's world what it is, for its links' frames (once; a robot nobody answers for has none)."""

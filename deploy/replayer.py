@@ -107,26 +107,42 @@ class Replayer:
                               "stop them, replay on another site (--site) or force it (--force)")
         return live
 
-    def run(self, progress: Callable[[int, float], None] | None = None, stop: threading.Event | None = None) -> ReplayStats:
-        """Publish every message at its recorded time divided by the rate; ``progress(messages, recorded s)``."""
+    def run(self, progress: Callable[[int, float], None] | None = None, stop: threading.Event | None = None,
+            tail: float = 1.0) -> ReplayStats:
+        """Publish every message at its recorded time divided by the rate; ``progress(messages, recorded s)``.
+
+        A clock the replay makes reads the recorded time: before each message, the message's
+        own time (so a sim-clock node takes it at the time it was recorded), and every
+        ``1 / CLOCK_HZ`` s while the replay waits; ``tail`` s after the last message it runs on,
+        so what the last messages start (a contact's break) still happens.
+        """
         stats = ReplayStats()
         t_first: int | None = None
         wall0 = time.monotonic()
-        done = threading.Event()
-        clock: threading.Thread | None = None
+        tick = self.transport.publisher(self.ks.clock()) if self.makes_clock else None
+
+        def clock(t: float) -> None:
+            if tick is not None:
+                tick(encode(Clock(t=t, real_time_factor=self.rate)))
+                stats.clock_ticks += 1
+
+        def wait_until(rel: float) -> None:
+            """Sleep until recorded second ``rel`` is due, the clock running meanwhile."""
+            while (left := wall0 + rel / self.rate - time.monotonic()) > 0:
+                time.sleep(min(left, 1.0 / CLOCK_HZ))
+                if tick is not None and t_first is not None:
+                    clock(t_first / 1e9 + min(rel, (time.monotonic() - wall0) * self.rate))
+
+        rel = 0.0
         for s in self.recording.samples(self.keys):
             if stop is not None and stop.is_set():
                 break
             if t_first is None:
                 t_first = s.log_ns
-                if self.makes_clock and self.rate > 0:
-                    clock = threading.Thread(target=self._clock, args=(t_first / 1e9, wall0, done, stats), daemon=True)
-                    clock.start()
             rel = (s.log_ns - t_first) / 1e9
             if self.rate > 0:
-                wait = wall0 + rel / self.rate - time.monotonic()
-                if wait > 0:
-                    time.sleep(wait)
+                wait_until(rel)
+            clock(s.log_ns / 1e9)
             key = move_key(s.key, self.site)
             pub = self._pubs.get(key)
             if pub is None:
@@ -136,15 +152,7 @@ class Replayer:
             stats.recorded_seconds = rel
             if progress is not None and stats.messages % 100 == 0:
                 progress(stats.messages, rel)
-        done.set()
-        if clock is not None:
-            clock.join()
         stats.seconds = time.monotonic() - wall0
+        if tick is not None and self.rate > 0 and t_first is not None:
+            wait_until(rel + tail * self.rate)
         return stats
-
-    def _clock(self, t0: float, wall0: float, done: threading.Event, stats: ReplayStats) -> None:
-        """The recorded wall time as the site's clock, while the replay runs."""
-        pub = self.transport.publisher(self.ks.clock())
-        while not done.wait(1.0 / CLOCK_HZ):
-            pub(encode(Clock(t=t0 + (time.monotonic() - wall0) * self.rate, real_time_factor=self.rate)))
-            stats.clock_ticks += 1

@@ -9,6 +9,8 @@ from rich.console import Console
 from contactflow.abstraction.atd import load_atd
 from contactflow.abstraction.frames import WORKCELL
 from contactflow.deploy import demo
+from contactflow.deploy.recording import Recording
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import free_port
 
 ROBOTS = ["baxter", "melfa", "tombatossals"]
@@ -32,7 +34,7 @@ def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tm
     client = _outside_client(endpoint, site, heard)  # it waits for the demo's session to listen
     console = Console(record=True, width=200)
     try:
-        code = demo.run(tmp_path, quick=True, console=console, site=site, listen=(endpoint,))
+        code = demo.run(tmp_path, quick=True, console=console, site=site, listen=(endpoint,), record=True)
     finally:
         client.close()
     summary = json.loads((tmp_path / "summary.json").read_text())
@@ -51,6 +53,13 @@ def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tm
         assert source and sorted(h["seq"] for h in hdrs) == list(range(1, len(hdrs) + 1)), (source, task)
         assert all(h["t_wall"] > 0 and h["t_sim"] >= 0 for h in hdrs), (source, task)
     assert all(m["hdr"]["t_sim"] > 0 for m in ends)
+    # --record: the key space in an MCAP file beside the report, with the view a Foxglove layout shows
+    rec = Recording.open(tmp_path / "demo.mcap")
+    assert summary["recording"]["dropped"] == 0 and summary["recording"]["recorded"] == sum(rec.counts.values())
+    assert rec.channels[KeySpace(site).fused("tombatossals", "events")] == "contact_event"
+    assert {rec.channels[KeySpace(site).robot(r, "state")] for r in ROBOTS} == {"robot_state"}
+    assert {"/tf", "/contacts/events", "/contacts/hypotheses", "/task/progress", "/tombatossals/depth"} <= set(rec.view_topics)
+    assert {f"/{r}/robot_description" for r in ROBOTS} <= set(rec.view_topics)
     assert len(summary["nodes"]) == 8  # per robot a world and a control node; tombatossals vision2d and vision3d
     assert [t["atd"] for t in summary["tasks"]] == ["push_away.xml", "pick_place_behind.xml"]
     for task in summary["tasks"]:

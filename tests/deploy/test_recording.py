@@ -158,7 +158,7 @@ def test_replaying_the_clouds_into_a_fusion_node_reproduces_the_contact_events(r
     assert stats.messages == sum(rec.counts[k] for k in clouds)
     assert 0.8 < stats.speed < 1.2 and stats.clock_ticks > 100, stats.as_dict()
     cmp = compare(recorded_events, got, window=0.1, radius=0.005)
-    assert cmp.matched >= len(recorded_events) - 2 and len(cmp.unmatched_refused) <= 2, cmp.as_dict()
+    assert cmp.matched >= len(recorded_events) - 2 and len(cmp.unmatched_refused) <= 2, (cmp.as_dict(), [(e.event.value, round(e.t % 100, 3)) for e in recorded_events], [(e.event.value, round(e.t % 100, 3)) for e in got])
 
 
 def test_replay_onto_a_site_with_live_publishers_on_the_recorded_keys_is_refused_unless_forced(recorded, tmp_path):
@@ -234,3 +234,30 @@ def test_the_live_view_serves_the_advertised_channels_to_a_websocket_client(tmp_
     finally:
         tool.close()
         stop_process(proc)
+
+
+def test_the_command_line_refuses_bad_files_and_parameters_and_re_fuses_a_recording(recorded, tmp_path, monkeypatch):
+    from rich.console import Console
+    from typer.testing import CliRunner
+
+    from contactflow.deploy import cli
+    from contactflow.fusion import cli as fusion_cli
+
+    _, path, _, _ = recorded
+    monkeypatch.setattr(cli, "console", Console(width=300))
+    monkeypatch.setattr(fusion_cli, "console", Console(width=300))
+    runner = CliRunner()
+    (tmp_path / "x.mcap").write_text("not mcap")
+    r = runner.invoke(cli.app, ["replay", str(tmp_path / "x.mcap")])
+    assert r.exit_code == 2 and "x.mcap: not an MCAP file" in r.output
+    r = runner.invoke(cli.app, ["replay", str(path), "--key", "cf/rec/nothing"])
+    assert r.exit_code == 2 and "no channel for key 'cf/rec/nothing'" in r.output
+    r = runner.invoke(fusion_cli.app, ["refuse", str(path), "--set", "voxel=0.01"])
+    assert r.exit_code == 2 and "--set voxel: unknown parameter" in r.output
+    r = runner.invoke(fusion_cli.app, ["refuse", str(path), "--set", f"rate_hz={FUSION['rate_hz']}",
+                                "--set", f"timeout={FUSION['timeout']}", "--set", f"hold={FUSION['hold']}",
+                                "--robot", "r1", "--out", str(tmp_path / "cmp.json")])
+    assert r.exit_code == 0, r.output
+    cmp = json.loads((tmp_path / "cmp.json").read_text())
+    assert cmp["params"]["hold"] == FUSION["hold"] and cmp["matched"] >= sum(cmp["recorded"].values()) - 2, cmp
+    assert "contact_made" in r.output and "matched" in r.output
