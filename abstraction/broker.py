@@ -55,6 +55,7 @@ class Broker:
         self._handles: list[Handle] = []
         self._thread: threading.Thread | None = None
         self.rejected = 0
+        self._reports: dict[str, Callable[[bytes], None]] = {}  # task id -> its progress publisher
 
     def start(self) -> None:
         t = self.transport
@@ -250,4 +251,10 @@ class Broker:
         msg = AbstractProgressMsg(task_id=task_id, robot=BROKER, kind=kind, detail=detail, final=final,
                                   outcome=outcome, state=robot_detail)
         key = self.ks.progress(task_id)
-        self.transport.publisher(key)(encode(self.stamp(msg, key)))
+        with self._lock:
+            put = self._reports.get(task_id)
+            if put is None:  # one publisher per task's key, declared at its first report
+                put = self._reports[task_id] = self.transport.publisher(key)
+            if final:
+                del self._reports[task_id]
+        put(encode(self.stamp(msg, key)))
