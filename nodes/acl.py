@@ -10,7 +10,7 @@ itself with an error naming the key and the rule.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,12 +28,14 @@ class AccessRules:
     identity: str
     allow: dict[str, tuple[str, ...]]  # message kind (query, put, ...) -> key expressions
     deny: dict[str, tuple[str, ...]]
+    exprs: dict[str, zenoh.KeyExpr] = field(init=False, repr=False, compare=False)
+    """The rules' key expressions, parsed once: a node checks every query it sends."""
 
     @classmethod
     def of(cls, section: dict[str, Any], identity: str, by_user: bool) -> AccessRules:
         """The rules of ``section`` for the subject naming ``identity`` (by user name, or certificate name)."""
-        field = "usernames" if by_user else "cert_common_names"
-        subjects = {s["id"] for s in section.get("subjects", []) if identity in s.get(field, [])}
+        by = "usernames" if by_user else "cert_common_names"
+        subjects = {s["id"] for s in section.get("subjects", []) if identity in s.get(by, [])}
         rule_ids = {r for p in section.get("policies", []) if subjects & set(p.get("subjects", []))
                     for r in p.get("rules", [])}
         allow: dict[str, list[str]] = {}
@@ -68,12 +70,17 @@ class AccessRules:
         cert = link.get("link", {}).get("tls", {}).get("connect_certificate")
         return cls.of(section, Path(cert).stem, by_user=False) if cert else None
 
+    def __post_init__(self) -> None:
+        exprs = {r: zenoh.KeyExpr(r) for rules in (*self.allow.values(), *self.deny.values()) for r in rules}
+        object.__setattr__(self, "exprs", exprs)  # frozen: set once here
+
     def check(self, message: str, key: str) -> None:
         """Raise :class:`AccessDenied` unless the other nodes accept ``message`` on ``key`` from this session."""
         k = zenoh.KeyExpr(key)
-        denied = next((r for r in self.deny.get(message, ()) if zenoh.KeyExpr(r).intersects(k)), None)
+        exprs = self.exprs
+        denied = next((r for r in self.deny.get(message, ()) if exprs[r].intersects(k)), None)
         if denied is not None:
             raise AccessDenied(f"{key}: the site's access rules deny host {self.identity!r} a {message} there "
                                f"(rule {denied})")
-        if not any(zenoh.KeyExpr(r).includes(k) for r in self.allow.get(message, ())):
+        if not any(exprs[r].includes(k) for r in self.allow.get(message, ())):
             raise AccessDenied(f"{key}: the site's access rules do not let host {self.identity!r} {message} it")
