@@ -290,8 +290,9 @@ class ModuleHost:
             hm.wired.add(port.name)
             hm.in_keys[port.name] = key
         hm.handles.append(t.queryable(self.ks.control(*self._a(addr)), self._control_callback(hm)))
-        hm.handles.append(t.token(self.ks.alive_module(*self._a(addr))))
         module.setup(hm.io)
+        # presence once set up: a module seen alive is ready (a world has built its scene, a planner its model)
+        hm.handles.append(t.token(self.ks.alive_module(*self._a(addr))))
         with self._lock:
             self.modules[(addr.robot, addr.module)] = hm
         return hm
