@@ -14,7 +14,8 @@ per host:
   site's module, contact, clock and evaluation streams; control queries to every module of
   the manifest, except modules that run on a robot's control host, which only that host
   may query; joint-command ports of a robot (``command_ports``) only from its control host
-  (an explicit deny for every other host: explicit deny wins in zenoh);
+  (an explicit deny for every other host: explicit deny wins in zenoh); a world's clock, its
+  robots' sensor streams and its ground truth only from the hosts that run a world module;
 * brokers: the dispatch queryable and its replies, queries to every robot's broker
   services; dispatch clients (and brokers) may query dispatch; a robot's control host
   serves that robot's broker services; brokers and control hosts publish progress;
@@ -119,6 +120,9 @@ def access_control(m: Manifest) -> dict[str, Any]:
                ks.evaluation(), ks.progress(), ks.lockstep(ANY), ks.lockstep(ANY, ANY)]
     streams += [ks.fused(ANY, s) for s in ("hypotheses", "contacts", "events")]
     streams += [ks.robot(ANY, s) for s in ("state", "joints", "camera", "depth")]  # what a world publishes
+    # what only a world publishes: its clock, its robots' sensors and ground truth
+    world_streams = [ks.clock(), ks.clock(ANY), ks.evaluation(), *(ks.robot(ANY, s) for s in ("state", "joints", "camera", "depth"))]
+    worlds = {n.host for n in m.nodes() for mod in n.modules if mod.get("type") == "world"}
     alive = [ks.alive_node(), ks.alive_module(), ks.alive_robot(), ks.claim(ANY, ANY), ks.alive_lockstep(ANY),
              ks.alive_lockstep(ANY, ANY), ks.alive_controller(ANY, ANY)]
 
@@ -159,6 +163,8 @@ def access_control(m: Manifest) -> dict[str, Any]:
             g.call.append(ks.dispatch())
         if h not in brokers and h not in controls:
             g.deny_write.append(ks.progress())
+        if worlds and h not in worlds:  # a forged clock or robot state from any other host is dropped
+            g.deny_write += world_streams
         grants[h] = g
 
     rules: list[dict[str, Any]] = []

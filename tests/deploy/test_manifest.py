@@ -275,3 +275,22 @@ def test_a_manifest_across_hosts_gets_mutual_tls_and_passwords_by_default_and_pl
              for ln in launches}
     assert files == {True}
     assert load_manifest(DEFAULT_MANIFEST).security.transport == "mtls"
+
+
+def test_only_the_hosts_that_run_a_world_publish_clocks_robot_sensors_and_ground_truth():
+    m = load_manifest(DEFAULT_MANIFEST)
+    ks = KeySpace(m.site)
+    acl = access_control(m)
+    worlds = {"tombatossals_robot", "melfa_station", "baxter_station"}
+    forged = {ks.clock(), ks.clock("*"), ks.evaluation(), ks.robot("*", "state"), ks.robot("*", "depth")}
+
+    def denied(h):
+        return {k for r in _grants(acl, h) if r["permission"] == "deny" and "put" in r["messages"]
+                and r["flows"] == ["ingress"] for k in r["key_exprs"]}
+    for h in m.hosts:
+        if h in worlds:
+            assert not forged & denied(h), h
+        else:
+            assert forged <= denied(h), h
+    # the control host still commands its robot and publishes what a controller does
+    assert ks.robot("tombatossals", "command") not in denied("control")
