@@ -10,6 +10,7 @@ the recorded keys is refused unless forced: two streams on one key would mix.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -22,7 +23,9 @@ from contactflow.nodes.transport import Transport
 from contactflow.nodes.wire import encode
 
 CLOCK_HZ = 100.0
-"""Hz, the rate of the clock a replay publishes for a recording without one."""
+"""Hz, the rate of the clock a replay publishes for a recording without one, while it waits."""
+CLOCK_STEP = 0.001
+"""s, the finest step of that clock: a burst of messages within it shares one clock message."""
 
 
 class ReplayError(RuntimeError):
@@ -112,7 +115,8 @@ class Replayer:
         """Publish every message at its recorded time divided by the rate; ``progress(messages, recorded s)``.
 
         A clock the replay makes reads the recorded time: before each message, the message's
-        own time (so a sim-clock node takes it at the time it was recorded), and every
+        own time (so a sim-clock node takes it at the time it was recorded; messages within
+        ``CLOCK_STEP`` of the last clock message share it), and every
         ``1 / CLOCK_HZ`` s while the replay waits; ``tail`` s after the last message it runs on,
         so what the last messages start (a contact's break) still happens.
         """
@@ -121,10 +125,14 @@ class Replayer:
         wall0 = time.monotonic()
         tick = self.transport.publisher(self.ks.clock()) if self.makes_clock else None
 
+        last = -math.inf
+
         def clock(t: float) -> None:
-            if tick is not None:
+            nonlocal last
+            if tick is not None and t >= last + CLOCK_STEP:
                 tick(encode(Clock(t=t, real_time_factor=self.rate)))
                 stats.clock_ticks += 1
+                last = t
 
         def wait_until(rel: float) -> None:
             """Sleep until recorded second ``rel`` is due, the clock running meanwhile."""
