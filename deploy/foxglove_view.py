@@ -7,6 +7,7 @@ them into the MCAP file beside the key-space channels, so both show the same pan
 Topics (every frame is in ``world``; a robot's links are ``<robot>/<link>``):
     /tf                         FrameTransforms  every robot's links, from joint states by pinocchio
     /contacts/hypotheses        PointCloud       fused hypotheses H(x), field ``likelihood`` to colour by
+    /contacts/<robot>/<gen>     PointCloud       one generator's hypotheses (likelihood, type)
     /contacts/fused             SceneUpdate      condensed contacts: spheres sized by sigma
     /contacts/events            Log              contact made / broken
     /<robot>/depth              PointCloud       a depth frame back-projected (every ``stride``-th pixel)
@@ -25,7 +26,7 @@ import numpy as np
 
 from contactflow.abstraction.messages import AbstractProgressMsg
 from contactflow.embodiments.messages import DepthImage, RobotInfo, RobotState
-from contactflow.fusion.messages import ContactEventMsg, ContactList, FusedCloud
+from contactflow.fusion.messages import ContactEventMsg, ContactList, FusedCloud, HypothesisCloud
 from contactflow.nodes.wire import Message
 from contactflow.recognition.messages import SegmentedObjects
 
@@ -109,6 +110,10 @@ class ViewTranslator:
             xyz = msg.location.numpy()
             return [("/contacts/hypotheses", _points(xyz, {"likelihood": msg.likelihood.numpy(),
                                                             "force": msg.force.numpy()}, msg.stamp))]
+        if isinstance(msg, HypothesisCloud):
+            return [(f"/contacts/{msg.robot}/{msg.generator}",
+                     _points(msg.location.numpy(), {"likelihood": msg.likelihood.numpy(), "type": msg.kind.numpy()},
+                             msg.stamp))]
         if isinstance(msg, ContactList):
             return [("/contacts/fused", self._contacts(msg))]
         if isinstance(msg, ContactEventMsg):

@@ -11,7 +11,7 @@ from contactflow.abstraction.messages import AbstractProgressMsg
 from contactflow.deploy.foxglove_view import JsonView, ViewTranslator
 from contactflow.embodiments.messages import DepthImage, RobotState
 from contactflow.embodiments.remote import link
-from contactflow.fusion.messages import ContactEventMsg, ContactList, FusedCloud
+from contactflow.fusion.messages import ContactEventMsg, ContactList, FusedCloud, HypothesisCloud
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Status
@@ -19,7 +19,8 @@ from contactflow.recognition.messages import SegmentedObjects
 
 
 class FoxgloveView(Module):
-    """Robots' frames, contact hypotheses, contacts and events, depth clouds, objects and task progress, live in Foxglove.
+    """Robots' frames, contact hypotheses (fused and per generator), contacts and events, depth clouds, objects and
+    task progress, live in Foxglove.
 
     Connect Foxglove to ``ws://<host>:<port>``; ``docs/foxglove-layout.json`` arranges the panels.
     """
@@ -29,6 +30,7 @@ class FoxgloveView(Module):
     inputs = (
         Port("state", RobotState, "every robot's state (joints -> link frames)"),
         Port("fused", FusedCloud, "fused hypotheses"),
+        Port("clouds", HypothesisCloud, "every generator's hypotheses"),
         Port("contacts", ContactList, "condensed contacts"),
         Port("events", ContactEventMsg, "contact events"),
         Port("depth", DepthImage, "depth frames"),
@@ -45,7 +47,7 @@ class FoxgloveView(Module):
 
     @classmethod
     def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Params) -> dict[str, str]:
-        return {"state": ks.robot("*", "state"), "fused": ks.fused("*", "hypotheses"),
+        return {"state": ks.robot("*", "state"), "fused": ks.fused("*", "hypotheses"), "clouds": ks.hypotheses("*", "*"),
                 "contacts": ks.fused("*", "contacts"), "events": ks.fused("*", "events"),
                 "depth": ks.robot("*", "depth"), "objects": ks.output("*", "*", "*", "objects"),
                 "progress": ks.progress("*")}
@@ -106,7 +108,7 @@ class FoxgloveView(Module):
             self._send(topic, msg)
         for port in (p.name for p in self.inputs):
             msgs = self.io.take(port)
-            if port in ("state", "depth", "fused"):
+            if port in ("state", "depth", "fused", "clouds"):
                 msgs = _newest_per_source(msgs)  # a viewer wants the present, not every frame of a burst
             for m in msgs:
                 if isinstance(m, RobotState) and m.robot not in self._asking:

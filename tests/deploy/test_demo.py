@@ -58,7 +58,8 @@ def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tm
     assert summary["recording"]["dropped"] == 0 and summary["recording"]["recorded"] == sum(rec.counts.values())
     assert rec.channels[KeySpace(site).fused("tombatossals", "events")] == "contact_event"
     assert {rec.channels[KeySpace(site).robot(r, "state")] for r in ROBOTS} == {"robot_state"}
-    assert {"/tf", "/contacts/events", "/contacts/hypotheses", "/task/progress", "/tombatossals/depth"} <= set(rec.view_topics)
+    assert {"/tf", "/contacts/events", "/task/progress", "/tombatossals/depth", "/vision/objects",
+            "/contacts/tombatossals/tactile_left", "/contacts/melfa/force_torque_arm"} <= set(rec.view_topics)
     assert {f"/{r}/robot_description" for r in ROBOTS} <= set(rec.view_topics)
     assert len(summary["nodes"]) == 8  # per robot a world and a control node; tombatossals vision2d and vision3d
     assert [t["atd"] for t in summary["tasks"]] == ["push_away.xml", "pick_place_behind.xml"]

@@ -90,3 +90,16 @@ def test_a_depth_frame_is_back_projected_into_the_world_without_its_missing_pixe
     assert len(pts) == 62 and np.allclose(pts[:, 2], 5.0) and np.allclose(pts[:, 3], 2.0)
     # the pixel at (row 4, col 6) lies 2 pixels right of the centre: x = 2 * 2.0 / 10
     assert np.any(np.all(np.isclose(pts[:, :3], [0.4, 0.0, 5.0]), axis=1))
+
+
+def test_a_generators_cloud_is_shown_on_its_own_topic_with_likelihood_and_type():
+    from contactflow.fusion.hypotheses import Hypotheses, HypothesisType
+    from contactflow.fusion.messages import HypothesisCloud
+
+    h = Hypotheses.make(np.array([[0.1, 0.0, 0.8], [0.2, 0.0, 0.8]]), np.array([0.3, 0.9]), HypothesisType.NULL)
+    ((topic, view),) = ViewTranslator().translate("", HypothesisCloud.of(h, "r", "tactile_left"))
+    cloud = _decoded(view)
+    assert topic == "/contacts/r/tactile_left" and [f["name"] for f in cloud["fields"]][3:] == ["likelihood", "type"]
+    pts = _floats(cloud, 5)
+    assert np.allclose(pts[:, :3], h.location) and np.allclose(pts[:, 3], [0.3, 0.9])
+    assert np.all(pts[:, 4] == int(HypothesisType.NULL))
