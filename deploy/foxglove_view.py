@@ -5,7 +5,7 @@ pairs; the live view module logs them to a Foxglove WebSocket server, the record
 them into the MCAP file beside the key-space channels, so both show the same panels.
 
 Topics (every frame is in ``world``; a robot's links are ``<robot>/<link>``):
-    /tf                         FrameTransforms  every robot's links, from joint states by pinocchio
+    /tf                         FrameTransforms  every robot's links, from joint states by pinocchio (<= tf_hz per robot)
     /contacts/hypotheses        PointCloud       fused hypotheses H(x), field ``likelihood`` to colour by
     /contacts/<robot>/<gen>     PointCloud       one generator's hypotheses (likelihood, type)
     /contacts/fused             SceneUpdate      condensed contacts: spheres sized by sigma
@@ -85,9 +85,11 @@ class _Robot:
 class ViewTranslator:
     """Typed key-space messages -> ``(topic, foxglove message)`` pairs (pure; no I/O but reading URDFs)."""
 
-    def __init__(self, depth_stride: int = 4) -> None:
+    def __init__(self, depth_stride: int = 4, tf_hz: float = 30.0) -> None:
         self.depth_stride = depth_stride
+        self.tf_period = 1.0 / tf_hz  # s of the robot's clock: a viewer needs no 200 Hz link frames
         self.robots: dict[str, _Robot] = {}
+        self._last_tf: dict[str, float] = {}
 
     def add_robot(self, info: RobotInfo) -> list[tuple[str, object]]:
         """Learn a robot from its world's info answer; returns the message carrying its URDF."""
@@ -135,8 +137,10 @@ class ViewTranslator:
         import pinocchio as pin
 
         r = self.robots.get(msg.robot)
-        if r is None:
-            return []
+        last = self._last_tf.get(msg.robot)
+        if r is None or (last is not None and last <= msg.t < last + self.tf_period):
+            return []  # a clock gone back (a new run, a replay) starts over
+        self._last_tf[msg.robot] = msg.t
         model, data = r.model, r.data
         q = pin.neutral(model)
         pos = msg.position.numpy()

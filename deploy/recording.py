@@ -77,7 +77,7 @@ class RecordingWriter:
         self._file: BinaryIO | None = None
         self._writer: Writer | None = None
         self._schemas: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
+        self._channels: dict[tuple[str, str], int] = {}  # (topic, schema) -> channel
         self._seqs: dict[int, int] = {}
         self._json = msgspec.json.Encoder()
 
@@ -92,12 +92,12 @@ class RecordingWriter:
     def _channel(self, topic: str, schema: str, encoding: str, data: bytes, message_encoding: str,
                  metadata: dict[str, str]) -> int:
         assert self._writer is not None, "open() first"
-        cid = self._channels.get(topic)
+        cid = self._channels.get((topic, schema))
         if cid is None:
             sid = self._schemas.get(schema)
             if sid is None:
                 sid = self._schemas[schema] = self._writer.register_schema(schema, encoding, data)
-            cid = self._channels[topic] = self._writer.register_channel(topic, message_encoding, sid, metadata)
+            cid = self._channels[topic, schema] = self._writer.register_channel(topic, message_encoding, sid, metadata)
             self.stats.channels += 1
         return cid
 
@@ -109,8 +109,8 @@ class RecordingWriter:
     def write(self, key: str, msg: Message, log_ns: int, size: int = 0) -> None:
         """One key-space message received at ``log_ns`` (ns since the epoch); ``size``: its wire bytes."""
         tag = type(msg).tag()
-        cid = self._channels.get(key)
-        if cid is None:
+        cid = self._channels.get((key, SCHEMA_PREFIX + tag))
+        if cid is None:  # a key that carries several types (a robot's command port) has a channel per type
             cid = self._channel(key, SCHEMA_PREFIX + tag, "jsonschema", json_schema(type(msg)), "json",
                                 {"key": key, "type": tag})
         publish_ns = int(msg.hdr.t_wall * 1e9) if msg.hdr.t_wall > 0 else log_ns
@@ -154,8 +154,9 @@ class Recording:
 
     path: Path
     site: str
-    channels: dict[str, str]  # key -> message tag, the key-space channels
+    channels: dict[str, frozenset[str]]  # key -> the message tags recorded on it (a channel each)
     counts: dict[str, int]  # key -> messages
+    tags: dict[int, str] = field(default_factory=dict)  # channel id -> message tag, the key-space channels
     view_topics: list[str] = field(default_factory=list)  # Foxglove view channels
     start_ns: int = 0
     end_ns: int = 0
@@ -183,17 +184,21 @@ class Recording:
         version = meta[0].metadata.get("schema_version", "")
         if version != str(SCHEMA_VERSION):
             raise RecordingError(f"{path}: recorded with wire schema {version!r}, this build reads {SCHEMA_VERSION}")
-        channels, counts, view = {}, {}, []
+        channels: dict[str, frozenset[str]] = {}
+        counts: dict[str, int] = {}
+        tags: dict[int, str] = {}
+        view = set()
         stats = summary.statistics
         for cid, ch in summary.channels.items():
             schema = summary.schemas.get(ch.schema_id)
             n = stats.channel_message_counts.get(cid, 0) if stats else 0
             if schema is not None and schema.name.startswith(SCHEMA_PREFIX) and ch.message_encoding == "json":
-                channels[ch.topic] = schema.name[len(SCHEMA_PREFIX):]
-                counts[ch.topic] = n
+                tags[cid] = schema.name[len(SCHEMA_PREFIX):]
+                channels[ch.topic] = channels.get(ch.topic, frozenset()) | {tags[cid]}
+                counts[ch.topic] = counts.get(ch.topic, 0) + n
             else:
-                view.append(ch.topic)
-        return cls(path, meta[0].metadata.get("site", ""), channels, counts, sorted(view),
+                view.add(ch.topic)
+        return cls(path, meta[0].metadata.get("site", ""), channels, counts, tags, sorted(view),
                    stats.message_start_time if stats else 0, stats.message_end_time if stats else 0)
 
     def samples(self, keys: set[str] | None = None) -> Iterator[Sample]:
@@ -205,7 +210,7 @@ class Recording:
             topics = [k for k in self.channels if keys is None or k in keys]
             try:
                 for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
-                    tag = self.channels.get(channel.topic)
+                    tag = self.tags.get(channel.id)
                     if tag is None or schema is None:
                         continue
                     cls = types.get(tag)

@@ -56,8 +56,10 @@ def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tm
     # --record: the key space in an MCAP file beside the report, with the view a Foxglove layout shows
     rec = Recording.open(tmp_path / "demo.mcap")
     assert summary["recording"]["dropped"] == 0 and summary["recording"]["recorded"] == sum(rec.counts.values())
-    assert rec.channels[KeySpace(site).fused("tombatossals", "events")] == "contact_event"
-    assert {rec.channels[KeySpace(site).robot(r, "state")] for r in ROBOTS} == {"robot_state"}
+    assert rec.channels[KeySpace(site).fused("tombatossals", "events")] == {"contact_event"}
+    assert all(rec.channels[KeySpace(site).robot(r, "state")] == {"robot_state"} for r in ROBOTS)
+    # a robot's command port carries arm and hand commands and camera requests: a channel per type
+    assert {"arm_command", "hand_command"} <= rec.channels[KeySpace(site).robot("tombatossals", "command")]
     assert {"/tf", "/contacts/events", "/task/progress", "/tombatossals/depth", "/vision/objects",
             "/contacts/tombatossals/tactile_left", "/contacts/melfa/force_torque_arm"} <= set(rec.view_topics)
     assert {f"/{r}/robot_description" for r in ROBOTS} <= set(rec.view_topics)

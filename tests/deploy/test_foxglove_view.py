@@ -2,6 +2,7 @@
 
 import base64
 
+import msgspec
 import numpy as np
 import pinocchio as pin
 from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
@@ -59,6 +60,9 @@ def test_joint_states_become_the_frames_of_every_link_at_the_robots_base():
         assert np.allclose(_v(t["translation"], "x", "y", "z"), T[:3, 3], atol=1e-9)
         quat = pin.Quaternion(T[:3, :3])
         assert abs(abs(np.dot(_v(t["rotation"], "x", "y", "z", "w"), [quat.x, quat.y, quat.z, quat.w])) - 1) < 1e-9
+    # at most tf_hz (30) frames per second of the robot's clock; a clock gone back starts over
+    later = [msgspec.structs.replace(state, t=t) for t in (2.51, 2.54, 1.0)]
+    assert [len(view.translate("", s)) for s in later] == [0, 1, 1]
     assert view.translate("", RobotState(robot="unknown", tick=1, t=0.0, names=[], position=NDArray.of(np.zeros(0)),
                                          velocity=NDArray.of(np.zeros(0)), arms=[], hands=[])) == []
 

@@ -81,7 +81,7 @@ def test_a_recording_reads_back_with_a_channel_and_schema_per_key(recorded):
     rec = Recording.open(path)
     assert rec.site == SITE
     events_key, cloud_key = KS.fused("r1", "events"), KS.hypotheses("r1", "tactile")
-    assert rec.channels[events_key] == "contact_event" and rec.channels[cloud_key] == "hypothesis_cloud"
+    assert rec.channels[events_key] == {"contact_event"} and rec.channels[cloud_key] == {"hypothesis_cloud"}
     assert rec.counts[events_key] >= 8, rec.counts  # ~5 events/s for 3 s
     # the recorder and an independent subscriber started a moment apart: every key's count within a few
     for key, n in counted.items():
@@ -145,7 +145,7 @@ def test_replaying_the_clouds_into_a_fusion_node_reproduces_the_contact_events(r
         got.append(EventRecord.of(decode_any(payload, key)))
     try:
         sub = tool.subscribe(KeySpace(site).fused("r1", "events"), on_event)
-        clouds = {k for k, tag in rec.channels.items() if tag == "hypothesis_cloud"}
+        clouds = {k for k, tags in rec.channels.items() if "hypothesis_cloud" in tags}
         player = Replayer(tool, rec, site=site, keys=clouds)
         assert player.check() == []  # nobody publishes clouds on the new site
         assert player.makes_clock  # the recording has none: its nodes ran on the wall clock
@@ -261,3 +261,21 @@ def test_the_command_line_refuses_bad_files_and_parameters_and_re_fuses_a_record
     cmp = json.loads((tmp_path / "cmp.json").read_text())
     assert cmp["params"]["hold"] == FUSION["hold"] and cmp["matched"] >= sum(cmp["recorded"].values()) - 2, cmp
     assert "contact_made" in r.output and "matched" in r.output
+
+
+def test_a_key_that_carries_several_message_types_gets_a_channel_per_type(tmp_path):
+    from contactflow.deploy.recording import RecordingWriter
+    from contactflow.embodiments.messages import CameraRequest, HandCommand
+    from contactflow.nodes.wire import stamp
+
+    key = KS.robot("r1", "command")
+    sent = [HandCommand(robot="r1", hand="left", seq=1, preshape="closed"), CameraRequest(robot="r1", camera="head", request=1),
+            HandCommand(robot="r1", hand="left", seq=2, preshape="open")]
+    w = RecordingWriter(tmp_path / "cmd.mcap", SITE).open()
+    for i, m in enumerate(sent):
+        w.write(key, stamp(m, "r1/ctl/x", i + 1, 0.5 * i), 1_000 + i)
+    w.close()
+    rec = Recording.open(tmp_path / "cmd.mcap")
+    assert rec.channels == {key: {"hand_command", "camera_request"}} and rec.counts == {key: 3}
+    got = [s.msg for s in rec.samples()]
+    assert [type(m) for m in got] == [type(m) for m in sent] and got[2].preshape == "open" and got[1].request == 1
