@@ -226,7 +226,7 @@ def record(keys: Annotated[list[str] | None, typer.Argument(help="key expression
         return (f"recording {escape(str(out))}: {s.recorded} messages, {s.bytes / 1e6:.1f} MB, "
                 f"{s.dropped} dropped, {s.lost} lost, {s.rejected} rejected")
     try:
-        with Live(line(), console=console, refresh_per_second=4) as live:
+        with Live(line(), console=console, refresh_per_second=4, transient=True) as live:
             while time.monotonic() < end:
                 time.sleep(0.25)
                 live.update(line())
