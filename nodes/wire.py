@@ -13,7 +13,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar, Union
 
 import msgspec
 import msgspec.inspect as mi
@@ -127,6 +127,15 @@ class Message(msgspec.Struct, kw_only=True, tag_field="type", tag=True):
     @classmethod
     def tag(cls) -> str:
         return str(cls.__struct_config__.tag)
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        global _generation
+        _generation += 1  # decode_any's decoder of every type is built again
+
+
+_generation = 0
+"""Counts message types defined so far (the registry only grows as modules are imported)."""
 
 
 def registry() -> dict[str, type[Message]]:
@@ -309,8 +318,33 @@ def decode(data: bytes | bytearray | memoryview, type_: type[M], where: str = ""
     return msg
 
 
+_any: tuple[int, msgspec.msgpack.Decoder | None] = (-1, None)
+
+
 def decode_any(data: bytes | bytearray | memoryview, where: str = "") -> Message:
-    """Decode a message of any registered type, chosen by its ``type`` tag."""
+    """Decode a message of any registered type, chosen by its ``type`` tag, in one pass over the payload.
+
+    The checks are :func:`decode`'s; a payload that fails them is diagnosed again, type by type.
+    """
+    global _any
+    generation, dec = _any
+    if generation != _generation:  # a tagged union of every type: msgspec picks the struct by the tag
+        types = tuple(registry().values())
+        dec = msgspec.msgpack.Decoder(Union[types]) if types else None  # noqa: UP007 - a runtime tuple of types
+        _any = (_generation, dec)
+    try:
+        msg = dec.decode(data) if dec is not None else None
+    except (msgspec.ValidationError, msgspec.DecodeError):
+        msg = None
+    if msg is not None:
+        cls = type(msg)
+        if len(data) <= cls.max_bytes and _struct_check(cls)(msg) is None:
+            return msg
+    return _diagnose(data, where)
+
+
+def _diagnose(data: bytes | bytearray | memoryview, where: str) -> Message:
+    """Decode ``data`` type by type: the WireError raised names why it is no valid message."""
     try:
         raw = msgspec.msgpack.decode(data)
     except msgspec.DecodeError as exc:
