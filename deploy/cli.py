@@ -230,7 +230,7 @@ def record(keys: Annotated[list[str] | None, typer.Argument(help="key expression
             while time.monotonic() < end:
                 time.sleep(0.25)
                 live.update(line())
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C is how a recording without --duration ends: the file is finished below
         pass
     finally:
         stats = rec.stop()

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import foxglove.messages as fm
 import numpy as np
+import pinocchio as pin
 
 from contactflow.abstraction.messages import AbstractProgressMsg
 from contactflow.embodiments.messages import DepthImage, RobotInfo, RobotState
@@ -41,11 +42,8 @@ def _stamp(t: float) -> fm.Timestamp:
 
 
 def _quat(R: np.ndarray) -> fm.Quaternion:
-    w = math.sqrt(max(0.0, 1.0 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
-    x = math.copysign(math.sqrt(max(0.0, 1.0 + R[0, 0] - R[1, 1] - R[2, 2])) / 2, R[2, 1] - R[1, 2])
-    y = math.copysign(math.sqrt(max(0.0, 1.0 - R[0, 0] + R[1, 1] - R[2, 2])) / 2, R[0, 2] - R[2, 0])
-    z = math.copysign(math.sqrt(max(0.0, 1.0 - R[0, 0] - R[1, 1] + R[2, 2])) / 2, R[1, 0] - R[0, 1])
-    return fm.Quaternion(x=x, y=y, z=z, w=w)
+    q = pin.Quaternion(np.asarray(R, dtype=float))
+    return fm.Quaternion(x=q.x, y=q.y, z=q.z, w=q.w)
 
 
 def _points(xyz: np.ndarray, extra: dict[str, np.ndarray], t: float) -> fm.PointCloud:
@@ -93,8 +91,6 @@ class ViewTranslator:
 
     def add_robot(self, info: RobotInfo) -> list[tuple[str, object]]:
         """Learn a robot from its world's info answer; returns the message carrying its URDF."""
-        import pinocchio as pin
-
         from contactflow.embodiments import registry
 
         path = registry.get(info.embodiment).urdf()
@@ -134,8 +130,6 @@ class ViewTranslator:
         return []
 
     def _tf(self, msg: RobotState) -> list[tuple[str, object]]:
-        import pinocchio as pin
-
         r = self.robots.get(msg.robot)
         last = self._last_tf.get(msg.robot)
         if r is None or (last is not None and last <= msg.t < last + self.tf_period):

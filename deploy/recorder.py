@@ -93,7 +93,7 @@ class Recorder:
             gap = self._seqs.observe(f"{key} {msg.hdr.source}", msg.hdr.seq) if msg.hdr.seq > 0 else None
             if gap is not None:
                 self.stats.lost += gap.count
-            self._writer.write(key, msg, t_ns, len(payload))
+            self._writer.write(key, msg, t_ns)
             self.stats.recorded += 1
             if self.view is not None:
                 try:

@@ -56,16 +56,6 @@ def json_schema(cls: type[Message]) -> bytes:
     return json.dumps({**defs[name], "$defs": defs}).encode()
 
 
-@dataclass
-class WriterStats:
-    """What a writer has written."""
-
-    messages: int = 0  # key-space messages
-    view_messages: int = 0  # messages of the Foxglove view channels
-    channels: int = 0
-    bytes_in: int = 0  # bytes of the wire payloads recorded
-
-
 class RecordingWriter:
     """Writes typed key-space messages and Foxglove view messages into one MCAP file."""
 
@@ -73,7 +63,6 @@ class RecordingWriter:
         self.path = Path(path)
         self.site = site
         self.compression = compression
-        self.stats = WriterStats()
         self._file: BinaryIO | None = None
         self._writer: Writer | None = None
         self._schemas: dict[str, int] = {}
@@ -98,7 +87,6 @@ class RecordingWriter:
             if sid is None:
                 sid = self._schemas[schema] = self._writer.register_schema(schema, encoding, data)
             cid = self._channels[topic, schema] = self._writer.register_channel(topic, message_encoding, sid, metadata)
-            self.stats.channels += 1
         return cid
 
     def _add(self, cid: int, data: bytes, log_ns: int, publish_ns: int) -> None:
@@ -106,8 +94,8 @@ class RecordingWriter:
         seq = self._seqs[cid] = self._seqs.get(cid, 0) + 1
         self._writer.add_message(cid, log_ns, data, publish_ns, seq)
 
-    def write(self, key: str, msg: Message, log_ns: int, size: int = 0) -> None:
-        """One key-space message received at ``log_ns`` (ns since the epoch); ``size``: its wire bytes."""
+    def write(self, key: str, msg: Message, log_ns: int) -> None:
+        """One key-space message received at ``log_ns`` (ns since the epoch)."""
         tag = type(msg).tag()
         cid = self._channels.get((key, SCHEMA_PREFIX + tag))
         if cid is None:  # a key that carries several types (a robot's command port) has a channel per type
@@ -115,8 +103,6 @@ class RecordingWriter:
                                 {"key": key, "type": tag})
         publish_ns = int(msg.hdr.t_wall * 1e9) if msg.hdr.t_wall > 0 else log_ns
         self._add(cid, self._json.encode(msg), log_ns, publish_ns)
-        self.stats.messages += 1
-        self.stats.bytes_in += size
 
     def write_view(self, topic: str, msg: Any, log_ns: int) -> None:
         """One view message on a view channel: a Foxglove message (``foxglove.messages``) or a JsonView."""
@@ -128,7 +114,6 @@ class RecordingWriter:
             cid = self._channel(topic, schema.name, schema.encoding, bytes(schema.data), "protobuf", {})
             data = msg.encode()
         self._add(cid, data, log_ns, log_ns)
-        self.stats.view_messages += 1
 
     def close(self) -> None:
         if self._writer is not None:

@@ -68,10 +68,9 @@ class Replayer:
         self.transport = transport
         self.recording = recording
         self.site = site or recording.site
-        KeySpace(self.site)  # a site name that is not one key segment is refused here
+        self.ks = KeySpace(self.site)  # a site name that is not one key segment is refused here
         self.rate = rate
         self.keys = keys
-        self.ks = KeySpace(self.site)
         self._pubs: dict[str, Callable[[bytes], None]] = {}
         recorded_clock = KeySpace(recording.site).clock()
         self.makes_clock = not any(k == recorded_clock or k.startswith(recorded_clock + "/") for k in self.replayed())
@@ -110,8 +109,7 @@ class Replayer:
                               "stop them, replay on another site (--site) or force it (--force)")
         return live
 
-    def run(self, progress: Callable[[int, float], None] | None = None, stop: threading.Event | None = None,
-            tail: float = 1.0) -> ReplayStats:
+    def run(self, progress: Callable[[int, float], None] | None = None, tail: float = 1.0) -> ReplayStats:
         """Publish every message at its recorded time divided by the rate; ``progress(messages, recorded s)``.
 
         A clock the replay makes reads the recorded time: before each message, the message's
@@ -143,8 +141,6 @@ class Replayer:
 
         rel = 0.0
         for s in self.recording.samples(self.keys):
-            if stop is not None and stop.is_set():
-                break
             if t_first is None:
                 t_first = s.log_ns
             rel = (s.log_ns - t_first) / 1e9

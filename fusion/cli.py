@@ -114,7 +114,7 @@ def refuse(recording: Annotated[Path, typer.Argument(help="an MCAP file written 
     from contactflow.nodes.params import ParamError, replace_params
 
     try:
-        params = replace_params(FusionParams(), dict(_pairs(set_, "--set")), where="--set ")
+        params = replace_params(FusionParams(), _pairs(set_, "--set"), where="--set ")
         weights = {g: float(v) for g, v in _pairs(weight, "--weight").items()}
         rec = Recording.open(recording)
     except (ParamError, RecordingError, ValueError) as exc:

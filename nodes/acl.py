@@ -9,8 +9,9 @@ itself with an error naming the key and the rule.
 
 from __future__ import annotations
 
+import functools
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,8 +29,6 @@ class AccessRules:
     identity: str
     allow: dict[str, tuple[str, ...]]  # message kind (query, put, ...) -> key expressions
     deny: dict[str, tuple[str, ...]]
-    exprs: dict[str, zenoh.KeyExpr] = field(init=False, repr=False, compare=False)
-    """The rules' key expressions, parsed once: a node checks every query it sends."""
 
     @classmethod
     def of(cls, section: dict[str, Any], identity: str, by_user: bool) -> AccessRules:
@@ -70,9 +69,10 @@ class AccessRules:
         cert = link.get("link", {}).get("tls", {}).get("connect_certificate")
         return cls.of(section, Path(cert).stem, by_user=False) if cert else None
 
-    def __post_init__(self) -> None:
-        exprs = {r: zenoh.KeyExpr(r) for rules in (*self.allow.values(), *self.deny.values()) for r in rules}
-        object.__setattr__(self, "exprs", exprs)  # frozen: set once here
+    @functools.cached_property
+    def exprs(self) -> dict[str, zenoh.KeyExpr]:
+        """The rules' key expressions, parsed once: a node checks every query it sends."""
+        return {r: zenoh.KeyExpr(r) for rules in (*self.allow.values(), *self.deny.values()) for r in rules}
 
     def check(self, message: str, key: str) -> None:
         """Raise :class:`AccessDenied` unless the other nodes accept ``message`` on ``key`` from this session."""
