@@ -6,7 +6,7 @@ the reading. The integrator keeps a :class:`HypothesisSpace`: the 3D world discr
 voxels of fixed size, each occupied voxel holding one likelihood, time stamp, type and force
 per contributing source (a column), plus the bitmask of its sources. Voxels are found through
 :class:`VoxelIndex`, an open-addressing hash table of packed integer voxel coordinates that
-inserts and looks up whole arrays at once (no per-hypothesis Python loop).
+inserts and looks up whole arrays at once in compiled loops (:mod:`~contactflow.fusion.kernels`).
 """
 
 from __future__ import annotations
@@ -16,12 +16,13 @@ from enum import IntEnum
 
 import numpy as np
 
+from contactflow.fusion import kernels
+
 VOXEL_SIZE = 0.005  # m, thesis §4.7: the same 5 mm in generators and integrator
 _BITS = 21
 _OFFSET = 1 << (_BITS - 1)
 _MASK21 = (1 << _BITS) - 1
 EMPTY_KEY = np.int64(-1)
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
 class HypothesisType(IntEnum):
@@ -174,11 +175,6 @@ def voxelize(h: Hypotheses, voxel_size: float = VOXEL_SIZE, reduce: str = "max")
     return Hypotheses(voxel_centers(keys, voxel_size), lik, kind, force, direction, h.stamp)
 
 
-def rows_unique(rows: np.ndarray, n: int) -> bool:
-    """True when no row number repeats (rows lie in [0, n))."""
-    return bool(np.bincount(rows, minlength=n).max() <= 1)
-
-
 def normalise(v: np.ndarray) -> np.ndarray:
     """Unit vectors along the last axis; zero vectors stay zero."""
     norm = np.sqrt(np.einsum("...i,...i->...", v, v))[..., None]
@@ -188,9 +184,9 @@ def normalise(v: np.ndarray) -> np.ndarray:
 class VoxelIndex:
     """Open-addressing (linear probing) hash table: packed voxel key -> row number.
 
-    Lookups and insertions take whole key arrays; each probing round is one vectorised pass
-    over the keys still unresolved, and with the load factor kept under one half almost every
-    key resolves in the first round or two. Rows are numbered densely in insertion order.
+    Lookups and insertions take whole key arrays and run as one compiled loop
+    (:mod:`~contactflow.fusion.kernels`); the load factor stays under one half. Rows are
+    numbered densely in insertion order.
     """
 
     def __init__(self, capacity: int = 1024) -> None:
@@ -203,71 +199,30 @@ class VoxelIndex:
 
     def _alloc(self, size: int) -> None:
         self.size = size
-        self.mask = np.uint64(size - 1)
         self.shift = np.uint64(64 - int(np.log2(size)))
-        self.keys = np.full(size, EMPTY_KEY, dtype=np.int64)
-        self.rows = np.full(size, -1, dtype=np.int64)
-
-    def _hash(self, keys: np.ndarray) -> np.ndarray:
-        return ((keys.view(np.uint64) * _GOLDEN) >> self.shift).astype(np.int64)
-
-    def _probe(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Slot holding each key, or the empty slot ending its probe chain; and found flags."""
-        slot = self._hash(keys)
-        found = np.zeros(keys.shape[0], dtype=bool)
-        tk = self.keys[slot]
-        hit = tk == keys
-        found |= hit
-        pending = np.flatnonzero(~hit & (tk != EMPTY_KEY))
-        mask = int(self.mask)
-        while pending.size:
-            s = (slot[pending] + 1) & mask
-            slot[pending] = s
-            tk = self.keys[s]
-            hit = tk == keys[pending]
-            found[pending[hit]] = True
-            pending = pending[~hit & (tk != EMPTY_KEY)]
-        return slot, found
+        # (key, row) pairs side by side: a probe touches one cache line, not two
+        self.table = np.full((size, 2), EMPTY_KEY, dtype=np.int64)
 
     def lookup(self, keys: np.ndarray) -> np.ndarray:
         """Row of each key, -1 where absent."""
         keys = np.ascontiguousarray(keys, dtype=np.int64)
-        slot, found = self._probe(keys)
-        return np.where(found, self.rows[slot], -1)
+        out = np.empty(keys.shape[0], dtype=np.int64)
+        kernels.index_lookup(self.table, self.shift, keys, out)
+        return out
 
     def insert(self, keys: np.ndarray) -> np.ndarray:
         """Row of each key, adding absent keys (duplicates in ``keys`` share one new row)."""
         keys = np.ascontiguousarray(keys, dtype=np.int64)
-        if self.count + keys.shape[0] > self.size // 2:
-            self._grow(self.count + keys.shape[0])
-        slot, found = self._probe(keys)
-        rows = np.where(found, self.rows[slot], -1)
-        missing = np.flatnonzero(~found)
-        if missing.size:
-            mk, ms = keys[missing], slot[missing]
-            pending = np.arange(missing.size)
-            mask = int(self.mask)
-            while pending.size:
-                s = ms[pending]
-                k = mk[pending]
-                free = self.keys[s] == EMPTY_KEY
-                self.keys[s[free]] = k[free]
-                ok = self.keys[s] == k
-                pending = pending[~ok]
-                ms[pending] = (ms[pending] + 1) & mask
-            uniq, first = np.unique(ms, return_index=True)
-            new_slots = uniq[np.argsort(first)]  # rows numbered in order of first appearance
-            fresh = new_slots[self.rows[new_slots] < 0]
-            end = self.count + fresh.size
-            if end > self.row_keys.shape[0]:
-                grown = np.zeros(max(end, 2 * self.row_keys.shape[0]), dtype=np.int64)
-                grown[: self.count] = self.row_keys[: self.count]
-                self.row_keys = grown
-            self.rows[fresh] = np.arange(self.count, end)
-            self.row_keys[self.count:end] = self.keys[fresh]
-            self.count = end
-            rows[missing] = self.rows[ms]
-        return rows
+        end = self.count + keys.shape[0]
+        if end > self.size // 2:
+            self._grow(end)
+        if end > self.row_keys.shape[0]:
+            grown = np.zeros(max(end, 2 * self.row_keys.shape[0]), dtype=np.int64)
+            grown[: self.count] = self.row_keys[: self.count]
+            self.row_keys = grown
+        out = np.empty(keys.shape[0], dtype=np.int64)
+        self.count = kernels.index_insert(self.table, self.shift, self.row_keys, self.count, keys, out)
+        return out
 
     def _grow(self, needed: int) -> None:
         size = self.size
@@ -296,9 +251,9 @@ class HypothesisSpace:
     Sources are columns (at most 64, so a voxel's sources fit a uint64 bitmask). Storage is
     column-major (``lik[col, row]``, ``direction[col, axis, row]``, ``center[axis, row]``), so
     that writing one source's cloud and reducing over the few sources are contiguous passes.
-    A column entry is empty when its stamp is ``+inf`` (so the oldest live stamp is a plain
-    minimum) and its likelihood 0. Rows whose every column is empty are dead; they are
-    dropped in bulk when they outnumber the live ones.
+    A column entry is empty when its stamp is ``+inf`` and its likelihood 0. Entries expire in
+    the fused pass (:meth:`fuse`), which reads every column anyway. Rows whose every column is
+    empty are dead; they are dropped in bulk when they outnumber the live ones.
     """
 
     MAX_SOURCES = 64
@@ -311,8 +266,8 @@ class HypothesisSpace:
         self.n = 0
         self.cap = 0
         self.ncol = 0
+        self._tag = 0  # the number of the last write, for ``_mark``
         self.center = np.zeros((3, 0))
-        self.oldest = np.zeros(0)
         self._alloc_rows(max(capacity, 16), columns)
 
     def _alloc_rows(self, cap: int, ncol: int) -> None:
@@ -323,6 +278,7 @@ class HypothesisSpace:
         force = np.zeros((ncol, cap))
         direction = np.zeros((ncol, 3, cap))
         center = np.zeros((3, cap))
+        mark = np.zeros(cap, dtype=np.int64)
         if n:
             center[:, :n] = self.center[:, :n]
         if c:
@@ -332,11 +288,7 @@ class HypothesisSpace:
             force[:c, :n] = self.force[:, :n]
             direction[:c, :, :n] = self.direction[:, :, :n]
         self.lik, self.stamp, self.kind, self.force, self.direction = lik, stamp, kind, force, direction
-        self.center = center
-        oldest = np.full(ncol, np.inf)
-        oldest[:c] = self.oldest[:c]
-        self.oldest = oldest
-        """Lower bound of the live stamps of each column."""
+        self.center, self._mark = center, mark
         self.cap, self.ncol = cap, ncol
 
     def ensure_column(self, col: int) -> None:
@@ -355,66 +307,48 @@ class HypothesisSpace:
                 cap *= 2
             self._alloc_rows(cap, self.ncol)
         if n_new > self.n:
-            self.center[:, self.n:n_new] = voxel_centers(self.keys[self.n:n_new], self.voxel_size).T
+            kernels.key_centers(self.keys[self.n:n_new], self.voxel_size, self.center[:, self.n:n_new])
             self.n = n_new
         return rows
 
-    def put(self, col: int, rows: np.ndarray, h: Hypotheses, unique: bool = False) -> None:
-        """Write one source's hypotheses into its column (the newest reading of a source wins).
+    def rows_for_points(self, points: np.ndarray) -> np.ndarray:
+        """Rows of the voxels holding ``points`` (n, 3), creating rows for new voxels."""
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        keys = np.empty(points.shape[0], dtype=np.int64)
+        if not kernels.point_keys(points, self.voxel_size, keys):
+            raise ValueError(f"voxel coordinates out of range ±{_OFFSET} (point too far from the origin)")
+        return self.rows_for(keys)
 
-        ``unique`` promises that ``rows`` holds no duplicate (skips the check).
-        """
+    def put(self, col: int, rows: np.ndarray, h: Hypotheses) -> None:
+        """Write one source's hypotheses into its column (the newest reading of a source wins;
+        several hypotheses of one cloud in one voxel keep the most likely)."""
         self.ensure_column(col)
-        if not unique and rows.size and not rows_unique(rows, self.n):
-            # Several hypotheses of one cloud in one voxel: keep the most likely of them.
-            order = np.lexsort((h.likelihood, rows))
-            last = np.ones(order.size, dtype=bool)
-            last[:-1] = rows[order][1:] != rows[order][:-1]
-            sel = order[last]
-            rows, h = rows[sel], h.select(sel)
-        # Assigning through the 1-D row views is several times faster than [col, rows].
-        self.lik[col][rows] = h.likelihood
-        self.stamp[col][rows] = h.stamp
-        self.oldest[col] = min(self.oldest[col], h.stamp)
-        kind = h.kind
-        self.kind[col][rows] = kind[0] if kind.size and kind.min() == kind.max() else kind
-        self.force[col][rows] = h.force
-        direction = np.ascontiguousarray(h.direction.T)
-        for a in range(3):
-            self.direction[col, a][rows] = direction[a]
+        if not rows.size:
+            return
+        self._tag += 1
+        kernels.column_put(self.lik, self.stamp, self.kind, self.force, self.direction, col,
+                           np.ascontiguousarray(rows, dtype=np.int64), h.likelihood, h.kind, h.force,
+                           np.ascontiguousarray(h.direction), float(h.stamp), self._mark, self._tag)
 
     def clear_column(self, col: int) -> None:
         if col < self.ncol:
             self.lik[col] = 0.0
             self.stamp[col] = np.inf
-            self.oldest[col] = np.inf
 
-    def expire(self, older_than: float) -> int:
-        """Empty every column entry stamped before ``older_than``; returns how many.
-
-        A column is scanned only when its oldest live stamp (kept as a lower bound) is older
-        than the limit, so sources that refresh all their voxels cost nothing here.
-        """
-        n = self.n
-        count = 0
-        for c in range(self.ncol):
-            if self.oldest[c] >= older_than:
-                continue
-            st = self.stamp[c, :n]
-            old = st < older_than
-            k = int(np.count_nonzero(old))
-            if k:
-                np.copyto(self.lik[c, :n], 0.0, where=old)
-                np.copyto(st, np.inf, where=old)
-                count += k
-            self.oldest[c] = float(st.min(initial=np.inf))
-        return count
+    def fuse(self, ncol: int, older_than: float) -> tuple:
+        """Expire entries stamped before ``older_than`` and fuse the first ``ncol`` columns
+        (:func:`~contactflow.fusion.kernels.fuse_rows`)."""
+        return kernels.fuse_rows(self.lik, self.stamp, self.kind, self.force, self.direction, self.center,
+                                 ncol, self.n, older_than)
 
     def live(self) -> np.ndarray:
         return (self.stamp[:, : self.n] < np.inf).any(axis=0)
 
-    def compact(self, force: bool = False) -> bool:
-        """Drop dead rows when they are the majority (or always with ``force``)."""
+    def compact(self, force: bool = False, live_rows: int | None = None) -> bool:
+        """Drop dead rows when they are the majority (or always with ``force``); ``live_rows``,
+        when the caller knows it, spares a scan when there is nothing to drop."""
+        if not force and live_rows is not None and (self.n - live_rows) * 2 <= max(self.n, 64):
+            return False
         live = self.live()
         n_live = int(np.count_nonzero(live))
         if not force and (self.n - n_live) * 2 <= max(self.n, 64):

@@ -8,7 +8,7 @@ timeout and computes the fused likelihood of every voxel with the noisy-OR of eq
 Voxels whose only evidence is support hypotheses are left out, and any voxel with a null
 hypothesis is vetoed. Force magnitude and direction are averaged weighted by likelihood over
 the hypotheses that carry a force.
-Sources may be plugged and unplugged at any time. Everything is vectorised over voxels.
+Sources may be plugged and unplugged at any time. Hashing, writing and the fused pass are compiled loops over voxels (:mod:`~contactflow.fusion.kernels`).
 """
 
 from __future__ import annotations
@@ -17,26 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contactflow.fusion.hypotheses import (
-    VOXEL_SIZE,
-    Hypotheses,
-    HypothesisSpace,
-    HypothesisType,
-    rows_unique,
-    voxel_keys,
-)
-
-_BYTE_WEIGHTS = (np.uint8(1) << np.arange(8, dtype=np.uint8))[:, None]
-
-
-def source_bits(valid: np.ndarray) -> np.ndarray:
-    """uint64 bitmask per row of a (columns, rows) validity array, 8 columns at a time."""
-    out = np.zeros(valid.shape[1], dtype=np.uint64)
-    for g in range(0, valid.shape[0], 8):
-        part = valid[g:g + 8].view(np.uint8)
-        byte = (part * _BYTE_WEIGHTS[: part.shape[0]]).sum(axis=0, dtype=np.uint8)
-        out |= byte.astype(np.uint64) << np.uint64(g)
-    return out
+from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisSpace
 
 
 @dataclass(frozen=True)
@@ -64,10 +45,6 @@ class Source:
     last_rx: float = -np.inf
     pending: Hypotheses | None = None
     pending_since: float = np.inf
-    _cache_loc: np.ndarray | None = None
-    _cache_rows: np.ndarray | None = None
-    _cache_gen: int = -1
-    _cache_unique: bool = False
 
 
 @dataclass
@@ -182,28 +159,13 @@ class Integrator:
             src.pending, src.pending_since = None, np.inf
             if len(cloud) == 0:
                 continue
-            rows, unique = self._rows(src, cloud)
-            space.put(src.col, rows, cloud, unique)
-        if space.expire(now - self.params.timeout):
-            space.compact()
+            space.put(src.col, space.rows_for_points(cloud.location), cloud)
         self.cycles += 1
         return self.fuse(now)
 
-    def _rows(self, src: Source, cloud: Hypotheses) -> tuple[np.ndarray, bool]:
-        """Rows of a cloud's voxels and whether they are all distinct."""
-        # Generators at fixed places (taxels, predictions) resend the same voxels: reuse rows.
-        loc = src._cache_loc
-        if (loc is not None and src._cache_gen == self.space.index.generation
-                and loc.shape == cloud.location.shape and np.array_equal(loc, cloud.location)):
-            return src._cache_rows, src._cache_unique  # type: ignore[return-value]
-        rows = self.space.rows_for(voxel_keys(cloud.location, self.space.voxel_size))
-        unique = rows_unique(rows, self.space.n)
-        src._cache_loc, src._cache_rows, src._cache_gen = cloud.location, rows, self.space.index.generation
-        src._cache_unique = unique
-        return rows, unique
-
     def fuse(self, now: float) -> Fused:
-        """Noisy-OR fusion (eq. 4.14) of the space as it is, applying the type rules."""
+        """Noisy-OR fusion (eq. 4.14) of the space, applying the type rules, after expiring the
+        entries older than the timeout."""
         space = self.space
         n = space.n
         ncol = max((s.col for s in self.sources.values()), default=-1) + 1
@@ -212,46 +174,16 @@ class Integrator:
             names[s.col], robots[s.col], links[s.col] = s.name, s.robot, s.link
         if n == 0 or ncol == 0:
             return Fused.empty(now, ncol)
-        # Whole-array passes over the (columns, rows) views; selecting the kept voxels comes
-        # last (gathering first makes strided copies).
-        lik = space.lik[:ncol, :n]
-        valid = space.stamp[:ncol, :n] < np.inf
-        kind = space.kind[:ncol, :n]
-        regular = ((kind == int(HypothesisType.REGULAR)) & valid).any(axis=0)
-        null = ((kind == int(HypothesisType.NULL)) & valid).any(axis=0)
-        live = valid.any(axis=0)
-        miss = np.prod(1.0 - lik, axis=0)
-        # Force and direction average over the entries that carry a force (support and range
-        # hypotheses know none and must not pull the magnitude towards zero).
-        force = space.force[:ncol, :n]
-        wf = lik * (force > 0.0)
-        wsum = wf.sum(axis=0)
-        fsum = np.einsum("cn,cn->n", wf, force)
-        dsum = np.einsum("cn,can->an", wf, space.direction[:ncol, :, :n])
-        keep = np.flatnonzero(regular & ~null & (miss < 1.0))
-        if keep.size == n:
-            def take(a: np.ndarray) -> np.ndarray:
-                return a[..., :n].copy()
-        else:
-            def take(a: np.ndarray) -> np.ndarray:
-                return np.take(a, keep, axis=-1)
-        # Arrays of rows come out as transposed views of contiguous (3, k) / (S, k) copies.
-        d = take(dsum)
-        norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        np.divide(d, norm, out=d, where=norm > 1e-12)
-        d[:, norm <= 1e-12] = 0.0
-        fk, wk = take(fsum), take(wsum)
-        return Fused(
-            location=take(space.center).T, likelihood=1.0 - take(miss),
-            force=np.divide(fk, wk, out=np.zeros_like(fk), where=wk > 0),
-            direction=d.T, sources=source_bits(take(valid)), per_source=take(lik).T,
-            columns=names, robots=robots, links=links, stamp=now,
-            vetoed=int(np.count_nonzero(null & live)), unsupported=int(np.count_nonzero(live & ~regular & ~null)),
-        )
+        loc, lik, force, direction, bits, per, vetoed, unsupported, live = space.fuse(
+            ncol, now - self.params.timeout)
+        space.compact(live_rows=live)
+        # (3, k) and (S, k) arrays come out as transposed views, as the loops wrote them
+        return Fused(location=loc.T, likelihood=lik, force=force, direction=direction.T, sources=bits, per_source=per.T,
+                     columns=names, robots=robots, links=links, stamp=now, vetoed=vetoed, unsupported=unsupported)
 
     def reset(self) -> None:
         """Empty the space; sources stay plugged."""
         self.space = HypothesisSpace(self.params.voxel_size)
         for s in self.sources.values():
-            s.pending, s.pending_since, s._cache_loc, s._cache_rows = None, np.inf, None, None
+            s.pending, s.pending_since = None, np.inf
             self.space.ensure_column(s.col)

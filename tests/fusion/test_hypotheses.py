@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from contactflow.fusion import kernels
 from contactflow.fusion.hypotheses import (
     Hypotheses,
     HypothesisSpace,
@@ -70,17 +71,39 @@ def test_bad_hypotheses_name_the_field():
         Hypotheses.make(np.zeros((1, 3)), 0.5, np.array([7]))
 
 
-def test_space_expire_and_compact_keep_rows_consistent():
+def test_space_expiry_in_the_fused_pass_and_compact_keep_rows_consistent():
     sp = HypothesisSpace(0.005, capacity=16)
     pts = np.random.default_rng(2).uniform(0, 0.3, (300, 3))
     h_old = Hypotheses.make(pts[:200], 0.5, stamp=0.0)
     h_new = Hypotheses.make(pts[200:], 0.7, stamp=1.0)
     sp.put(0, sp.rows_for(voxel_keys(h_old.location, 0.005)), h_old)
     sp.put(1, sp.rows_for(voxel_keys(h_new.location, 0.005)), h_new)
-    assert sp.expire(0.5) == len(np.unique(voxel_keys(pts[:200], 0.005)))
-    assert sp.compact()
+    fused = sp.fuse(2, older_than=0.5)
+    live = fused[-1]
     keys_new = np.unique(voxel_keys(pts[200:], 0.005))
+    assert live == keys_new.size and fused[0].shape == (3, keys_new.size)  # the old cloud expired
+    assert sp.compact(live_rows=live)
     assert sp.n == keys_new.size
     rows = sp.index.lookup(keys_new)
     assert (rows >= 0).all() and np.allclose(sp.lik[1, rows], 0.7)
     assert np.allclose(sp.centers(rows), voxel_centers(keys_new, 0.005))
+
+
+def test_kernel_type_codes_and_point_keys_match_the_numpy_definitions():
+    assert (kernels.REGULAR, kernels.NULL) == (HypothesisType.REGULAR, HypothesisType.NULL)
+    pts = np.random.default_rng(3).uniform(-2, 2, (1000, 3))
+    sp = HypothesisSpace(0.005)
+    rows = sp.rows_for_points(pts)
+    assert np.array_equal(sp.keys[rows], voxel_keys(pts, 0.005))
+    assert np.allclose(sp.centers(rows), voxel_centers(voxel_keys(pts, 0.005), 0.005))
+    with pytest.raises(ValueError, match="out of range"):
+        sp.rows_for_points(np.array([[1e5, 0.0, 0.0]]))
+
+
+def test_put_keeps_the_most_likely_of_one_cloud_but_the_newest_cloud_wins():
+    sp = HypothesisSpace(0.005)
+    pts = np.array([[0.001, 0.001, 0.001], [0.002, 0.002, 0.002]])  # one voxel
+    sp.put(0, sp.rows_for_points(pts), Hypotheses.make(pts, [0.8, 0.3], stamp=1.0))
+    assert sp.lik[0, 0] == pytest.approx(0.8)
+    sp.put(0, sp.rows_for_points(pts[:1]), Hypotheses.make(pts[:1], 0.2, stamp=2.0))
+    assert sp.lik[0, 0] == pytest.approx(0.2) and sp.stamp[0, 0] == 2.0
