@@ -15,6 +15,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol
 
 from contactflow.abstraction.atd import AtdError, parse_atd
@@ -62,6 +63,16 @@ def dry_run(profile: RobotProfile, atd_text: str, file: str) -> tuple[Bid, Trans
                estd=estd_message(tr)), tr
 
 
+EXAMPLES = Path(__file__).parent / "examples"
+
+
+def warm(profile: RobotProfile) -> None:
+    """Translate the shipped example ATDs for ``profile`` once, keeping nothing: the first
+    dispatch then finds the primitives' modules imported (open3d, pinocchio models...)."""
+    for f in sorted(EXAMPLES.glob("*.xml")):
+        dry_run(profile, f.read_text(), f.name)
+
+
 @dataclass
 class _Job:
     task_id: str
@@ -94,6 +105,8 @@ class RobotAgent:
             return self._job is not None and self._job.thread.is_alive()
 
     def start(self) -> None:
+        """Warm the translation path, then answer on the key space and announce the robot."""
+        warm(self.profile)
         r, t = self.profile.name, self.transport
         self._handles = [
             t.queryable(self.ks.robot_service(r, "caps"), self._on_caps),

@@ -42,6 +42,7 @@ BENCHMARKS = {
     "deploy": "contactflow.deploy.bench_deploy",
     "fuzz": "contactflow.deploy.bench_fuzz",
     "record": "contactflow.deploy.bench_record",
+    "dispatch": "contactflow.abstraction.bench_dispatch",
 }
 """``contactflow bench NAME`` runs ``run(out_dir, quick)`` of the module named here."""
 

@@ -30,6 +30,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import Progress
 
+from contactflow.abstraction.agent import EXAMPLES
 from contactflow.abstraction.atd import Atd, parse_atd
 from contactflow.abstraction.cli import progress_table
 from contactflow.abstraction.client import TaskFollow, close, dispatch
@@ -47,7 +48,6 @@ from contactflow.nodes.procs import free_port_block, spawn_node, stop_process, w
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 from contactflow.nodes.wire import WireError, decode
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "abstraction" / "examples"
 ATDS = ("push_away.xml", "pick_place_behind.xml")
 ROBOTS = ("tombatossals", "melfa", "baxter")
 REC = "contactflow.recognition"
