@@ -17,6 +17,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
 from contactflow.abstraction.atd import AtdError, parse_atd
 from contactflow.abstraction.dispatch import DispatchRefused, TaskRecord, choose
@@ -37,6 +38,7 @@ from contactflow.nodes.wire import Stamper, WireError, decode, encode
 
 BROKER = "broker"
 FAILOVER_OUTCOMES = frozenset({str(Event.HARDWARE_FAILURE)})
+MAX_PARALLEL_RUNS = 16  # run requests in flight at once for one dispatch
 
 
 class Broker:
@@ -146,7 +148,7 @@ class Broker:
                     record.running.add(robot)
                 self._report(record.task_id, "assigned", robot_detail=robot,
                              detail=f"running on {robot} (attempt {record.attempt})")
-                reply = self._run_on(record, by_robot[robot])
+            for robot, reply in zip(chosen, self._run_all(record, [by_robot[r] for r in chosen]), strict=True):
                 if reply.ok:
                     started.append(robot)
                 else:
@@ -158,6 +160,13 @@ class Broker:
                 return started
             if record.target == "all":
                 raise DispatchRefused(refusals)
+
+    def _run_all(self, record: TaskRecord, bids: list[Bid]) -> list[RunReply]:
+        """Run requests to every chosen robot at once, so none waits for another's answer."""
+        if len(bids) == 1:
+            return [self._run_on(record, bids[0])]
+        with ThreadPoolExecutor(max_workers=min(len(bids), MAX_PARALLEL_RUNS), thread_name_prefix="broker-run") as pool:
+            return list(pool.map(lambda b: self._run_on(record, b), bids))
 
     def _run_on(self, record: TaskRecord, bid: Bid) -> RunReply:
         robot = bid.robot
