@@ -158,6 +158,15 @@ def _kinematics(n_calls: int) -> dict:
     return {"raw_us": raw * 1e6, "wrapper_us": wrapped * 1e6, "overhead": wrapped / raw, "dof": model.nq}
 
 
+def _stages(profiles) -> dict:
+    """Median of each stage of the plans (s), their checks, and the checks per second."""
+    med = lambda f: float(np.median([f(p) for p in profiles]))  # noqa: E731
+    return {"ends_s": med(lambda p: p.ends), "search_s": med(lambda p: p.search), "simplify_s": med(lambda p: p.simplify),
+            "validate_s": med(lambda p: p.validate), "searches": med(lambda p: p.searches),
+            "checks": med(lambda p: p.search_checks + p.path_checks), "checks_per_second": med(lambda p: p.checks_per_second),
+            "re_searched": int(sum(p.searches > 1 for p in profiles))}
+
+
 def planning_problems(n: int, seed: int = 7):
     """Fixed 7-DoF table problems: (kin, checker, planner, list of (start, goal))."""
     from contactflow.embodiments.control.kinematics import Kinematics
@@ -176,7 +185,7 @@ def planning_problems(n: int, seed: int = 7):
     arm = spec.arm("left")
     q_fixed = np.clip(np.zeros(kin.nq), kin.lower, kin.upper)
     q_fixed[kin.q_index(arm.joints)] = arm.home
-    planner = ArmPlanner(kin, arm.joints, checker.valid, q_fixed, fast=checker.scene_valid)
+    planner = ArmPlanner(kin, arm.joints, checker.valid, q_fixed)
     rng = np.random.default_rng(seed)
     problems = []
     while len(problems) < n:
@@ -225,15 +234,20 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
         planner, problems = planning_problems(n_problems)
         plans: dict[str, dict] = {}
         for name in ("KPIECE1", "RRTConnect"):
-            times, ok = [], []
+            times, ok, profiles, lengths = [], [], [], []
             for k, (a, b) in enumerate(problems):
                 p = planner.plan(a, b, planner=name, timeout=timeout, seed=100 + k)
                 ok.append(p.success)
                 times.append(p.planning_time)
+                profiles.append(p.profile)
+                if p.success:
+                    lengths.append(p.length)
                 progress.advance(task)
             plans[name] = {"success_rate": float(np.mean(ok)), "median_time_s": float(np.median(times)),
                            "median_time_success_s": float(np.median([t for t, s in zip(times, ok, strict=True) if s])) if any(ok) else None,
-                           "problems": len(problems), "timeout_s": timeout}
+                           "p95_time_s": float(np.percentile(times, 95)),
+                           "median_length_rad": float(np.median(lengths)) if lengths else None,
+                           "problems": len(problems), "timeout_s": timeout, "stages": _stages(profiles)}
         summary["planning"] = plans
         summary["runtime"] = bench_runtime.run(quick, advance=lambda: progress.advance(task))
     table = Table(title="contactflow bench sim")
@@ -249,7 +263,14 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
     table.add_row("FK+Jacobian our wrapper", f"{k['wrapper_us']:.1f} us ({k['overhead']:.2f}x)")
     for name, r in plans.items():
         med = r["median_time_success_s"]
-        table.add_row(f"{name}: success / median time", f"{100 * r['success_rate']:.0f}% / {1000 * med:.0f} ms" if med else "0%")
+        table.add_row(f"{name}: success / median time (solved) / p95", f"{100 * r['success_rate']:.0f}% / {1000 * med:.0f} ms / "
+                      f"{1000 * r['p95_time_s']:.0f} ms" if med else "0%")
+        st = r["stages"]
+        table.add_row(f"{name}: median ms ends | search | simplify | validate",
+                      " | ".join(f"{1000 * st[k]:.0f}" for k in ("ends_s", "search_s", "simplify_s", "validate_s")))
+        table.add_row(f"{name}: median checks, checks/s, plans searched twice, path length",
+                      f"{st['checks']:.0f}, {st['checks_per_second']:,.0f}/s, {st['re_searched']}, "
+                      f"{r['median_length_rad'] or float('nan'):.2f} rad")
     for label, row in summary["runtime"]["rtf"].items():
         one, split = row["one_process"], row["split"]
         table.add_row(f"runtime RTF, {label}: one process | split (vs one)",

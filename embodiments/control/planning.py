@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import coal
 import numpy as np
@@ -53,6 +53,25 @@ class Obstacle:
 
 
 @dataclass
+class PlanProfile:
+    """Where one plan's time went (s) and the collision checks it made."""
+
+    ends: float = 0.0  # checking the start and goal states
+    search: float = 0.0  # OMPL's solve, over every search
+    simplify: float = 0.0  # shortcutting the found path, over every search
+    validate: float = 0.0  # the found path checked waypoint by waypoint at the fine step
+    searches: int = 0  # 2: the coarse search's path failed the fine check and was searched again at the fine step
+    search_checks: int = 0  # states checked while searching and shortcutting
+    path_checks: int = 0  # states checked at the ends and along found paths
+
+    @property
+    def checks_per_second(self) -> float:
+        """Collision checks per second of search and shortcutting."""
+        busy = self.search + self.simplify
+        return self.search_checks / busy if busy > 0 else 0.0
+
+
+@dataclass
 class Plan:
     """A joint-space path of one arm."""
 
@@ -63,6 +82,7 @@ class Plan:
     success: bool
     why_not: str = ""  # a failed plan's reason: which end state is invalid, or the time-out
     timed_out: bool = False  # the search ran out of time (a fresh try may find a path; invalid ends never)
+    profile: PlanProfile = field(default_factory=PlanProfile)
 
     @property
     def length(self) -> float:
@@ -118,25 +138,17 @@ class CoalChecker:
                 self.geom.addCollisionPair(pin.CollisionPair(g, o))
         self.data = self.model.createData()
         self.gdata = pin.GeometryData(self.geom)
-        # the self pairs (added first) are ten times the scene's: the scene-only check has them switched off
-        self._scene = pin.GeometryData(self.geom)
-        for k in range(len(inner)):
-            self._scene.deactivateCollisionPair(k)
+        # A broad phase (coal's dynamic AABB tree) tests only the pairs whose boxes overlap: of the
+        # ~1,200 pairs of a two-armed robot nearly all are far apart (bench sim: 355 -> 30 us a check)
+        self._manager = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(self.model, self.geom, self.gdata)
         self.checks = 0
 
     def valid(self, q: np.ndarray) -> bool:
         """Free of the scene and of the robot's other parts."""
-        return self._free(q, self.gdata)
-
-    def scene_valid(self, q: np.ndarray) -> bool:
-        """Free of the scene only (the planner's fast search; its path is then checked with :meth:`valid`)."""
-        return self._free(q, self._scene)
-
-    def _free(self, q: np.ndarray, gdata: pin.GeometryData) -> bool:
         self.checks += 1
         if not self.geom.collisionPairs:
             return True
-        return not pin.computeCollisions(self.model, self.data, self.geom, gdata, q, True)
+        return not pin.computeCollisions(self.model, self.data, self._manager, q, True)
 
 
 def _cloud(cloud: np.ndarray | None, where: str) -> np.ndarray:
@@ -216,15 +228,8 @@ class SphericalChecker:
 
     def valid(self, q: np.ndarray) -> bool:
         """Free of the scene and of the robot's other parts."""
-        return self._valid(q, True)
-
-    def scene_valid(self, q: np.ndarray) -> bool:
-        """Free of the scene only (the planner's fast search; its path is then checked with :meth:`valid`)."""
-        return self._valid(q, False)
-
-    def _valid(self, q: np.ndarray, with_parts: bool) -> bool:
         self.checks += 1
-        with_parts = with_parts and len(self._pairs) > 0
+        with_parts = len(self._pairs) > 0
         if self.tree is None and not with_parts:
             return True
         self.kin.update(q)
@@ -254,42 +259,45 @@ class SphericalChecker:
 
 @dataclass(frozen=True)
 class PlannerParams:
-    check_step: float = 0.02  # rad, joint-space distance between collision checks along a motion
-    max_step: float = 0.02  # rad, waypoint spacing after interpolation (= the collision check step)
-    simplify: bool = True
+    check_step: float = 0.02  # rad, joint-space distance between the checks of a returned path (its waypoint spacing)
+    search_step: float = 0.05  # rad, distance between checks along motions while searching and shortcutting
+    simplify: bool = True  # shortcut the found path (OMPL's vertex reduction, then rope shortcutting)
     range_: float = 0.0  # planner range (0 = OMPL default)
 
 
 class ArmPlanner:
     """Plans the joints ``joints`` of ``kin``; the other joints stay at ``q_fixed``.
 
-    ``valid`` is the whole collision check. With ``fast`` (a cheaper check that misses some
-    collisions, e.g. :meth:`CoalChecker.scene_valid`), the search runs on ``fast`` and its path
-    is then checked waypoint by waypoint with ``valid`` (lazy validation): only a path that fails
-    it is searched again with ``valid`` (each search has the whole ``timeout``). Every returned
-    path is free under ``valid``.
+    ``valid`` is the whole collision check. The search and the shortcutting check motions every
+    ``search_step``; the path found is then checked at every ``check_step`` (lazy validation),
+    and only a path that fails is searched again at ``check_step`` (each search has the whole
+    ``timeout``). Every returned path is free under ``valid`` at ``check_step``.
     """
 
     def __init__(self, kin: Kinematics, joints: tuple[str, ...], valid: Callable[[np.ndarray], bool], q_fixed: np.ndarray,
-                 params: PlannerParams | None = None, fast: Callable[[np.ndarray], bool] | None = None) -> None:
-        self.kin, self.joints, self._valid, self._fast = kin, tuple(joints), valid, fast
+                 params: PlannerParams | None = None) -> None:
+        self.kin, self.joints, self._valid = kin, tuple(joints), valid
         self.idx = kin.q_index(self.joints)
         self.q_fixed = np.asarray(q_fixed, dtype=np.float64).copy()
         self.params = params or PlannerParams()
         self.lower = np.maximum(kin.lower[self.idx], -np.pi * 2)
         self.upper = np.minimum(kin.upper[self.idx], np.pi * 2)
-        self.searches = 0  # searches run by the last plan (2: the fast search's path failed the full check)
+        self._profile = PlanProfile()  # the plan under way
 
     def full(self, q_arm: np.ndarray) -> np.ndarray:
         q = self.q_fixed.copy()
         q[self.idx] = q_arm
         return q
 
-    def valid(self, q_arm: np.ndarray, check: Callable[[np.ndarray], bool] | None = None) -> bool:
+    def valid(self, q_arm: np.ndarray) -> bool:
         q = np.asarray(q_arm)
         if np.any(q < self.lower) or np.any(q > self.upper):
             return False
-        return bool((check or self._valid)(self.full(q)))
+        return bool(self._valid(self.full(q)))
+
+    def _path_free(self, waypoints) -> bool:
+        self._profile.path_checks += len(waypoints)
+        return all(self.valid(w) for w in waypoints)
 
     def plan(self, start: np.ndarray, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0,
              seed: int | None = None) -> Plan:
@@ -297,29 +305,33 @@ class ArmPlanner:
             raise ValueError(f"planner {planner!r} is not one of {sorted(PLANNERS)}")
         start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
         t0 = time.perf_counter()
-        fail = Plan(self.joints, np.stack([start]), planner, 0.0, False)
+        prof = self._profile = PlanProfile()
+        fail = Plan(self.joints, np.stack([start]), planner, 0.0, False, profile=prof)
         for label, q in (("start", start), ("goal", goal)):
-            if not self.valid(q):
+            if not self._path_free([q]):
                 limits = np.any(q < self.lower) or np.any(q > self.upper)
                 fail.why_not = f"the {label} state is {'outside the joint limits' if limits else 'in collision'}"
-                fail.planning_time = time.perf_counter() - t0
+                fail.planning_time = prof.ends = time.perf_counter() - t0
                 return fail
+        prof.ends = time.perf_counter() - t0
         if seed is not None:
             seed_ompl(seed)
-        self.searches = 1
-        dense = self._search(start, goal, planner, timeout, self._fast or self._valid)
-        if dense is not None and self._fast is not None and not all(self.valid(w) for w in dense):
-            self.searches = 2
-            dense = self._search(start, goal, planner, timeout, self._valid)
+        step = self.params.search_step
+        dense = self._search(start, goal, planner, timeout, step)
+        if dense is not None:
+            t = time.perf_counter()
+            free = self._path_free(dense)
+            prof.validate = time.perf_counter() - t
+            if not free and step > self.params.check_step:
+                dense = self._search(start, goal, planner, timeout, self.params.check_step)
         if dense is None:
             fail.why_not, fail.timed_out = f"{planner} found no path in {timeout} s", True
             fail.planning_time = time.perf_counter() - t0
             return fail
-        return Plan(self.joints, dense, planner, time.perf_counter() - t0, True)
+        return Plan(self.joints, dense, planner, time.perf_counter() - t0, True, profile=prof)
 
-    def _search(self, start: np.ndarray, goal: np.ndarray, planner: str, timeout: float,
-                check: Callable[[np.ndarray], bool]) -> np.ndarray | None:
-        """OMPL search under ``check``: the simplified path, densified to ``max_step``, or None."""
+    def _search(self, start: np.ndarray, goal: np.ndarray, planner: str, timeout: float, step: float) -> np.ndarray | None:
+        """OMPL search checking motions every ``step`` rad: the shortcut path, densified to ``check_step``, or None."""
         n = len(self.idx)
         space = ob.RealVectorStateSpace(n)
         bounds = ob.RealVectorBounds(n)
@@ -329,15 +341,17 @@ class ArmPlanner:
         space.setBounds(bounds)
         ss = og.SimpleSetup(space)
         buf = np.empty(n)
+        prof = self._profile
 
         def state_valid(s) -> bool:
             for i in range(n):
                 buf[i] = s[i]
-            return self.valid(buf, check)
+            prof.search_checks += 1
+            return self.valid(buf)
 
         ss.setStateValidityChecker(state_valid)
         si = ss.getSpaceInformation()
-        si.setStateValidityCheckingResolution(min(0.5, self.params.check_step / space.getMaximumExtent()))
+        si.setStateValidityCheckingResolution(min(0.5, step / space.getMaximumExtent()))
         s0, s1 = space.allocState(), space.allocState()
         for i in range(n):
             s0[i], s1[i] = float(start[i]), float(goal[i])
@@ -346,16 +360,26 @@ class ArmPlanner:
         if self.params.range_ > 0:
             p.setRange(self.params.range_)
         ss.setPlanner(p)
-        if not (bool(ss.solve(timeout)) and ss.haveExactSolutionPath()):
+        prof.searches += 1
+        t = time.perf_counter()
+        solved = bool(ss.solve(timeout)) and ss.haveExactSolutionPath()
+        prof.search += time.perf_counter() - t
+        if not solved:
             return None
-        if self.params.simplify:
-            ss.simplifySolution()
         path = ss.getSolutionPath()
+        if self.params.simplify:
+            # OMPL's full simplification (simplifyMax: several rounds of shortcuts and B-spline
+            # smoothing) took 3/4 of a plan; these two passes give paths as short (bench sim)
+            t = time.perf_counter()
+            shortcut = ss.getPathSimplifier()
+            shortcut.reduceVertices(path)
+            shortcut.ropeShortcutPath(path)
+            prof.simplify += time.perf_counter() - t
         W = np.array([[path.getState(k)[i] for i in range(n)] for k in range(path.getStateCount())])
-        # waypoints at most max_step apart in every joint (= the collision check step)
+        # waypoints at most check_step apart in every joint
         dense = [W[0]]
         for a, b in zip(W[:-1], W[1:], strict=True):
-            m = max(1, int(np.ceil(np.abs(b - a).max() / self.params.max_step)))
+            m = max(1, int(np.ceil(np.abs(b - a).max() / self.params.check_step)))
             dense += [a + (b - a) * (j / m) for j in range(1, m + 1)]
         return np.array(dense)
 
@@ -459,7 +483,7 @@ def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: fl
                                  parts=parts)
     else:
         raise ValueError(f"checker {checker!r} is not coal|spherical")
-    ap = ArmPlanner(kin, arm.joints, check.valid, q_full, fast=check.scene_valid)
+    ap = ArmPlanner(kin, arm.joints, check.valid, q_full)
     goal = np.asarray(goal, dtype=np.float64)
     if goal.shape == (4, 4):
         q_seed = q_full

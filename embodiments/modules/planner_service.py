@@ -111,7 +111,7 @@ class PlannerService(Module):
         q_goal = solve_ik(kin, a.joints, a.ee_frame, goal, q_full, check.valid, seed=p.seed)
         if q_goal is None:
             return None, "no collision-free IK solution for the goal"
-        planner = ArmPlanner(kin, a.joints, check.valid, q_full, fast=check.scene_valid)
+        planner = ArmPlanner(kin, a.joints, check.valid, q_full)
         tries = 0
         while True:
             plan = planner.plan(q_full[planner.idx], q_goal, planner=p.planner, timeout=p.timeout, seed=p.seed)

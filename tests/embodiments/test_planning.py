@@ -10,6 +10,7 @@ from contactflow.embodiments.control.planning import (
     ArmPlanner,
     CoalChecker,
     Obstacle,
+    PlannerParams,
     SphericalChecker,
     fixtures_from_world,
     sensed_cloud,
@@ -101,7 +102,7 @@ def test_a_failed_plan_says_which_end_is_invalid_or_that_time_ran_out():
     assert planner("").plan(start, goal, planner="RRTConnect", timeout=5.0).success
 
 
-def test_a_path_found_on_the_fast_check_is_searched_again_when_the_full_check_refuses_it():
+def test_a_path_found_at_the_search_step_is_searched_again_at_the_check_step_when_it_fails_there():
     from contactflow.embodiments import registry
 
     spec = registry.get("melfa")
@@ -111,23 +112,19 @@ def test_a_path_found_on_the_fast_check_is_searched_again_when_the_full_check_re
     start, goal = kin.q[idx].copy(), kin.q[idx].copy()
     goal[0] += 0.6
 
-    def wall(q: np.ndarray) -> bool:  # the full check: a wall across joint 1's straight way, passable over joint 2
-        return not (abs(q[idx][0] - start[0] - 0.3) < 0.05 and abs(q[idx][1] - start[1]) < 0.3)
+    def wall(q: np.ndarray) -> bool:  # thinner than the search step, across joint 1's straight way, passable over joint 2
+        return not (abs(q[idx][0] - start[0] - 0.2) < 0.015 and abs(q[idx][1] - start[1]) < 0.3)
 
-    seen = {"fast": 0}
-
-    def fast(q: np.ndarray) -> bool:
-        seen["fast"] += 1
-        return True
-
-    planner = ArmPlanner(kin, joints, wall, kin.q, fast=fast)
+    planner = ArmPlanner(kin, joints, wall, kin.q, PlannerParams(search_step=0.5))
     plan = planner.plan(start, goal, planner="RRTConnect", timeout=5.0)
-    assert plan.success and planner.searches == 2 and seen["fast"] > 0
+    assert plan.success and plan.profile.searches == 2 and plan.profile.search_checks > 0 and plan.profile.validate > 0
     assert all(wall(planner.full(w)) for w in plan.waypoints)
     assert np.abs(plan.waypoints[:, 1] - start[1]).max() >= 0.3  # went round the wall
-    free = ArmPlanner(kin, joints, lambda q: True, kin.q, fast=fast)
+    assert np.abs(np.diff(plan.waypoints, axis=0)).max() <= PlannerParams().check_step + 1e-12
+    free = ArmPlanner(kin, joints, lambda q: True, kin.q)
     clear = free.plan(start, goal, planner="RRTConnect", timeout=5.0)
-    assert clear.success and free.searches == 1 and np.allclose(clear.waypoints[[0, -1]], [start, goal])
+    assert clear.success and clear.profile.searches == 1 and clear.profile.path_checks == 2 + len(clear.waypoints)
+    assert np.allclose(clear.waypoints[[0, -1]], [start, goal])
 
 
 def test_planner_does_not_read_the_simulated_objects(scene):
