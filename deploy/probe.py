@@ -43,7 +43,8 @@ def _sample_fields(key: str, payload: bytes) -> dict[str, Any]:
         out["error"] = str(exc)
         return out
     view = to_builtins(msg)
-    out.update(type=msg.tag(), source=msg.hdr.source, seq=msg.hdr.seq, t_wall=msg.hdr.t_wall)
+    out.update(type=msg.tag(), source=msg.hdr.source, seq=msg.hdr.seq, t_wall=msg.hdr.t_wall,
+               inputs=[f"{i.source}#{i.seq}" for i in msg.hdr.inputs])
     for f in ("values", "event", "detail", "ok", "error", "state"):
         if isinstance(view, dict) and f in view:
             out[f] = view[f]
