@@ -32,7 +32,7 @@ from rich.table import Table
 from contactflow.nodes.params import ParamError
 from contactflow.nodes.testing import FakeIO
 from contactflow.nodes.wire import stamp
-from contactflow.recognition.messages import RobotSpheres, depth_image, nd
+from contactflow.recognition.messages import PointCloud, RobotSpheres, depth_image, nd
 from contactflow.recognition.pipeline import (
     DistanceFn,
     SegmentationPipeline,
@@ -235,14 +235,20 @@ def bench_modules(frames_in: Frames, frames: int) -> dict:
     return _stats(times)
 
 
-class _ChainProbe:
-    """The bench's session on the site: each depth frame's wall stamp, and when the objects cut from it arrived."""
+CHAIN = ("cloud", "roi", "self")  # the vision node's modules between the depth frame and the objects (their "cloud" port)
 
-    def __init__(self, transport, depth_key: str, objects_key: str) -> None:
+
+class _ChainProbe:
+    """The bench's session on the site: each depth frame's wall stamp, when each stage's cloud cut from it
+    arrived, and when its objects arrived."""
+
+    def __init__(self, transport, depth_key: str, objects_key: str, stage_keys: dict[str, str]) -> None:
         self._lock = threading.Lock()
         self.frames: dict[int, tuple[float, float]] = {}  # depth seq -> the frame's (wall stamp (s, epoch), sim stamp)
         self.objects: dict[int, tuple[float, int]] = {}  # depth seq -> (arrival wall s, clusters)
+        self.stages: dict[str, dict[int, float]] = {s: {} for s in stage_keys}  # stage -> depth seq -> arrival wall s
         self._subs = [transport.subscribe(depth_key, self._on_depth), transport.subscribe(objects_key, self._on_objects)]
+        self._subs += [transport.subscribe(key, self._on_stage(stage)) for stage, key in stage_keys.items()]
 
     def _on_depth(self, key: str, payload: bytes) -> None:
         from contactflow.embodiments.messages import DepthImage
@@ -251,6 +257,16 @@ class _ChainProbe:
         hdr = decode(payload, DepthImage, key).hdr
         with self._lock:
             self.frames[hdr.seq] = (hdr.t_wall, hdr.t_sim)
+
+    def _on_stage(self, stage: str):
+        def on(key: str, payload: bytes) -> None:
+            from contactflow.nodes.wire import decode
+
+            now = time.time()
+            msg = decode(payload, PointCloud, key)
+            with self._lock:
+                self.stages[stage].setdefault(msg.depth_frame.seq, now)
+        return on
 
     def _on_objects(self, key: str, payload: bytes) -> None:
         from contactflow.nodes.wire import decode
@@ -261,13 +277,25 @@ class _ChainProbe:
         with self._lock:
             self.objects.setdefault(msg.depth_frame.seq, (now, len(msg.objects)))
 
-    def snapshot(self) -> tuple[dict[int, tuple[float, float]], dict[int, tuple[float, int]]]:
+    def snapshot(self) -> tuple[dict[int, tuple[float, float]], dict[int, tuple[float, int]], dict[str, dict[int, float]]]:
         with self._lock:
-            return dict(self.frames), dict(self.objects)
+            return dict(self.frames), dict(self.objects), {k: dict(v) for k, v in self.stages.items()}
 
     def close(self) -> None:
         for sub in self._subs:
             sub.close()
+
+
+def _hops(frames: dict[int, tuple[float, float]], stages: dict[str, dict[int, float]],
+          objects: dict[int, tuple[float, int]], seqs: list[int]) -> dict[str, float]:
+    """Median ms of each hop (frame stamp -> cloud -> roi -> self -> objects) over the frames that came through."""
+    chain = [("frame", {q: frames[q][0] for q in seqs}), *((s, stages[s]) for s in CHAIN),
+             ("objects", {q: t for q, (t, _) in objects.items()})]
+    out = {}
+    for (a, ta), (b, tb) in zip(chain[:-1], chain[1:], strict=True):
+        d = [(tb[q] - ta[q]) * 1e3 for q in seqs if q in ta and q in tb]
+        out[f"{a}->{b}"] = float(np.median(d)) if d else float("nan")
+    return out
 
 
 def _latency(values: list[float]) -> dict[str, float] | None:
@@ -298,7 +326,8 @@ def bench_runtime(folder: pathlib.Path, seconds: float, camera_hz: float = FRAME
     world = world_node(site, cell, clock="realtime", listen=endpoint, camera_hz=camera_hz, ground_truth_hz=0.0)
     vision = vision_node(site, ROBOT, connect=(endpoint,))
     started, watch = start_nodes(folder, [world, vision], site, endpoint, processes=True)
-    probe = _ChainProbe(watch.t, watch.ks.robot(ROBOT, "depth"), watch.ks.output(ROBOT, vision["node"], "objects", "objects"))
+    probe = _ChainProbe(watch.t, watch.ks.robot(ROBOT, "depth"), watch.ks.output(ROBOT, vision["node"], "objects", "objects"),
+                        {s: watch.ks.output(ROBOT, vision["node"], s, "cloud") for s in CHAIN})
     try:
         if not wait_for(lambda: bool(probe.snapshot()[1]), warmup):
             raise TimeoutError(f"bench vision: no objects from the vision node within {warmup:g} s (see {folder})")
@@ -306,7 +335,7 @@ def bench_runtime(folder: pathlib.Path, seconds: float, camera_hz: float = FRAME
         time.sleep(seconds)
         t1 = time.time()
         time.sleep(1.0)
-        frames, objects = probe.snapshot()
+        frames, objects, stages = probe.snapshot()
     finally:
         probe.close()
         stop_nodes(started, watch, processes=True)
@@ -320,7 +349,7 @@ def bench_runtime(folder: pathlib.Path, seconds: float, camera_hz: float = FRAME
     span = t1 - t0
     return {"seconds": span, "camera_hz": camera_hz, "frames": len(window), "processed": len(done),
             "dropped": len(window) - len(done), "world_rtf": rtf, "frames_hz": len(window) / span, "processed_hz": len(done) / span,
-            "latency": _latency(latency), "objects": objs,
+            "latency": _latency(latency), "hops_ms": _hops(frames, stages, objects, sorted(done)), "objects": objs,
             "clusters_right": sum(n == objs for n in clusters), "clusters_seen": sorted(set(clusters))}
 
 
@@ -392,6 +421,7 @@ def _compare(summary: dict, console: Console, lines: list[str]) -> None:
             ("latency median ms", f"{ms(loc['wall_total']['median_ms'])} (pipeline)" if loc else None,
              f"{ms(lat.get('median_ms'))} (stamp -> objects)"),
             ("latency p95 ms", ms(loc["wall_total"]["p95_ms"]) if loc else None, ms(lat.get("p95_ms"))),
+            ("per hop, median ms", "-" if loc else None, ", ".join(f"{h} {v:.1f}" for h, v in rt["hops_ms"].items())),
             ("clusters = objects", f"{loc['clusters_right']}/{summary['frames']}" if loc else None,
              f"{rt['clusters_right']}/{rt['processed']} (seen {rt['clusters_seen']})")]
     t = Table(title=f"3D vision on the {CELL} (wall time)")

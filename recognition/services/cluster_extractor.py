@@ -20,7 +20,7 @@ class ClusterExtractor(Module):
 
     @dataclass(frozen=True)
     class Params:
-        rate_hz: float = 30.0  # Hz
+        rate_hz: float = 200.0  # Hz, how often it looks for a new cloud (each is clustered once)
         eps: float = 0.018  # m, DBSCAN neighbourhood
         min_points: int = 4  # DBSCAN core density
         min_size: int = 25  # points per object

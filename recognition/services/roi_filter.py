@@ -24,7 +24,7 @@ class RoiFilter(Module):
 
     @dataclass(frozen=True)
     class Params:
-        rate_hz: float = 30.0  # Hz
+        rate_hz: float = 200.0  # Hz, how often it looks for a new cloud (each is filtered once)
 
     def __init__(self, name: str, params: Params | None = None) -> None:
         super().__init__(name, params)

@@ -39,7 +39,7 @@ class SelfFilter(Module):
 
     @dataclass(frozen=True)
     class Params:
-        rate_hz: float = 30.0  # Hz
+        rate_hz: float = 200.0  # Hz, how often it looks for a new cloud (each is filtered once)
         margin: float = 0.02  # m, clearance around the robot model
         robot: str = ""  # registry name of the robot whose spherical model is posed by `joints`
         base: tuple[float, ...] = ()  # xyz rpy of the robot base in the world (default: registry's)

@@ -34,6 +34,11 @@ def test_bench_vision_runtime_segments_the_worlds_depth_stream_on_the_vision_nod
     lat = rt["latency"]
     assert 0.0 < lat["min_ms"] <= lat["median_ms"] <= lat["p95_ms"] <= lat["max_ms"] < 5000.0
     assert all(math.isfinite(v) for v in lat.values())
+    # every hop of the chain was seen for the frames that came through, and the hops add up to the latency
+    hops = rt["hops_ms"]
+    assert list(hops) == ["frame->cloud", "cloud->roi", "roi->self", "self->objects"]
+    assert all(0.0 < v < 5000.0 for v in hops.values()), hops
+    assert sum(hops.values()) == pytest.approx(lat["median_ms"], rel=0.5)
     # the five objects on the table are five clusters
     assert rt["objects"] == 5 and rt["clusters_right"] >= 0.9 * rt["processed"], rt
     assert "runtime" in (tmp_path / "vision.md").read_text()
