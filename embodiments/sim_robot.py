@@ -432,6 +432,16 @@ class SimRobot(RobotFacade):
             self._fail(fault)
         return frame
 
+    def depth(self, name: str = "kinect") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(depth (H, W), K, camera pose) of camera ``name`` now, without a full frame's points and
+        labels (a depth stream's frame); the stream's watchdog runs as for :meth:`camera`."""
+        cam = self._camera(name)
+        depth, Twc = cam.read_depth(self.time)
+        fault = self.monitor.silent_streams(self.time, {f"camera {name}": cam.stamp})
+        if fault is not None and not self.failed:
+            self._fail(fault)
+        return depth, cam.K, Twc
+
     def ground_truth(self) -> GroundTruth:
         """Object poses and true contacts — evaluation only."""
         return read_ground_truth(self.world)

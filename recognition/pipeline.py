@@ -192,16 +192,20 @@ def culled_distance(distance: DistanceFn, c1: np.ndarray, c2: np.ndarray, r1: np
     rmax = np.maximum(r1, r2)[:, None] + cutoff
     lo = np.minimum(c1, c2) - rmax
     hi = np.maximum(c1, c2) + rmax
+    lo_all, hi_all = lo.min(axis=0), hi.max(axis=0)
 
     def dist(points: np.ndarray) -> np.ndarray:
         out = np.full(len(points), np.inf)
         if len(points) == 0:
             return out
-        near = np.zeros(len(points), bool)
-        for k in range(len(lo)):
-            near |= np.all((points >= lo[k]) & (points <= hi[k]), axis=1)
-        if near.any():
-            out[near] = distance(points[near])
+        # the box around the whole robot first (most of a scene is outside it), then every
+        # s-tope's box at once for the points inside
+        cand = np.flatnonzero(np.all((points >= lo_all) & (points <= hi_all), axis=1))
+        if cand.size:
+            p = points[cand][:, None, :]
+            near = cand[np.any(np.all((p >= lo) & (p <= hi), axis=2), axis=1)]
+            if near.size:
+                out[near] = distance(points[near])
         return out
 
     return dist

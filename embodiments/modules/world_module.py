@@ -397,7 +397,9 @@ class WorldModule(Module):
             r.state_pub(encode(stamp(r.last, f"{self.source}/{name}/state", r.seq, t)))
             r.joints_pub(encode(stamp(r.joints, f"{self.source}/{name}/joints", r.seq, t)))
         if not repeat and self.params.camera_hz > 0 and t >= self._depth_due - 1e-9:
-            self._depth_due = t + 1.0 / self.params.camera_hz
+            period = 1.0 / self.params.camera_hz
+            # keep the phase: counted from the tick, 30 Hz at 200 Hz ticks would be every 7th tick (28.6 Hz)
+            self._depth_due = self._depth_due + period if self._depth_due > t - period else t + period
             for r in self.robots.values():
                 if r.sim.spec.cameras:
                     self._stream_depth(r)
@@ -591,12 +593,12 @@ class WorldModule(Module):
     def _stream_depth(self, r: _Robot) -> None:
         camera = r.sim.spec.cameras[0].name
         try:
-            frame = r.sim.camera(camera)
+            depth, K, Twc = r.sim.depth(camera)
         except Exception as exc:  # a camera that cannot render is a lost stream, not a dead world
             self.log.warning("%s: camera %s: %s", r.sim.name, camera, exc)
             return
         r.depth_seq += 1
-        msg = DepthImage.of(frame.depth, frame.K, frame.T_world_cam, camera)
+        msg = DepthImage.of(depth, K, Twc, camera)
         r.depth_pub(encode(stamp(msg, f"{self.source}/{r.sim.name}/depth", r.depth_seq, self.world.time)))
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:

@@ -147,6 +147,10 @@ class Raycaster:
         labels[valid] = tri_label[prim[valid].astype(np.int64)]
         return depth, pts[valid].astype(np.float64), labels, names
 
+    def depth(self, T_world_cam: np.ndarray) -> np.ndarray:
+        """Depth (H, W) only (ray casting finds the points and labels on the way: no cheaper)."""
+        return self.shoot(T_world_cam)[0]
+
 
 class DepthCamera:
     """A camera attached to a link (or fixed in the world when ``link`` is None).
@@ -175,6 +179,7 @@ class DepthCamera:
         else:
             raise ValueError(f"camera {spec.name}: backend {self.backend!r} is not render|raycast")
         self._last: DepthFrame | None = None
+        self._depth_t = -np.inf  # time of the latest depth-only read
         self.lost = False
 
     def pose(self) -> np.ndarray:
@@ -195,8 +200,22 @@ class DepthCamera:
 
     @property
     def stamp(self) -> float:
-        """Time of the latest frame (-inf before the first): what a stream watchdog checks."""
-        return self._last.t if self._last is not None else -np.inf
+        """Time of the latest frame or depth read (-inf before the first): what a stream watchdog checks."""
+        return max(self._last.t if self._last is not None else -np.inf, self._depth_t)
+
+    def read_depth(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(depth (H, W), camera pose) valid at ``t``, without a full frame's points and labels (what
+        a depth stream publishes; rendering skips the segmentation picture). A lost stream repeats
+        its last frame's."""
+        last = self._last
+        if self.lost:
+            return (last.depth, last.T_world_cam) if last is not None else (self.empty_frame().depth, self.pose())
+        if last is not None and t - last.t < 1.0 / self.spec.rate_hz - 1e-9:
+            return last.depth, last.T_world_cam
+        Twc = self.pose()
+        depth = self._shooter.depth(Twc)
+        self._depth_t = t
+        return depth, Twc
 
     def empty_frame(self) -> DepthFrame:
         """A frame with no returns, stamped -inf (what a camera that never delivered gives)."""

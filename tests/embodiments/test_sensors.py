@@ -175,6 +175,20 @@ def test_backends_agree_on_table_and_object_pixels(seen):
     assert on_robot.sum() > 1000  # the arms' URDF visuals are rendered
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_depth_read_is_the_full_frames_depth_and_keeps_the_stream_alive(seen, backend):
+    robot, cams, _ = seen
+    cam = cams[backend]
+    t = robot.time + 1.0  # past the camera's period: a fresh read, not the cached frame
+    depth, Twc = cam.read_depth(t)
+    assert cam.stamp == t  # the stream's watchdog sees the read
+    frame = cam.capture(t)
+    assert np.array_equal(Twc, frame.T_world_cam) and depth.dtype == frame.depth.dtype == np.float32
+    assert np.array_equal(depth, frame.depth)
+    again, _ = cam.read_depth(t)  # within the period: the full frame's depth, not a new render
+    assert again is frame.depth
+
+
 def test_camera_backend_choice():
     assert World(WorldParams(camera_backend="raycast")).rendering is False
     with pytest.raises(WorldError, match="camera_backend 'laser'"):

@@ -15,6 +15,7 @@ from contactflow.embodiments.messages import (
     ArmCommandKind,
     CameraFrame,
     CameraRequest,
+    DepthImage,
     HandCommand,
     RobotState,
     TrueContacts,
@@ -272,6 +273,23 @@ def test_a_camera_request_is_answered_with_a_frame_of_that_tick(tmp_path):
         assert wait_for(lambda: c.state.refused == 1, 10)
         assert len(c.frames) == 1
     finally:
+        c.close()
+        node.stop()
+
+
+def test_the_depth_stream_keeps_its_rate_between_ticks(tmp_path):
+    # 30 Hz is not a whole number of 200 Hz ticks: the frames alternate 6 and 7 ticks apart, 30 a second
+    node, c = start_world(tmp_path, SCENE.replace("{name: melfa}", "{name: tombatossals}"), "tombatossals",
+                          camera_backend="raycast", camera_hz=30.0)
+    stamps: list[float] = []
+    sub = c.t.subscribe(c.ks.robot("tombatossals", "depth"), lambda k, p: stamps.append(decode(p, DepthImage, k).hdr.t_sim))
+    try:
+        assert wait_for(lambda: len(stamps) >= 40, 60)
+        t = np.array(stamps[:40])
+        assert np.count_nonzero((t >= t[0]) & (t < t[0] + 1.0 - 1e-9)) == 30
+        assert set(np.round(np.diff(t) * 200).astype(int)) <= {6, 7}
+    finally:
+        sub.close()
         c.close()
         node.stop()
 
