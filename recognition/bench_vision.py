@@ -146,7 +146,7 @@ def simulated_frames() -> Frames:
     model = robot.spherical
     centres, radii = _stope_spheres(model)
     names, q, _, _ = robot.joint_state()
-    fn = culled_distance(model.distance, model.C1.copy(), model.C2.copy(), model.r1, model.r2, 0.02)
+    fn = culled_distance(model.C1, model.C2, model.r1, model.r2, 0.02)
     return Frames([frame.depth], frame.K, frame.T_world_cam, fn, (centres, radii), 5, (names, q))
 
 

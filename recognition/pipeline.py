@@ -181,31 +181,27 @@ def sphere_distance(centers: np.ndarray, radii: np.ndarray, cutoff: float = np.i
     return dist
 
 
-def culled_distance(distance: DistanceFn, c1: np.ndarray, c2: np.ndarray, r1: np.ndarray, r2: np.ndarray,
-                    cutoff: float) -> DistanceFn:
-    """Evaluate a robot model made of sphere-swept segments (s-topes, Appendix B) only on
-    points inside the bounding box of some s-tope grown by ``cutoff``; others get ``inf``.
+def culled_distance(c1: np.ndarray, c2: np.ndarray, r1: np.ndarray, r2: np.ndarray, cutoff: float) -> DistanceFn:
+    """The distance to a robot model made of sphere-swept segments (s-topes, Appendix B),
+    evaluated per point only on the s-topes whose bounding box grown by ``cutoff`` holds it
+    (:mod:`~contactflow.recognition.kernels`): exact below ``cutoff``, at least ``cutoff``
+    (or ``inf``) above it.
 
     ``c1``/``c2`` (M, 3) are the end centres and ``r1``/``r2`` (M,) the end radii, posed in
-    the world; ``distance`` is the model's exact distance function.
+    the world (copied: the model may be posed again while the function is in use).
     """
+    from contactflow.recognition.kernels import culled_stope_distance
+
+    c1, c2 = (np.array(c, dtype=np.float64).reshape(-1, 3) for c in (c1, c2))
+    r1, r2 = (np.array(r, dtype=np.float64).reshape(-1) for r in (r1, r2))
     rmax = np.maximum(r1, r2)[:, None] + cutoff
     lo = np.minimum(c1, c2) - rmax
     hi = np.maximum(c1, c2) + rmax
-    lo_all, hi_all = lo.min(axis=0), hi.max(axis=0)
 
     def dist(points: np.ndarray) -> np.ndarray:
-        out = np.full(len(points), np.inf)
-        if len(points) == 0:
-            return out
-        # the box around the whole robot first (most of a scene is outside it), then every
-        # s-tope's box at once for the points inside
-        cand = np.flatnonzero(np.all((points >= lo_all) & (points <= hi_all), axis=1))
-        if cand.size:
-            p = points[cand][:, None, :]
-            near = cand[np.any(np.all((p >= lo) & (p <= hi), axis=2), axis=1)]
-            if near.size:
-                out[near] = distance(points[near])
+        pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.empty(len(pts))
+        culled_stope_distance(pts, c1, c2, r1, r2, lo, hi, out)
         return out
 
     return dist

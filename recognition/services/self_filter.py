@@ -91,7 +91,7 @@ class SelfFilter(Module):
             if joints is not None:
                 self._pose_model(joints)
                 m = self.model
-                fn = culled_distance(m.distance, m.C1, m.C2, m.r1, m.r2, self.params.margin)
+                fn = culled_distance(m.C1, m.C2, m.r1, m.r2, self.params.margin)
                 used = joints
         if fn is None:
             spheres = self.io.latest("spheres")

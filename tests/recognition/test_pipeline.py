@@ -242,6 +242,22 @@ def test_culled_distances_are_exact_below_the_cutoff():
     assert near.any() and np.allclose(fast[near], exact[near])
     assert np.all(fast[~near] >= 0.05 - 1e-12)
     # spheres as degenerate s-topes (both ends equal)
-    culled = culled_distance(sphere_distance(centers, radii), centers, centers, radii, radii, 0.05)(pts)
+    culled = culled_distance(centers, centers, radii, radii, 0.05)(pts)
     assert np.allclose(culled[near], exact[near]) and np.all(culled[~near] >= 0.05 - 1e-12)
-    assert culled_distance(sphere_distance(centers, radii), centers, centers, radii, radii, 0.05)(np.zeros((0, 3))).shape == (0,)
+    assert culled_distance(centers, centers, radii, radii, 0.05)(np.zeros((0, 3))).shape == (0,)
+
+
+def test_culled_distances_to_s_topes_match_the_models_equation_below_the_cutoff():
+    from contactflow.embodiments.spherical import stope_distance
+    from contactflow.recognition.pipeline import culled_distance
+
+    rng = np.random.default_rng(11)
+    c1 = rng.uniform(-0.5, 0.5, (20, 3))
+    c2 = c1 + rng.uniform(-0.2, 0.2, (20, 3))
+    r1, r2 = rng.uniform(0.01, 0.05, 20), rng.uniform(0.01, 0.05, 20)
+    pts = rng.uniform(-0.8, 0.8, (20000, 3))
+    exact = stope_distance(pts[:, None, :], c1[None], c2[None], r1[None], r2[None])[0].min(axis=1)
+    culled = culled_distance(c1, c2, r1, r2, 0.03)(pts)
+    near = exact < 0.03
+    assert near.sum() > 100 and np.allclose(culled[near], exact[near], atol=1e-12)
+    assert np.all(culled[~near] >= 0.03 - 1e-12)
