@@ -46,8 +46,13 @@ def key_centers(keys: np.ndarray, voxel_size: float, out: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _slot(key: np.int64, shift: np.uint64) -> np.int64:
-    return np.int64((np.uint64(key) * GOLDEN) >> shift)
+def _find(table: np.ndarray, shift: np.uint64, key: np.int64) -> np.int64:
+    """The slot holding ``key``, or the empty slot that ends its probe chain (its row is -1)."""
+    mask = table.shape[0] - 1
+    s = np.int64((np.uint64(key) * GOLDEN) >> shift)
+    while table[s, 0] != key and table[s, 0] != EMPTY:
+        s = (s + 1) & mask
+    return s
 
 
 @njit(cache=True, nogil=True)
@@ -57,42 +62,23 @@ def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, coun
 
     The caller keeps the table under half full and ``row_keys`` large enough.
     """
-    mask = table.shape[0] - 1
     for i in range(keys.shape[0]):
         k = keys[i]
-        s = _slot(k, shift)
-        while True:
-            tk = table[s, 0]
-            if tk == k:
-                out[i] = table[s, 1]
-                break
-            if tk == EMPTY:
-                table[s, 0] = k
-                table[s, 1] = count
-                row_keys[count] = k
-                out[i] = count
-                count += 1
-                break
-            s = (s + 1) & mask
+        s = _find(table, shift, k)
+        if table[s, 0] == EMPTY:
+            table[s, 0] = k
+            table[s, 1] = count
+            row_keys[count] = k
+            count += 1
+        out[i] = table[s, 1]
     return count
 
 
 @njit(cache=True, nogil=True)
 def index_lookup(table: np.ndarray, shift: np.uint64, keys: np.ndarray, out: np.ndarray) -> None:
     """Row of each key into ``out``, -1 where absent."""
-    mask = table.shape[0] - 1
     for i in range(keys.shape[0]):
-        k = keys[i]
-        s = _slot(k, shift)
-        while True:
-            tk = table[s, 0]
-            if tk == k:
-                out[i] = table[s, 1]
-                break
-            if tk == EMPTY:
-                out[i] = -1
-                break
-            s = (s + 1) & mask
+        out[i] = table[_find(table, shift, keys[i]), 1]
 
 
 @njit(cache=True, nogil=True)
