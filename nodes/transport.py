@@ -139,6 +139,9 @@ class ZenohTransport:
         return _Closer(sub.undeclare)
 
     def queryable(self, key: str, handler: Handler) -> Handle:
+        # A plain callable becomes zenoh-python's indirect callback: queries are answered on a thread
+        # of this queryable's own, in arrival order, so a slow handler (a translation, a dispatch that
+        # queries the robots) never holds zenoh's network threads.
         def on_query(q: zenoh.Query) -> None:
             payload = q.payload.to_bytes() if q.payload is not None else b""
             # reply on the declared key: a wildcard query then tells the answerers apart
