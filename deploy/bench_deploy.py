@@ -91,6 +91,8 @@ def bring_up_once(m: Manifest, run_dir: Path, timeout: float = 120.0) -> dict[st
 
 
 def _stats(lat: list[float]) -> dict[str, float]:
+    if not lat:
+        return {"n": 0}
     lat = sorted(lat)
     return {"n": len(lat), "p50_ms": statistics.median(lat), "p99_ms": lat[min(len(lat) - 1, int(0.99 * len(lat)))],
             "mean_ms": statistics.fmean(lat), "max_ms": lat[-1]}

@@ -426,20 +426,21 @@ class SimRobot(RobotFacade):
         """The latest frame; a frame older than the sensor timeout means the stream is lost (hardware failure)."""
         cam = self._camera(name)
         frame = cam.read(self.time)
+        self._watch_camera(name, cam)
+        return frame
+
+    def _watch_camera(self, name: str, cam: DepthCamera) -> None:
         # the camera streams while someone reads it: its watchdog runs on each request
         fault = self.monitor.silent_streams(self.time, {f"camera {name}": cam.stamp})
         if fault is not None and not self.failed:
             self._fail(fault)
-        return frame
 
     def depth(self, name: str = "kinect") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(depth (H, W), K, camera pose) of camera ``name`` now, without a full frame's points and
         labels (a depth stream's frame); the stream's watchdog runs as for :meth:`camera`."""
         cam = self._camera(name)
         depth, Twc = cam.read_depth(self.time)
-        fault = self.monitor.silent_streams(self.time, {f"camera {name}": cam.stamp})
-        if fault is not None and not self.failed:
-            self._fail(fault)
+        self._watch_camera(name, cam)
         return depth, cam.K, Twc
 
     def ground_truth(self) -> GroundTruth:

@@ -17,12 +17,11 @@ from enum import IntEnum
 import numpy as np
 
 from contactflow.fusion import kernels
+from contactflow.fusion.kernels import KEY_BITS as _BITS
+from contactflow.fusion.kernels import KEY_OFFSET as _OFFSET
 
 VOXEL_SIZE = 0.005  # m, thesis §4.7: the same 5 mm in generators and integrator
-_BITS = 21
-_OFFSET = 1 << (_BITS - 1)
 _MASK21 = (1 << _BITS) - 1
-EMPTY_KEY = np.int64(-1)
 
 
 class HypothesisType(IntEnum):
@@ -194,14 +193,12 @@ class VoxelIndex:
         self.row_keys = np.zeros(max(capacity, 16), dtype=np.int64)
         """Key of each row, in row order (valid up to ``count``)."""
         self.count = 0
-        self.generation = 0
-        """Incremented on every rebuild, so callers can cache rows between rebuilds."""
 
     def _alloc(self, size: int) -> None:
         self.size = size
         self.shift = np.uint64(64 - int(np.log2(size)))
         # (key, row) pairs side by side: a probe touches one cache line, not two
-        self.table = np.full((size, 2), EMPTY_KEY, dtype=np.int64)
+        self.table = np.full((size, 2), kernels.EMPTY, dtype=np.int64)
 
     def lookup(self, keys: np.ndarray) -> np.ndarray:
         """Row of each key, -1 where absent."""
@@ -238,7 +235,6 @@ class VoxelIndex:
             size *= 2
         self._alloc(size)
         self.count = 0
-        self.generation += 1
         if n:
             rows = self.insert(keys)
             if not np.array_equal(rows, np.arange(n)):

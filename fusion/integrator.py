@@ -8,7 +8,8 @@ timeout and computes the fused likelihood of every voxel with the noisy-OR of eq
 Voxels whose only evidence is support hypotheses are left out, and any voxel with a null
 hypothesis is vetoed. Force magnitude and direction are averaged weighted by likelihood over
 the hypotheses that carry a force.
-Sources may be plugged and unplugged at any time. Hashing, writing and the fused pass are compiled loops over voxels (:mod:`~contactflow.fusion.kernels`).
+Sources may be plugged and unplugged at any time. Hashing, writing and the fused pass are
+compiled loops over voxels (:mod:`~contactflow.fusion.kernels`).
 """
 
 from __future__ import annotations

@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-EMPTY = -1  # an empty hash slot; packed keys are never negative
+EMPTY = -1  # an empty hash slot (key and row); packed keys are never negative
 GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_BITS = 21
-_OFFSET = 1 << (_BITS - 1)
+KEY_BITS = 21  # per axis of a packed voxel key (±5 km at 5 mm); the numpy packing in hypotheses.py uses these
+KEY_OFFSET = 1 << (KEY_BITS - 1)
 REGULAR, NULL = 0, 2  # HypothesisType values the fused pass tests
 
 
@@ -28,9 +28,9 @@ def point_keys(points: np.ndarray, voxel_size: float, out: np.ndarray) -> bool:
         key = 0
         for a in range(3):
             c = np.int64(np.floor(points[i, a] / voxel_size))
-            if c >= _OFFSET or c <= -_OFFSET:
+            if c >= KEY_OFFSET or c <= -KEY_OFFSET:
                 return False
-            key = (key << _BITS) | (c + _OFFSET)
+            key = (key << KEY_BITS) | (c + KEY_OFFSET)
         out[i] = key
     return True
 
@@ -38,11 +38,11 @@ def point_keys(points: np.ndarray, voxel_size: float, out: np.ndarray) -> bool:
 @njit(cache=True, nogil=True)
 def key_centers(keys: np.ndarray, voxel_size: float, out: np.ndarray) -> None:
     """Voxel centre (3, n) of each packed key into ``out``, m."""
-    mask = (1 << _BITS) - 1
+    mask = (1 << KEY_BITS) - 1
     for i in range(keys.shape[0]):
         k = keys[i]
         for a in range(3):
-            out[a, i] = (((k >> (_BITS * (2 - a))) & mask) - _OFFSET + 0.5) * voxel_size
+            out[a, i] = (((k >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
 
 
 @njit(cache=True, nogil=True)
@@ -84,11 +84,11 @@ def index_lookup(table: np.ndarray, shift: np.uint64, keys: np.ndarray, out: np.
 @njit(cache=True, nogil=True)
 def column_put(lik: np.ndarray, stamp: np.ndarray, kind: np.ndarray, force: np.ndarray, direction: np.ndarray,
                col: int, rows: np.ndarray, h_lik: np.ndarray, h_kind: np.ndarray, h_force: np.ndarray,
-               h_dir: np.ndarray, h_stamp: float, mark: np.ndarray, tag: int) -> float:
+               h_dir: np.ndarray, h_stamp: float, mark: np.ndarray, tag: int) -> None:
     """Write one cloud into column ``col``; several hypotheses in one voxel keep the most likely.
 
     ``mark`` holds, per row, the ``tag`` of the last write, so a second hypothesis of the same
-    cloud in a row is told from an older cloud's entry. Returns the smallest stamp written.
+    cloud in a row is told from an older cloud's entry.
     """
     for i in range(rows.shape[0]):
         r = rows[i]
@@ -101,7 +101,6 @@ def column_put(lik: np.ndarray, stamp: np.ndarray, kind: np.ndarray, force: np.n
         force[col, r] = h_force[i]
         for a in range(3):
             direction[col, a, r] = h_dir[i, a]
-    return h_stamp
 
 
 @njit(cache=True, nogil=True)

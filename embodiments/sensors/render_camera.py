@@ -66,7 +66,8 @@ class RenderDepth:
         return ids, names
 
     def _position(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Render from ``T_world_cam``: (Position picture, optical depth z, valid pixels)."""
+        """Render from ``T_world_cam``: (Position picture, depth (H, W) along the optical axis with 0 =
+        none, valid pixels)."""
         s = self.spec
         self.entity.set_pose(sapien.Pose(np.asarray(T_world_cam, dtype=np.float64) @ _GL_FROM_OPTICAL))
         self.scene.update_render()
@@ -75,19 +76,17 @@ class RenderDepth:
         z = -pos[..., 2]
         # the trivial shader writes w = 1 on geometry and clears the background to 0
         valid = (pos[..., 3] > 0.0) & (z >= s.near) & (z <= s.far)
-        return pos, z, valid
+        return pos, np.where(valid, z, 0.0).astype(np.float32), valid
 
     def depth(self, T_world_cam: np.ndarray) -> np.ndarray:
         """Depth (H, W) along the optical axis (0 = none) only: no segmentation picture, points or labels."""
-        _, z, valid = self._position(T_world_cam)
-        return np.where(valid, z, 0.0).astype(np.float32)
+        return self._position(T_world_cam)[1]
 
     def shoot(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
         """Depth (H, W) along the optical axis (0 = none), world points of the depth > 0 pixels in
         row-major order (N, 3), labels (H, W) and label names."""
-        pos, z, valid = self._position(T_world_cam)
+        pos, depth, valid = self._position(T_world_cam)
         seg = self.camera.get_picture("Segmentation")[..., 1]
-        depth = np.where(valid, z, 0.0).astype(np.float32)
         p = pos[valid][:, :3].astype(np.float64) * (1.0, -1.0, -1.0)
         points = p @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
         ids, names = self._names()

@@ -1,11 +1,10 @@
 """The broker on the in-process transport: choice, refusal, `all`, failover."""
 
 import threading
-from pathlib import Path
 
 import pytest
 
-from contactflow.abstraction.agent import RobotAgent
+from contactflow.abstraction.agent import EXAMPLES, RobotAgent
 from contactflow.abstraction.broker import Broker
 from contactflow.abstraction.client import close, dispatch, robots
 from contactflow.abstraction.messages import DispatchRequest
@@ -15,7 +14,6 @@ from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.status import Event
 from contactflow.nodes.transport import LocalTransport
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "abstraction" / "examples"
 KS = KeySpace("btest")
 PUSH = (EXAMPLES / "push_away.xml").read_text()
 

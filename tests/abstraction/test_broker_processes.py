@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from contactflow.abstraction.agent import dry_run
+from contactflow.abstraction.agent import EXAMPLES, dry_run
 from contactflow.abstraction.client import close, dispatch
 from contactflow.abstraction.dispatch import choose
 from contactflow.abstraction.profiles import PROFILES
@@ -20,7 +20,6 @@ from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import free_port, spawn_node, stop_process, wait_for, write_config
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "abstraction" / "examples"
 SITE = "brokerproc"
 KS = KeySpace(SITE)
 ROBOTS = ("tombatossals", "melfa")

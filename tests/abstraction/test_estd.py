@@ -1,10 +1,9 @@
 """The ESTD on the wire: the broker sends the bid's translation, the robot checks it and never re-translates."""
 
-from pathlib import Path
 
 import pytest
 
-from contactflow.abstraction.agent import RobotAgent, dry_run
+from contactflow.abstraction.agent import EXAMPLES, RobotAgent, dry_run
 from contactflow.abstraction.broker import Broker
 from contactflow.abstraction.client import close, dispatch
 from contactflow.abstraction.estd import EstdError, estd_message, received
@@ -24,7 +23,6 @@ from contactflow.nodes.taskfile import task_dict
 from contactflow.nodes.transport import LocalTransport
 from contactflow.nodes.wire import decode, encode
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "abstraction" / "examples"
 KS = KeySpace("estdtest")
 
 
