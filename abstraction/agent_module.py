@@ -119,10 +119,15 @@ class RobotAgentModule(Module):
     def _executor(self, translation, report, cancel, params) -> Event:
         job = _Job(translation, report, cancel, dict(params or {}))
         self._jobs.put(job)
+        self.io.wake()  # picked up at the node's next tick, not at the next 20 Hz step; a paused world resumes
         while not job.done.wait(0.2):
             if self.state is not Status.RUNNING:  # the module was stopped: nobody steps the task
                 return Event.ERROR
         return job.outcome
+
+    def busy(self) -> bool:
+        """Busy with a task under way or handed over, not merely for running (the agent always runs)."""
+        return self.state is Status.RUNNING and (self._run is not None or not self._jobs.empty())
 
     def _begin(self, job: _Job) -> _Running:
         from contactflow.abstraction.execution import bound_params, robot_runner, to_detect

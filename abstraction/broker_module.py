@@ -32,6 +32,10 @@ class BrokerModule(Module):
     def step(self) -> Status:
         return Status.RUNNING
 
+    def busy(self) -> bool:
+        """Never: the broker works on its queryable's threads, on no robot's clock (a paused world stays paused)."""
+        return False
+
     def stop(self) -> None:
         if self._broker is not None:
             self._broker.stop()

@@ -96,7 +96,8 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
     n = per_key or (10 if quick else 60)
     site = f"fuzz{int(time.time()) % 100000}"
     ks = KeySpace(site)
-    m = deployment(site, out / "fuzz-config", camera_hz=QUICK_CAMERA_HZ)
+    # the worlds run while idle: every stream live (the templates) and every loop stepping (what a stall is seen by)
+    m = deployment(site, out / "fuzz-config", camera_hz=QUICK_CAMERA_HZ, idle="run")
     launches = render(m, out / "fuzz-config", local=True)
     procs = {ln.node.name: spawn_node(ln.config, out / "fuzz-logs" / f"{ln.node.name}.log") for ln in launches}
     tool = ZenohTransport(ZenohSettings(connect=tuple(tool_endpoints(m, local=True)))).open()

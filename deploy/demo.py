@@ -89,12 +89,14 @@ def physical_checks(atd: Atd, frame: TaskFrame, before: Positions, after: Positi
     return out
 
 
-def deployment(site: str, folder: Path, camera_hz: float = 1.0) -> Manifest:
+def deployment(site: str, folder: Path, camera_hz: float = 1.0, idle: str = "pause") -> Manifest:
     """The default manifest (``deploy/manifests/default.yaml``) on this machine: its own site and
-    loopback ports, Tombatossals' Kinect stream at ``camera_hz``."""
+    loopback ports, Tombatossals' Kinect stream at ``camera_hz``, the worlds' ``idle`` behaviour
+    (``pause``, as shipped: a world stands still while its robot has no task)."""
     port = free_port_block(32)  # the nodes listen on consecutive ports from it
     text = (DEFAULT_MANIFEST.read_text().replace("site: lab", f"site: {site}").replace("cf/lab/", f"cf/{site}/")
-            .replace("port: 7450", f"port: {port}").replace("camera_hz: 1.0", f"camera_hz: {camera_hz}"))
+            .replace("port: 7450", f"port: {port}").replace("camera_hz: 1.0", f"camera_hz: {camera_hz}")
+            .replace("idle: pause", f"idle: {idle}"))
     path = folder / "manifest.yaml"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
@@ -250,7 +252,7 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
 
     def on_progress(m: AbstractProgressMsg) -> None:
         with rec.lock:
-            rec.progress.append({"t": round(time.time() - rec.t0, 3), "robot": m.robot, "kind": m.kind,
+            rec.progress.append({"t": round(time.time() - rec.t0, 3), "t_sim": m.hdr.t_sim, "robot": m.robot, "kind": m.kind,
                                  "state": m.state, "transition": m.transition, "event": m.event,
                                  "concrete": m.concrete, "final": m.final, "outcome": m.outcome,
                                  "task": m.task_id, "detail": m.detail[:200]})

@@ -138,9 +138,10 @@ class LockstepClock(SimClock):
             self._done = self._tick
             return self._tick, self._marks
 
-    def ack(self, tick: int, marks: list[Mark] | None = None) -> None:
+    def ack(self, tick: int, marks: list[Mark] | None = None, busy: bool = False) -> None:
         self._seq += 1
-        msg = stamp(LockstepAck(node=self.node, tick=tick, marks=marks or []), f"lockstep/{self.node}", self._seq, self._t)
+        msg = stamp(LockstepAck(node=self.node, tick=tick, marks=marks or [], busy=busy), f"lockstep/{self.node}",
+                    self._seq, self._t)
         self._ack(encode(msg))
 
     def close(self) -> None:

@@ -205,6 +205,9 @@ class HostedIO:
     def log(self, text: str) -> None:
         self._host.log.info("%s: %s", self._hm.addr, text)
 
+    def wake(self) -> None:
+        self._host.wake(self._hm)
+
 
 @dataclass
 class HostedModule:
@@ -224,6 +227,7 @@ class HostedModule:
     wired: set[str] = field(default_factory=set)  # input ports subscribed to a source
     counters: Counters = field(default_factory=Counters)
     next_due: float = 0.0
+    woken: bool = False  # step at the next tick, whatever the period (work arrived off the step loop)
     last_status: float = -1e9
     detail: str = ""
     lock: threading.RLock = field(default_factory=threading.RLock)
@@ -250,6 +254,9 @@ class ModuleHost:
         self._lock = threading.RLock()
         self._claim_lock = threading.RLock()  # claims of this node are checked, taken and released one at a time
         self._stop = threading.Event()
+        self._wake = threading.Event()  # ends a wall-clock node's wait for its next due module
+        self._ack_lock = threading.Lock()
+        self._acked: tuple[int, bool] | None = None  # lockstep: the last tick acked, and whether the node was busy
         self._thread: threading.Thread | None = None
         self._node_token: Handle | None = None
         self._marks: dict[tuple[str, str], int] = {}  # (key, source) -> last seq published this tick (lockstep)
@@ -367,6 +374,7 @@ class ModuleHost:
             # it read 0, not the first tick's 0.4 s, and its 1 Hz plane detector fitted at 1.0 s, not 1.4 s,
             # so a seeded run with the vision node detected at another time in another process layout)
             hm.next_due = self.clock.now() if self._ticked else -math.inf
+            self._resume()
         elif req.cmd == Command.STOP:
             if m.state == Status.RUNNING:
                 m.stop()
@@ -521,9 +529,12 @@ class ModuleHost:
             with hm.lock:
                 m = hm.module
                 # (a nanosecond of slack: a module at the world's tick rate must not skip a tick on rounding)
-                if m.state == Status.RUNNING and now + 1e-9 >= hm.next_due:
+                if m.state == Status.RUNNING and (hm.woken or now + 1e-9 >= hm.next_due):
                     period = 1.0 / max(m.params.rate_hz, 1e-3)
-                    hm.next_due = max(hm.next_due + period, now) if hm.next_due > now - period else now + period
+                    if hm.woken:
+                        hm.woken, hm.next_due = False, now + period
+                    else:
+                        hm.next_due = max(hm.next_due + period, now) if hm.next_due > now - period else now + period
                     try:
                         status = m.step()
                     except Exception as exc:
@@ -579,11 +590,49 @@ class ModuleHost:
                 for hm in hosted:
                     hm.io.release(k)
                 self.tick()
-                clock.ack(k, self._take_marks())
+                with self._ack_lock:
+                    busy = self._busy()
+                    clock.ack(k, self._take_marks(), busy)
+                    self._acked = (k, busy)
             return
         while not self._stop.is_set():
             due = self.tick()
-            clock.wait_until(due, self._stop)
+            clock.wait_until(due, self._wake)
+            self._wake.clear()
+
+    # -- idle and busy ----------------------------------------------------------------------
+    def wake(self, hm: HostedModule) -> None:
+        """Step ``hm`` at the next tick (work reached it off the loop) and resume a paused world."""
+        hm.woken = True
+        self._wake.set()
+        self._resume()
+
+    def _busy(self) -> bool:
+        """Whether a module of the node has work under way (:meth:`Module.busy`)."""
+        with self._lock:
+            hosted = list(self.modules.values())
+        for hm in hosted:
+            try:
+                if hm.module.busy():
+                    return True
+            except Exception:  # a module's own busy() failing must not stop the node's acks
+                self.log.exception("%s: busy() raised", hm.addr)
+        return False
+
+    def _resume(self) -> None:
+        """Lockstep: if the node acked its last tick idle and now has work, ack that tick again, busy,
+        so a world paused while its nodes were idle (``idle: pause``) runs the next tick. Between two
+        ticks only; the ack of the tick being stepped tells the world anyway."""
+        if not isinstance(self.clock, LockstepClock):
+            return
+        with self._ack_lock:
+            acked = self._acked
+            if acked is None or acked[1] or acked[0] != self.tick_no or not self._busy():
+                return
+            # the marks of what was sent since that ack go with it: the world passes them on with the
+            # next tick, so the nodes step it with those messages in any process layout
+            self.clock.ack(acked[0], self._take_marks(), True)
+            self._acked = (acked[0], True)
 
     # -- lockstep delivery -----------------------------------------------------------------
     def mark(self, key: str, source: str, seq: int) -> None:
@@ -657,6 +706,7 @@ class ModuleHost:
 
     def shutdown(self) -> None:
         self._stop.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
         for hm in list(self.modules.values()):

@@ -78,11 +78,16 @@ class Clock(Message, tag="clock"):
 
 
 class LockstepAck(Message, tag="lockstep_ack"):
-    """A lockstep node stepped its modules for world tick ``tick`` (and sent what they commanded)."""
+    """A lockstep node stepped its modules for world tick ``tick`` (and sent what they commanded).
+
+    A node that was idle at its ack and then gets work (a primitive told to run) acks the same
+    tick again with ``busy``: a world paused while its nodes were idle resumes.
+    """
 
     node: str  # the node's name
     tick: int  # the world tick it stepped
     marks: list[Mark] = []  # the last message of each stream its modules published during the tick
+    busy: bool = False  # a primitive or task of the node was running (Module.busy) when it acked
 
 
 class Vector(Message, tag="vector"):

@@ -88,6 +88,11 @@ class ModuleIO(Protocol):
     def log(self, text: str) -> None:
         ...
 
+    def wake(self) -> None:
+        """Work arrived off the step loop (on a queryable's thread): step the module at the node's
+        next tick; a lockstep world paused while its nodes were idle resumes for it."""
+        ...
+
 
 class Module:
     """Base of every service, primitive, task and interface module."""
@@ -145,6 +150,12 @@ class Module:
 
     def on_params(self, old: Any) -> None:
         """Called after an online parameter change."""
+
+    def busy(self) -> bool:
+        """Whether the module has work under way (a running primitive or task): a lockstep world
+        with ``idle: pause`` advances only while a module of its nodes is busy. Services, which
+        run all the time, never are."""
+        return self.state is Status.RUNNING and self.layer in (Layer.PRIMITIVE, Layer.TASK)
 
     def claimed_resources(self) -> tuple[str, ...]:
         """The shared resources a run with the current parameters commands (claimed on RUN).

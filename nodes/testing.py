@@ -29,6 +29,7 @@ class FakeIO:
     replies: dict[str, ControlReply] = field(default_factory=dict)
     logs: list[str] = field(default_factory=list)
     wired_ports: set[str] = field(default_factory=set)
+    wakes: int = 0  # calls of wake()
     _latest: dict[str, Message] = field(default_factory=dict)
     _queue: dict[str, list[Message]] = field(default_factory=lambda: defaultdict(list))
     _seq: int = 0
@@ -75,6 +76,9 @@ class FakeIO:
 
     def log(self, text: str) -> None:
         self.logs.append(text)
+
+    def wake(self) -> None:
+        self.wakes += 1
 
     def event_labels(self) -> list[Event]:
         return [e.event for e in self.events]

@@ -76,6 +76,9 @@ class _PartIO:
     def log(self, text: str) -> None:
         self._io.log(text)
 
+    def wake(self) -> None:
+        self._io.wake()
+
 
 @dataclass
 class _Part:

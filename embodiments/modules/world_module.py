@@ -12,6 +12,10 @@ Two clocks (``params.clock``):
 - ``lockstep``: tick k+1 runs only when every node announced on ``alive/lockstep/*`` has
   acknowledged tick k, or after ``deadline`` s of wall time (an OVERRUN event; a node that
   misses it has its robots held). A seeded run repeats exactly whatever the process layout.
+  With ``idle: pause`` the world also stops while every lockstep node is idle (no primitive
+  or task running, :meth:`Module.busy`) and resumes when one gets work: a task dispatched at
+  any wall-clock moment starts at the tick its robot went idle, so a seeded run repeats even
+  when a person or a broker starts its tasks (CARLA's synchronous mode: the client ticks).
 - ``realtime``: the ticks follow the wall clock, as on the thesis robot; a command that
   arrives after the tick it was meant for is counted late.
 
@@ -108,6 +112,7 @@ class WorldModule(Module):
         rate_hz: float = 1000.0  # Hz the host calls step; each call runs the ticks that are due
         scene_file: str = ""  # path of the scene file (YAML: robots with base poses, objects)
         clock: str = "lockstep"  # lockstep | realtime
+        idle: str = "run"  # lockstep: run | pause (no tick while every lockstep node is idle; the task that wakes one starts at the next)
         max_rtf: float = 0.0  # lockstep: never faster than this many times real time (0: as fast as the nodes answer)
         control_rate: float = 200.0  # Hz, one tick: joint control, state messages, the clock (§6.3.1)
         settle: float = 0.3  # s of physics before the first tick (objects come to rest)
@@ -142,6 +147,9 @@ class WorldModule(Module):
         self._marks: dict[tuple[str, str], int] = {}  # what the lockstep nodes published since the last tick
         self._tick_marks: list[Mark] = []  # ... passed on with the current tick's clock
         self._lockstep: set[str] = set()
+        self._busy: dict[str, bool] = {}  # lockstep node -> busy at its last ack
+        self.paused = False  # idle: pause, and every lockstep node acked the current tick idle
+        self.pauses = 0
         self._cond = threading.Condition()
         self._handles: list[Any] = []
         self._gt_due = 0.0
@@ -168,6 +176,8 @@ class WorldModule(Module):
         where = f"{self.name}.params"
         if p.clock not in ("lockstep", "realtime"):
             raise ValueError(f"{where}.clock: {p.clock!r} is not lockstep or realtime")
+        if p.idle not in ("run", "pause") or (p.idle == "pause" and p.clock != "lockstep"):
+            raise ValueError(f"{where}.idle: {p.idle!r} is not run, or pause with the lockstep clock")
         if not p.scene_file and self._given is None:
             raise ValueError(f"{where}.scene_file: a world needs a scene file")
         if p.control_rate <= 0 or p.deadline <= 0 or p.slice <= 0 or p.max_rtf < 0:
@@ -263,6 +273,10 @@ class WorldModule(Module):
                     self._marks[(m.key, m.source)] = m.seq
             if ack.tick > self._acks.get(ack.node, -1):
                 self._acks[ack.node] = ack.tick
+                self._busy[ack.node] = ack.busy
+                self._cond.notify_all()
+            elif ack.tick == self._acks.get(ack.node) and ack.busy:  # idle at its ack, busy since: resume
+                self._busy[ack.node] = True
                 self._cond.notify_all()
 
     def _on_lockstep_node(self, key: str, alive: bool) -> None:
@@ -273,6 +287,7 @@ class WorldModule(Module):
             else:
                 self._lockstep.discard(node)
                 self._acks.pop(node, None)
+                self._busy.pop(node, None)
             self._cond.notify_all()
 
     def _on_controller(self, key: str, alive: bool) -> None:
@@ -310,7 +325,12 @@ class WorldModule(Module):
         while time.monotonic() < end:
             if p.max_rtf > 0 and self.world.time - self._t0_sim > p.max_rtf * (time.monotonic() - self._t0_wall):
                 break  # ahead of the pace: the host calls again within a millisecond
-            self._await_acks()
+            if not self._await_acks():
+                # paused: frames are still served and a gone controller's robot held (its event raised now,
+                # not at the resume); the host calls again, and the module's control queries get their turn
+                self._serve_requests()
+                self._apply_holds()
+                break
             self._tick()
         return Status.RUNNING
 
@@ -324,8 +344,9 @@ class WorldModule(Module):
         return {"t": self.world.time, "tick": float(self.tick_no)}
 
     # -- the tick -----------------------------------------------------------------------------
-    def _await_acks(self) -> None:
-        """Wait until every lockstep node answered the current tick (serving camera requests meanwhile)."""
+    def _await_acks(self) -> bool:
+        """Wait until every lockstep node answered the current tick (serving camera requests meanwhile);
+        False while the world is paused (``idle: pause`` and every node idle)."""
         k = self.tick_no
         now = time.monotonic()
         deadline, repeat = now + self.params.deadline, now + self.params.republish
@@ -335,7 +356,7 @@ class WorldModule(Module):
                 expected = self._lockstep | (set(self.params.wait_for) if k == 0 else set())
                 missing = [n for n in expected if self._acks.get(n, -1) < k]
                 if not missing:
-                    return
+                    return self._run_on(expected)
                 now = time.monotonic()
                 absent = k == 0 and bool(set(missing) - self._lockstep)  # a node tick 1 waits for is not up yet
                 if now >= (start_by if absent else deadline):
@@ -357,6 +378,23 @@ class WorldModule(Module):
             stalled = [name for name, r in self.robots.items() if r.controllers & set(missing)]
         for name in stalled:
             self._hold(name, f"its controller node(s) {sorted(missing)} stalled")
+        return True
+
+    def _run_on(self, nodes: set[str]) -> bool:
+        """Whether the next tick may run now that ``nodes`` answered (under the lock): always, unless
+        ``idle: pause`` and none of them is busy; then wait a little (a busy ack wakes it) and say no."""
+        if self.params.idle != "pause" or any(self._busy.get(n, False) for n in nodes):
+            if self.paused:  # the pace restarts at the resume, it does not catch up on the pause
+                self.paused = False
+                self._t0_wall, self._t0_sim = time.monotonic(), self.world.time
+            return True
+        if not self.paused:
+            self.paused = True
+            self.pauses += 1
+            self.log.info("tick %d: every lockstep node is idle; paused until one has work", self.tick_no)
+        if not self._requests:
+            self._cond.wait(0.05)
+        return False
 
     def _serve_requests(self) -> int:
         """Answer queued camera requests with a frame of the current state (commands wait for the tick)."""
@@ -368,11 +406,9 @@ class WorldModule(Module):
 
     def _tick(self) -> None:
         self._serve_requests()
+        self._apply_holds()
         with self._cond:
             batch, self._commands = self._commands, deque()
-            holds, self._holds = self._holds, deque()
-        for robot, why in holds:
-            self._hold(robot, why)
         for msg in batch:
             # in real time a command stamped before the previous tick missed the tick it was meant for
             if self.world.time - msg.hdr.t_sim > 1.5 / self.params.control_rate and msg.robot in self.robots:
@@ -387,6 +423,12 @@ class WorldModule(Module):
                     self.io.emit(Event.HARDWARE_FAILURE, f"{name}: {r.sim.failure}"[:500], self._when())
         self.tick_no += 1
         self._publish_tick()
+
+    def _apply_holds(self) -> None:
+        with self._cond:
+            holds, self._holds = self._holds, deque()
+        for robot, why in holds:
+            self._hold(robot, why)
 
     def _publish_tick(self, repeat: bool = False) -> None:
         t = self.world.time
