@@ -349,8 +349,13 @@ def bench_runtime(folder: pathlib.Path, seconds: float, camera_hz: float = FRAME
     clusters = [n for _, n in done.values()]
     objs = len(table_objects())
     span = t1 - t0
+    # where a dropped frame was lost: the first stage that published nothing cut from it
+    lost_at = dict.fromkeys((*CHAIN, "objects"), 0)
+    for seq in window:
+        if seq not in done:
+            lost_at[next(s for s in lost_at if seq not in stages[s])] += 1
     return {"seconds": span, "camera_hz": camera_hz, "frames": len(window), "processed": len(done),
-            "dropped": len(window) - len(done), "world_rtf": rtf, "frames_hz": len(window) / span, "processed_hz": len(done) / span,
+            "dropped": len(window) - len(done), "lost_at": lost_at, "world_rtf": rtf, "frames_hz": len(window) / span, "processed_hz": len(done) / span,
             "latency": _latency(latency), "hops_ms": _hops(frames, stages, sorted(done)), "objects": objs,
             "clusters_right": sum(n == objs for n in clusters), "clusters_seen": sorted(set(clusters))}
 
@@ -419,7 +424,8 @@ def _compare(summary: dict, console: Console, lines: list[str]) -> None:
              f"world at {rt['world_rtf']:.2f}x real time)"),
             ("processed Hz (wall)", f"{loc['wall_total']['hz']:.1f} (back to back)" if loc else None,
              f"{rt['processed_hz']:.1f}"),
-            ("dropped frames", "0" if loc else None, f"{rt['dropped']}/{rt['frames']}"),
+            ("dropped frames", "0" if loc else None, f"{rt['dropped']}/{rt['frames']}"
+             + (" (lost at " + ", ".join(f"{k} {v}" for k, v in rt["lost_at"].items() if v) + ")" if rt["dropped"] else "")),
             ("latency median ms", f"{ms(loc['wall_total']['median_ms'])} (pipeline)" if loc else None,
              f"{ms(lat.get('median_ms'))} (stamp -> objects)"),
             ("latency p95 ms", ms(loc["wall_total"]["p95_ms"]) if loc else None, ms(lat.get("p95_ms"))),

@@ -5,13 +5,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from contactflow.embodiments.messages import DepthImage
-from contactflow.nodes.module import Layer, Module, Port
+from contactflow.nodes.module import Layer, Port
 from contactflow.nodes.status import Status
+from contactflow.recognition.backlog import StreamStage
 from contactflow.recognition.geometry import depth_to_points, voxel_downsample
 from contactflow.recognition.messages import PointCloud, depth_arrays, provenance
 
 
-class CloudBuilder(Module):
+class CloudBuilder(StreamStage):
     """Back-projects each new depth frame and downsamples it early (the pipeline's cost driver)."""
 
     layer = Layer.SERVICE
@@ -25,12 +26,12 @@ class CloudBuilder(Module):
         min_range: float = 0.2  # m
         max_range: float = 3.0  # m
         voxel: float = 0.006  # m, voxel grid edge
+        backlog: int = 3  # inputs kept waiting, served oldest first (1: only the newest); more let the stage catch up after a slow step instead of dropping frames
 
     def step(self) -> Status:
-        frames = self.io.take("depth")
-        if not frames:
+        frame = self.pending.next(self.io.take("depth"))
+        if frame is None:
             return Status.RUNNING
-        frame = frames[-1]
         depth, K, T = depth_arrays(frame)
         p = self.params
         pts = voxel_downsample(depth_to_points(depth, K, T, p.stride, p.min_range, p.max_range), p.voxel)

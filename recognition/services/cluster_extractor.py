@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from contactflow.nodes.module import Layer, Module, Port
+from contactflow.nodes.module import Layer, Port
 from contactflow.nodes.status import Status
+from contactflow.recognition.backlog import StreamStage
 from contactflow.recognition.messages import PlaneMsg, PointCloud, SegmentedObjects, provenance
 from contactflow.recognition.pipeline import extract_clusters
 
 
-class ClusterExtractor(Module):
+class ClusterExtractor(StreamStage):
     """Clusters each new filtered cloud (open3d DBSCAN); boxes stand on the plane when known."""
 
     layer = Layer.SERVICE
@@ -25,12 +26,12 @@ class ClusterExtractor(Module):
         min_points: int = 4  # DBSCAN core density
         min_size: int = 25  # points per object
         max_size: int = 50_000  # points per object
+        backlog: int = 3  # inputs kept waiting, served oldest first (1: only the newest); more let the stage catch up after a slow step instead of dropping frames
 
     def step(self) -> Status:
-        clouds = self.io.take("cloud")
-        if not clouds:
+        cloud = self.pending.next(self.io.take("cloud"))
+        if cloud is None:
             return Status.RUNNING
-        cloud = clouds[-1]
         plane_msg = self.io.latest("plane")
         p = self.params
         clusters = extract_clusters(cloud.xyz(), p.eps, p.min_points, p.min_size, p.max_size,

@@ -7,8 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.messages import JointState
-from contactflow.nodes.module import Layer, Module, Port
+from contactflow.nodes.module import Layer, Port
 from contactflow.nodes.status import Status
+from contactflow.recognition.backlog import StreamStage
 from contactflow.recognition.messages import PointCloud, RobotSpheres, provenance
 from contactflow.recognition.pipeline import (
     DistanceFn,
@@ -18,7 +19,7 @@ from contactflow.recognition.pipeline import (
 )
 
 
-class SelfFilter(Module):
+class SelfFilter(StreamStage):
     """Drops points within ``margin`` of the robot (thesis §6.3.3, Appendix B).
 
     The robot comes, in order of preference, as
@@ -43,6 +44,7 @@ class SelfFilter(Module):
         margin: float = 0.02  # m, clearance around the robot model
         robot: str = ""  # registry name of the robot whose spherical model is posed by `joints`
         base: tuple[float, ...] = ()  # xyz rpy of the robot base in the world (default: registry's)
+        backlog: int = 3  # inputs kept waiting, served oldest first (1: only the newest); more let the stage catch up after a slow step instead of dropping frames
 
     def __init__(self, name: str, params: Params | None = None, distance_fn: DistanceFn | None = None) -> None:
         super().__init__(name, params)
@@ -80,10 +82,9 @@ class SelfFilter(Module):
         self.model.update(self.kin)
 
     def step(self) -> Status:
-        clouds = self.io.take("cloud")
-        if not clouds:
+        cloud = self.pending.next(self.io.take("cloud"))
+        if cloud is None:
             return Status.RUNNING
-        cloud = clouds[-1]
         used = None
         fn = self.distance_fn
         if fn is None and self.model is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from contactflow.nodes.params import ParamError
 from contactflow.nodes.testing import FakeIO, run_module
 from contactflow.nodes.wire import MsgId, stamp
 from contactflow.recognition.geometry import Box, depth_to_points, look_at
@@ -210,24 +211,47 @@ def test_service_chain_on_a_nan_frame_publishes_empty_results():
     assert objs.objects == [] and objs.depth_frame == frame.hdr.id
 
 
-def test_roi_filter_holds_the_newest_cloud_until_the_first_roi():
-    """No ROI yet is not an empty scene: nothing is published, then the newest cloud is filtered."""
-    pts = np.array([[0.5, 0.0, 0.1], [0.5, 0.0, 0.9], [0.6, 0.1, 0.1]])
+def test_roi_filter_holds_the_newest_clouds_until_the_first_roi():
+    """No ROI yet is not an empty scene: nothing is published, then the newest clouds (the backlog's three) are
+    filtered, oldest first."""
+    pts = np.array([[0.5, 0.0, 0.1], [0.5, 0.0, 0.9], [0.6, 0.1, 0.1], [0.5, 0.1, 0.2]])
     mod = RoiFilter("roi")
     io = FakeIO()
     io.module = mod
     mod.setup(io)
     mod.start()
-    io.feed("cloud", PointCloud.of(pts[:1], MsgId(source="cam", seq=1), 1.0))
-    io.feed("cloud", PointCloud.of(pts, MsgId(source="cam", seq=2), 2.0))
-    mod.step()
+    for seq in (1, 2, 3, 4):
+        io.feed("cloud", PointCloud.of(pts[:seq], MsgId(source="cam", seq=seq), float(seq)))
+        mod.step()
     assert not io.published["cloud"]
     io.feed("roi", RoiMsg.of(Box(np.array([0.6, 0.0, 0.15]), np.eye(3), np.array([0.4, 0.4, 0.3]))))
-    mod.step()
-    mod.step()
-    (out,) = io.published["cloud"]
-    assert out.depth_frame.seq == 2 and out.depth_t == 2.0
-    assert np.allclose(out.xyz(), pts[[0, 2]], atol=1e-6)
+    for _ in range(4):
+        mod.step()
+    assert [c.depth_frame.seq for c in io.published["cloud"]] == [2, 3, 4]
+    out = io.published["cloud"][-1]
+    assert out.depth_t == 4.0 and np.allclose(out.xyz(), pts[[0, 2, 3]], atol=1e-6)
+    assert mod.pending.dropped == 1
+
+
+def test_a_stage_behind_its_stream_catches_up_without_dropping_within_its_backlog():
+    """Three frames arrive during one slow step: with the default backlog all are cut, in order; with
+    ``backlog: 1`` only the newest; a backlog below one is refused, naming the parameter."""
+    s = three_objects()
+    frames = [stamp(depth_image(s.render(), s.K, s.pose), "site/cam/camera/depth", k, k / 30) for k in (1, 2, 3)]
+    for backlog, cut in ((3, [1, 2, 3]), (1, [3])):
+        mod = CloudBuilder("cloud", CloudBuilder.Params(backlog=backlog))
+        io = FakeIO(module=mod)
+        mod.setup(io)
+        mod.start()
+        for f in frames:
+            io.feed("depth", f)
+        for _ in range(4):
+            mod.step()
+        assert [c.depth_frame.seq for c in io.published["cloud"]] == cut
+    mod = CloudBuilder("cloud", CloudBuilder.Params(backlog=0))
+    mod.setup(FakeIO(module=mod))
+    with pytest.raises(ParamError, match="cloud.params.backlog: 0 must be >= 1"):
+        mod.start()
 
 
 def test_culled_distances_are_exact_below_the_cutoff():
