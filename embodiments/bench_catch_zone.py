@@ -50,7 +50,6 @@ def trial(name: str, dx: float, dy: float, yaw: float = box.YAW, at: tuple[float
     from contactflow.embodiments.primitives.base import hand_pose_for, top_grasp_pose
     from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
     from contactflow.embodiments.tasks import load
-    from contactflow.nodes.taskengine import TaskEngine
 
     specs = {o.name: o for o in box.contents(np.random.default_rng(0), len(OBJECTS))}
     if name not in specs:
@@ -67,20 +66,21 @@ def trial(name: str, dx: float, dy: float, yaw: float = box.YAW, at: tuple[float
         if not ended and p.kind is ProgressKind.EVENT and p.event is not None and _ending(p.node, p.event):
             ended.update(node=p.node, event=p.event, detail=p.detail)
 
-    engine = TaskEngine(runner, lambda: robot.time, library=tasks, on_progress=watch)
     start = hand_pose_for(box.ROBOT, top_grasp_pose((cx + dx, cy + dy, box.BOTTOM + 0.16), yaw))
     target = box.task_params("random", 0)["target"]
-    run = engine.launch(tasks["box_attempt"], {"arm": box.ARM, "approach": box.vec6(start), "target": target})
+    module = runner.host_task(tasks["box_attempt"], {"arm": box.ARM, "approach": box.vec6(start), "target": target},
+                              tasks, watch)
     t0 = robot.time
-    while not engine.done(run) and not ended and robot.time - t0 < TRIAL_TIME:
+    while not module.engine.done(module.run_id) and not ended and robot.time - t0 < TRIAL_TIME:
         runner.advance()
         robot.step(0.005)
-        engine.tick()
-    for inst in list(runner.active):
-        runner.stop(inst)
+    end = dict(ended)  # the trial's end, before the cancel below reports its own
+    if not module.engine.done(module.run_id):
+        module.engine.cancel(module.run_id, "trial over")
+    runner.end_task(module)
     rise = float(robot.ground_truth().object_poses[name][2, 3]) - z0
-    return {"object": name, "yaw": yaw, "at": list(at), "dx": dx, "dy": dy, "outcome": _outcome(ended, rise), "rise": rise,
-            "node": ended.get("node", ""), "detail": ended.get("detail", ""), "time": robot.time - t0, "executor": "local"}
+    return {"object": name, "yaw": yaw, "at": list(at), "dx": dx, "dy": dy, "outcome": _outcome(end, rise), "rise": rise,
+            "node": end.get("node", ""), "detail": end.get("detail", ""), "time": robot.time - t0, "executor": "local"}
 
 
 def _ending(node: str, event: Event) -> bool:

@@ -359,17 +359,14 @@ def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, 
 
     Returns the result, the engine and the simulated time the box was found empty (None if never).
     """
-    from contactflow.nodes.taskengine import TaskEngine
-
-    engine = TaskEngine(runner, lambda: robot.time, library=tasks, on_progress=on_progress)
-    run = engine.launch(tasks[name], params)
+    module = runner.host_task(tasks[name], params, tasks, on_progress)
+    engine, run = module.engine, module.run_id
     t_end = robot.time + max_time
     empty_since: float | None = None
     next_check = robot.time
     while not engine.done(run):
         runner.advance()
         robot.step(0.005)
-        engine.tick()
         if robot.time < next_check:
             continue
         next_check = robot.time + 0.25
@@ -384,10 +381,8 @@ def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, 
             engine.cancel(run, "supervisor: attempt limit")
         if robot.time >= t_end and not engine.done(run):
             engine.cancel(run, f"supervisor: {max_time:g} s of simulated time")
-    for inst in list(runner.active):
-        runner.stop(inst)
-    res = engine.result(run)
-    return (f"{res.event}:{res.label or res.detail}" if res else "none"), engine, empty_since
+    res = runner.end_task(module)
+    return f"{res.event}:{res.label or res.detail}", engine, empty_since
 
 
 EXECUTORS = ("local", "runtime", "both")

@@ -33,13 +33,16 @@ from contactflow.nodes.messages import (
     ParamValue,
     StatusMsg,
 )
-from contactflow.nodes.module import LayerError, Module
+from contactflow.nodes.module import Layer, LayerError, Module
 from contactflow.nodes.params import ParamError, params_dict
 from contactflow.nodes.status import STATUS_EVENT, Event, Status
 from contactflow.nodes.transport import Handle, Transport, key_matches
 from contactflow.nodes.wire import Header, Message, MsgId, WireError, decode, encode, stamp
 
 STATUS_PERIOD = 1.0  # s between periodic status messages
+STEP_ORDER = {Layer.INTERFACE: 0, Layer.SERVICE: 1, Layer.PRIMITIVE: 2, Layer.TASK: 3}
+"""A tick steps the layers bottom-up, as data flows (§6.1): a task sees what its primitives did in the tick,
+and a primitive it starts takes its first step at the next tick, on this node as on any other."""
 QUEUE_DEPTH = 256  # messages kept per input port between two steps
 MAX_SOURCES = 1024  # sources tracked per input port; bounds memory against hostile senders
 MAX_SEQ_JUMP = 1 << 24  # a sequence number this far ahead is a new numbering (a forged or reset source), not loss
@@ -521,11 +524,13 @@ class ModuleHost:
                     self.log.error("%s: autostart refused: %s", hm.addr, reply.error)
 
     def tick(self) -> float:
-        """Step every running module that is due; returns the time the next one is due."""
+        """Step every running module that is due, layer by layer (:data:`STEP_ORDER`); returns the time the next one is due."""
         now = self.clock.now()
         self._ticked = True
         next_due = now + STATUS_PERIOD
-        for hm in list(self.modules.values()):
+        with self._lock:
+            hosted = sorted(self.modules.values(), key=lambda h: STEP_ORDER[h.module.layer])
+        for hm in hosted:
             with hm.lock:
                 m = hm.module
                 # (a nanosecond of slack: a module at the world's tick rate must not skip a tick on rounding)

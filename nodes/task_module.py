@@ -9,7 +9,7 @@ be a node of another task running elsewhere.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,9 +19,9 @@ from contactflow.nodes.keys import ANY, KeySpace
 from contactflow.nodes.messages import Command, EventMsg, ParamValue
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
 from contactflow.nodes.status import STATUS_EVENT, Event, Status
-from contactflow.nodes.taskengine import Progress, RunnerEvent, TaskEngine
+from contactflow.nodes.taskengine import PrimitiveRunner, Progress, RunnerEvent, TaskEngine
 from contactflow.nodes.taskfile import load_tasks
-from contactflow.nodes.taskgraph import TaskError
+from contactflow.nodes.taskgraph import TaskError, TaskGraph
 from contactflow.nodes.wire import Message
 
 
@@ -130,7 +130,13 @@ class ControlRunner:
 
 
 class TaskModule(Module):
-    """Runs the main task of a YAML task file; finishes with the task's outcome."""
+    """Runs the main task of a YAML task file; finishes with the task's outcome.
+
+    A caller in the same process may hand it the task instead (``graph``, its ``library`` and
+    ``plan``), and the runner its engine drives (``runner``: the in-process runner, whose
+    primitives are hosted beside it); the host then steps it as any module, after the
+    primitives of the tick (:meth:`~contactflow.nodes.host.ModuleHost.tick`).
+    """
 
     layer = Layer.TASK
     inputs = (Port("events", EventMsg, "events of the primitives the task runs"),)
@@ -151,17 +157,29 @@ class TaskModule(Module):
         """Without wiring, the events of every module of the robot it commands, wherever they run."""
         return {"events": ks.events(params.robot or robot, ANY, ANY)}
 
+    def __init__(self, name: str, params: Params | None = None, graph: TaskGraph | None = None,
+                 library: Mapping[str, TaskGraph] | None = None, plan: Mapping[str, Any] | None = None,
+                 runner: PrimitiveRunner | None = None, on_progress: Callable[[Progress], None] | None = None) -> None:
+        super().__init__(name, params)
+        self._graph, self._library, self._plan = graph, library, dict(plan or {})
+        self._runner, self._on_progress = runner, on_progress
+
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)
-        self.runner = ControlRunner(io, self.params.robot, self.params.pool)
-        self.engine = TaskEngine(self.runner, lambda: io.now, on_progress=self._progress)
+        self.runner = self._runner or ControlRunner(io, self.params.robot, self.params.pool)
+        self.engine = TaskEngine(self.runner, lambda: io.now, library=self._library, on_progress=self._progress)
         self.run_id = ""
 
     def _progress(self, p: Progress) -> None:
         assert self.io is not None
         self.io.publish("progress", progress_msg(p))
+        if self._on_progress is not None:
+            self._on_progress(p)
 
     def start(self) -> None:
+        if self._graph is not None:
+            self.run_id = self.engine.launch(self._graph, self._plan)
+            return
         tasks, main = load_tasks(self.params.task_file)
         name = self.params.task or main
         if name not in tasks:

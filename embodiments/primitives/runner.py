@@ -1,4 +1,4 @@
-"""In-process primitive runner for the task engine: primitives hosted as on a node, in lockstep with a co-located world module."""
+"""In-process primitive runner for the task engine: primitives and the task hosted as on a node, in lockstep with a co-located world module."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from contactflow.nodes.messages import Command, EventMsg
 from contactflow.nodes.params import replace_params
 from contactflow.nodes.registry import resolve
 from contactflow.nodes.status import Event, Status
+from contactflow.nodes.task_module import TaskModule
 from contactflow.nodes.taskengine import Progress, RunnerEvent, RunResult, TaskEngine
 from contactflow.nodes.taskgraph import TaskGraph
 from contactflow.nodes.wire import decode
@@ -35,7 +36,9 @@ class LocalPrimitiveRunner:
     the states the world sends and command its command port, which checks and applies what
     they send (``facade``, the node's :class:`~contactflow.embodiments.remote.RemoteRobot`).
     Only the bus differs from a node: in-process and synchronous, not zenoh; :meth:`advance`
-    ticks the host once per control tick. ``defaults`` holds per-type parameter overrides
+    ticks the host once per control tick. A task runs as on a node too, a task module on the
+    same host (:meth:`host_task`) whose engine the host steps after the tick's primitives.
+    ``defaults`` holds per-type parameter overrides
     (default: the overrides of the robot's home, :mod:`~contactflow.embodiments.registry`);
     task parameters override them.
     """
@@ -97,6 +100,34 @@ class LocalPrimitiveRunner:
         out, self._events = self._events, []
         return out
 
+    def feed(self, msgs: list[EventMsg]) -> None:
+        """Nothing: events reach this runner on its own subscription to the bus (it runs primitives without a task too)."""
+
+    def host_task(self, task: TaskGraph, params: Mapping[str, Any] | None = None,
+                  library: Mapping[str, TaskGraph] | None = None, on_progress: Callable[[Progress], None] | None = None,
+                  rate_hz: float = 200.0) -> TaskModule:
+        """``task`` launched by a task module on this runner's host, its engine driving this runner; ticked by
+        :meth:`advance` (at ``rate_hz`` Hz of simulated time) until :meth:`end_task`."""
+        self._sync()
+        module = TaskModule("task", TaskModule.Params(rate_hz=rate_hz), graph=task, library=library, plan=params,
+                            runner=self, on_progress=on_progress)
+        self._host.add(ModuleConfig("task", "task", TaskModule, module.params, self.robot.name, autostart=False), module)
+        reply = self._host.send_control(f"{self.robot.name}/task", Command.RUN, {})
+        if not reply.ok:
+            self._host.remove(ModuleAddr(self.robot.name, self._host.config.node, "task"))
+            raise RuntimeError(f"task {task.name!r} did not start: {reply.error}")
+        return module
+
+    def end_task(self, module: TaskModule) -> RunResult:
+        """Stop what the task left running, take the task module off the host; the run's result."""
+        for inst in list(self.active):
+            self.stop(inst)
+        self._host.remove(ModuleAddr(self.robot.name, self._host.config.node, module.name))
+        res = module.engine.result(module.run_id)
+        if res is None:
+            raise RuntimeError(f"run {module.run_id!r} ended without a result")
+        return res
+
     def advance(self) -> None:
         """Step every primitive whose period has elapsed (call once per control tick)."""
         self._sync()
@@ -146,25 +177,20 @@ def run_task(task: TaskGraph, robot: Robot, params: Mapping[str, Any] | None = N
              on_progress: Callable[[Progress], None] | None = None) -> tuple[RunResult, TaskEngine]:
     """Run ``task`` to completion in lockstep with the world; returns the result and the engine.
 
-    Each tick steps the due primitives, advances physics by ``dt`` s and ticks the engine.
-    A run still going after ``max_time`` s of simulated time is cancelled (result ERROR).
+    The task is a task module on the runner's host (:meth:`LocalPrimitiveRunner.host_task`);
+    each tick steps the due primitives, then the task's engine, then advances physics by
+    ``dt`` s. A run still going after ``max_time`` s of simulated time is cancelled (result ERROR).
     """
     runner = runner or LocalPrimitiveRunner(robot)
-    engine = TaskEngine(runner, lambda: robot.time, library=library, on_progress=on_progress)
-    run = engine.launch(task, params)
+    module = runner.host_task(task, params, library, on_progress, rate_hz=1.0 / dt)
+    engine, run = module.engine, module.run_id
     t_end = robot.time + max_time
     while not engine.done(run):
         runner.advance()
         robot.step(dt)
-        engine.tick()
-        if robot.time >= t_end:
+        if robot.time >= t_end and not engine.done(run):
             engine.cancel(run, f"still running after {max_time:g} s of simulated time")
-    for inst in list(runner.active):
-        runner.stop(inst)
-    res = engine.result(run)
-    if res is None:
-        raise RuntimeError(f"run {run!r} ended without a result")
-    return res, engine
+    return runner.end_task(module), engine
 
 
 def finished_ok(res: RunResult) -> bool:
