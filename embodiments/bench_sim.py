@@ -33,6 +33,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from contactflow.embodiments import bench_runtime
+from contactflow.nodes.stats import rate, rate_text
 
 ROBOTS = ("tombatossals", "melfa", "baxter")
 
@@ -243,7 +244,8 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
                 if p.success:
                     lengths.append(p.length)
                 progress.advance(task)
-            plans[name] = {"success_rate": float(np.mean(ok)), "median_time_s": float(np.median(times)),
+            plans[name] = {"success_rate": float(np.mean(ok)), "success": rate(int(sum(ok)), len(ok)),
+                           "median_time_s": float(np.median(times)),
                            "median_time_success_s": float(np.median([t for t, s in zip(times, ok, strict=True) if s])) if any(ok) else None,
                            "p95_time_s": float(np.percentile(times, 95)),
                            "median_length_rad": float(np.median(lengths)) if lengths else None,
@@ -263,8 +265,9 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
     table.add_row("FK+Jacobian our wrapper", f"{k['wrapper_us']:.1f} us ({k['overhead']:.2f}x)")
     for name, r in plans.items():
         med = r["median_time_success_s"]
-        table.add_row(f"{name}: success / median time (solved) / p95", f"{100 * r['success_rate']:.0f}% / {1000 * med:.0f} ms / "
-                      f"{1000 * r['p95_time_s']:.0f} ms" if med else "0%")
+        solved = rate_text(r["success"]["successes"], r["success"]["trials"])
+        table.add_row(f"{name}: solved [95 % interval] / median time (solved) / p95",
+                      f"{solved} / {1000 * med:.0f} ms / {1000 * r['p95_time_s']:.0f} ms" if med else solved)
         st = r["stages"]
         table.add_row(f"{name}: median ms ends | search | simplify | validate",
                       " | ".join(f"{1000 * st[k]:.0f}" for k in ("ends_s", "search_s", "simplify_s", "validate_s")))

@@ -111,3 +111,20 @@ def test_a_close_on_nothing_searches_where_the_hand_pushed_the_object() -> None:
     found = _trial("wood", "robust", error=True, trial=6)
     assert found["grasp"] == "success" and found["success"], found["why"]
     assert found["grasp_values"]["searches"] >= 1
+
+
+def test_every_trial_draws_its_own_object_pose_and_sensor_noise_and_both_controllers_share_them() -> None:
+    spec = next(s for s in bench_grasp.objects() if s.name == "box")
+    seeds = [bench_grasp._seed(bench_grasp.Trial("box", c, False, k)) for k in range(3) for c in ("naive", "robust")]
+    assert seeds[0] == seeds[1] and len(set(seeds)) == 3  # naive and robust of a trial face one draw
+    placed = [bench_grasp.jittered(spec, np.random.default_rng([s, 1])) for s in seeds[::2]]
+    offsets = np.array([[p.xyz[0] - spec.xyz[0], p.xyz[1] - spec.xyz[1], p.rpy[2] - spec.rpy[2]] for p in placed])
+    assert len({tuple(o) for o in offsets}) == 3 and all(p.xyz[2] == spec.xyz[2] for p in placed)
+    assert np.abs(offsets[:, :2]).max() <= bench_grasp.JITTER_XY and np.abs(offsets[:, 2]).max() <= bench_grasp.JITTER_YAW
+    # the sensor noise comes from the trial's seed: two trials read two different wrist wrenches at rest
+    readings = []
+    for s in seeds[::2][:2]:
+        _, robot, _ = bench_grasp.scene(spec, s)
+        robot.step(0.2)
+        readings.append(robot.ft("right").vector)
+    assert not np.allclose(readings[0], readings[1])
