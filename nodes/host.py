@@ -498,11 +498,17 @@ class ModuleHost:
     def _publish_status(self, hm: HostedModule) -> None:
         m = hm.module
         msg = StatusMsg(module=str(hm.addr), layer=str(m.layer), state=m.state, rate_hz=m.params.rate_hz,
-                        steps=hm.counters.steps, rejected=hm.counters.rejected, detail=hm.detail,
+                        steps=hm.counters.steps, rejected=hm.counters.rejected, detail=hm.detail or self._detail(hm),
                         gaps=dict(hm.counters.gaps))
         stamp(msg, f"{hm.addr}/status", hm.io.next_seq("/status"), self.clock.now())
         hm.status_pub(encode(msg))
         hm.last_status = self.clock.now()
+
+    def _detail(self, hm: HostedModule) -> str:
+        try:
+            return hm.module.status_detail()
+        except Exception as exc:  # a module's own report failing must not stop its status
+            return f"status_detail raised {type(exc).__name__}: {exc}"
 
     def _fail(self, hm: HostedModule, detail: str) -> None:
         hm.counters.errors += 1

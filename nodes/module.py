@@ -157,6 +157,10 @@ class Module:
         run all the time, never are."""
         return self.state is Status.RUNNING and self.layer in (Layer.PRIMITIVE, Layer.TASK)
 
+    def status_detail(self) -> str:
+        """What a healthy module says in its status besides its state (``contactflow ls``); "" for nothing."""
+        return ""
+
     def claimed_resources(self) -> tuple[str, ...]:
         """The shared resources a run with the current parameters commands (claimed on RUN).
 

@@ -339,6 +339,11 @@ class WorldModule(Module):
             h.close()
         self._handles.clear()
 
+    def status_detail(self) -> str:
+        if self.paused:
+            return f"paused at tick {self.tick_no} (t={self.world.time:.3f} s): every lockstep node idle"
+        return ""
+
     def _when(self) -> dict[str, float]:
         """The simulated time and tick of an event: its header carries the node's (wall) clock, as its status does."""
         return {"t": self.world.time, "tick": float(self.tick_no)}

@@ -236,6 +236,7 @@ def _idle_world_run(tmp_path, site: str, delay: float) -> dict:
     try:
         assert wait_for(lambda: wm.paused, 60)
         paused_at = wm.tick_no
+        assert wm.status_detail().startswith(f"paused at tick {paused_at} ")  # what `contactflow ls` shows
         time.sleep(delay)
         idle_ticks = wm.tick_no - paused_at
         far = [0.4, -0.4, 1.1, 3.14159, 0.0, 0.0]
