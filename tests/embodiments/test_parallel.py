@@ -32,6 +32,15 @@ def test_fresh_runs_each_get_a_process_of_their_own(jobs: int) -> None:
     assert run_all(os.getpid, [()] * 2, jobs=1) == [os.getpid()] * 2  # without fresh, one job runs in this process
 
 
+def test_a_worker_is_replaced_after_its_share_of_runs_and_a_long_plan_with_one_job_runs_on_workers() -> None:
+    from contactflow.embodiments import parallel
+
+    n = parallel.RECYCLE + 1
+    pids = run_all(os.getpid, [()] * n, jobs=1)
+    assert os.getpid() not in pids and len(set(pids)) == 2  # RECYCLE runs on one worker, the last on the next
+    assert pids.count(pids[0]) == parallel.RECYCLE
+
+
 def test_a_job_count_below_one_is_refused() -> None:
     with pytest.raises(ValueError, match="jobs must be >= 1, got 0"):
         run_all(dict, PLAN, jobs=0)
