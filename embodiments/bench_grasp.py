@@ -98,6 +98,15 @@ def jittered(spec: ObjectSpec, rng: np.random.Generator) -> ObjectSpec:
                    rpy=(spec.rpy[0], spec.rpy[1], spec.rpy[2] + yaw))
 
 
+def draws(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int) -> tuple[ObjectSpec, dict[str, float]]:
+    """What trial ``t`` faces, drawn from ``seed`` alike in both executors: the object where it stands
+    (:func:`jittered`, a random stream of its own, so the perturbations stay as they were) and the
+    approach pose the arm moves to (``approach`` perturbed, with approach error)."""
+    spec = jittered(spec, np.random.default_rng([seed, 1]))
+    goal = perturb(approach, np.random.default_rng(seed)) if t.error else approach
+    return spec, pose6(goal)
+
+
 def scene(spec: ObjectSpec, seed: int = 0) -> tuple[World, SimRobot, LocalPrimitiveRunner]:
     """The table, ``spec`` and the robot, its sensor noise drawn from ``seed`` (as a world module seeds it)."""
     world = World(WorldParams())
@@ -152,11 +161,8 @@ def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int,
               grasp_params: dict[str, object] | None = None) -> dict:
     """One trial: the object jittered, move to the (perturbed) approach, grasp, lift, judge; ``grasp_params``
     override the grasp's. ``seed`` draws the jitter, the perturbation and the robot's sensor noise."""
-    rng = np.random.default_rng(seed)
-    spec = jittered(spec, np.random.default_rng([seed, 1]))  # a stream of its own: the perturbations stay as they were
+    spec, v = draws(spec, approach, t, seed)
     _, robot, runner = scene(spec, seed)
-    goal = perturb(approach, rng) if t.error else approach
-    v = pose6(goal)
     t0 = robot.time
     move = outcome(run_primitive(runner, "move_to", {"arm": ARM, "target": [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
                                  max_time=10.0))
@@ -199,10 +205,7 @@ def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: in
     from contactflow.embodiments.tasks import TASKS_DIR
     from contactflow.nodes.procs import free_port
 
-    rng = np.random.default_rng(seed)
-    spec = jittered(spec, np.random.default_rng([seed, 1]))  # a stream of its own: the perturbations stay as they were
-    goal = perturb(approach, rng) if t.error else approach
-    v = pose6(goal)
+    spec, v = draws(spec, approach, t, seed)
     with tempfile.TemporaryDirectory(prefix="grasp-trial-") as d:
         folder = pathlib.Path(d)
         cell = write_cell(folder / "cell.yaml", ROBOT, [spec])
@@ -261,7 +264,7 @@ def rows_of(results: list[dict]) -> list[dict]:
             rs = [r for r in results if r["controller"] == c and r["error"] == e]
             ok = sum(r["success"] for r in rs)
             rows.append({"controller": c + (" + error" if e else ""), "stable": ok, "failures": len(rs) - ok,
-                         "success_rate": ok / len(rs) if rs else 0.0, "success": rate(ok, len(rs))})
+                         "success": rate(ok, len(rs))})
     return rows
 
 
@@ -341,7 +344,7 @@ def _plot(rows: list[dict], thesis: dict, path: pathlib.Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
     x = np.arange(len(rows))
-    ax.bar(x - 0.2, [100 * r["success_rate"] for r in rows], 0.4, label="simulation")
+    ax.bar(x - 0.2, [100 * r["success"]["rate"] for r in rows], 0.4, label="simulation")
     ax.bar(x + 0.2, [100 * thesis[r["controller"]] for r in rows], 0.4, label="thesis (Table 3.3)")
     ax.set_xticks(x, [r["controller"] for r in rows])
     ax.set_ylabel("stable grasps (%)")

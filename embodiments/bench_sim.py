@@ -244,7 +244,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
                 if p.success:
                     lengths.append(p.length)
                 progress.advance(task)
-            plans[name] = {"success_rate": float(np.mean(ok)), "success": rate(int(sum(ok)), len(ok)),
+            plans[name] = {"success": rate(int(sum(ok)), len(ok)),
                            "median_time_s": float(np.median(times)),
                            "median_time_success_s": float(np.median([t for t, s in zip(times, ok, strict=True) if s])) if any(ok) else None,
                            "p95_time_s": float(np.percentile(times, 95)),

@@ -254,6 +254,7 @@ class ModuleHost:
         self.clock = clock or WallClock()
         self.log = logging.getLogger(f"contactflow.node.{config.node}")
         self.modules: dict[tuple[str, str], HostedModule] = {}
+        self._order: list[HostedModule] = []  # the modules in STEP_ORDER, kept as modules come and go
         self._lock = threading.RLock()
         self._claim_lock = threading.RLock()  # claims of this node are checked, taken and released one at a time
         self._stop = threading.Event()
@@ -305,6 +306,7 @@ class ModuleHost:
         hm.handles.append(t.token(self.ks.alive_module(*self._a(addr))))
         with self._lock:
             self.modules[(addr.robot, addr.module)] = hm
+            self._order = sorted(self.modules.values(), key=lambda h: STEP_ORDER[h.module.layer])
         return hm
 
     @staticmethod
@@ -534,9 +536,7 @@ class ModuleHost:
         now = self.clock.now()
         self._ticked = True
         next_due = now + STATUS_PERIOD
-        with self._lock:
-            hosted = sorted(self.modules.values(), key=lambda h: STEP_ORDER[h.module.layer])
-        for hm in hosted:
+        for hm in self._order:  # a list replaced, never changed, as modules come and go
             with hm.lock:
                 m = hm.module
                 # (a nanosecond of slack: a module at the world's tick rate must not skip a tick on rounding)
@@ -620,9 +620,7 @@ class ModuleHost:
 
     def _busy(self) -> bool:
         """Whether a module of the node has work under way (:meth:`Module.busy`)."""
-        with self._lock:
-            hosted = list(self.modules.values())
-        for hm in hosted:
+        for hm in self._order:
             try:
                 if hm.module.busy():
                     return True
@@ -698,6 +696,7 @@ class ModuleHost:
         """Take a module off the node: stopped if it runs, its claims released, its keys undeclared."""
         with self._lock:
             hm = self.modules.pop((addr.robot, addr.module), None)
+            self._order = [h for h in self._order if h is not hm]
         if hm is not None:
             self._retire(hm)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 from typing import Generic, TypeVar
 
 from contactflow.nodes.module import Module
@@ -44,21 +45,26 @@ class Backlog(Generic[T]):
         """Return an input taken with :meth:`next` to the front (it could not be processed yet)."""
         self._q.appendleft(item)
 
-    def __len__(self) -> int:
-        return len(self._q)
-
 
 class StreamStage(Module):
     """A stage of the depth chain: each input of its stream processed once, through a :class:`Backlog`
-    of ``params.backlog`` inputs (made at ``start``)."""
+    of ``params.backlog`` inputs (made at ``start`` and ``reset``). A stage's ``Params`` extend
+    :class:`StreamStage.Params`."""
 
     abstract = True
 
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 200.0  # Hz, how often it looks for a new input (each is processed once, at the camera's 30 Hz of §6.3.3)
+        backlog: int = 3  # inputs kept waiting, served oldest first (1: only the newest); more let the stage catch up after a slow step instead of dropping frames
+
     def start(self) -> None:
-        depth = self.params.backlog
-        if depth < 1:
-            raise ParamError(f"{self.name}.params.backlog: {depth} must be >= 1")
-        self.pending: Backlog = Backlog(depth)
+        self.pending = self._backlog()
 
     def reset(self) -> None:
-        self.pending = Backlog(max(1, self.params.backlog))
+        self.pending = self._backlog()
+
+    def _backlog(self) -> Backlog:
+        if self.params.backlog < 1:
+            raise ParamError(f"{self.name}.params.backlog: {self.params.backlog} must be >= 1")
+        return Backlog(self.params.backlog)

@@ -20,13 +20,11 @@ class CloudBuilder(StreamStage):
     outputs = (Port("cloud", PointCloud, "world-frame cloud"),)
 
     @dataclass(frozen=True)
-    class Params:
-        rate_hz: float = 200.0  # Hz, how often it looks for a new frame (each is cut once, at the camera's 30 Hz of §6.3.3)
+    class Params(StreamStage.Params):
         stride: int = 2  # px, depth decimation
         min_range: float = 0.2  # m
         max_range: float = 3.0  # m
         voxel: float = 0.006  # m, voxel grid edge
-        backlog: int = 3  # inputs kept waiting, served oldest first (1: only the newest); more let the stage catch up after a slow step instead of dropping frames
 
     def step(self) -> Status:
         frame = self.pending.next(self.io.take("depth"))

@@ -20,13 +20,11 @@ class ClusterExtractor(StreamStage):
     outputs = (Port("objects", SegmentedObjects, "segmented objects, largest first"),)
 
     @dataclass(frozen=True)
-    class Params:
-        rate_hz: float = 200.0  # Hz, how often it looks for a new cloud (each is clustered once)
+    class Params(StreamStage.Params):
         eps: float = 0.018  # m, DBSCAN neighbourhood
         min_points: int = 4  # DBSCAN core density
         min_size: int = 25  # points per object
         max_size: int = 50_000  # points per object
-        backlog: int = 3  # inputs kept waiting, served oldest first (1: only the newest); more let the stage catch up after a slow step instead of dropping frames
 
     def step(self) -> Status:
         cloud = self.pending.next(self.io.take("cloud"))

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from contactflow.nodes.module import Layer, Port
 from contactflow.nodes.status import Status
 from contactflow.recognition.backlog import StreamStage
@@ -22,12 +20,6 @@ class RoiFilter(StreamStage):
     inputs = (Port("cloud", PointCloud, "world-frame cloud"),
               Port("roi", RoiMsg, "region of interest (8 vertices)"))
     outputs = (Port("cloud", PointCloud, "points inside the ROI"),)
-
-    @dataclass(frozen=True)
-    class Params:
-        rate_hz: float = 200.0  # Hz, how often it looks for a new cloud (each is filtered once)
-        backlog: int = 3  # inputs kept waiting, served oldest first (1: only the newest); more let the stage catch up after a slow step instead of dropping frames
-
 
     def step(self) -> Status:
         cloud = self.pending.next(self.io.take("cloud"))

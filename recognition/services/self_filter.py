@@ -39,12 +39,10 @@ class SelfFilter(StreamStage):
     outputs = (Port("cloud", PointCloud, "points not on the robot"),)
 
     @dataclass(frozen=True)
-    class Params:
-        rate_hz: float = 200.0  # Hz, how often it looks for a new cloud (each is filtered once)
+    class Params(StreamStage.Params):
         margin: float = 0.02  # m, clearance around the robot model
         robot: str = ""  # registry name of the robot whose spherical model is posed by `joints`
         base: tuple[float, ...] = ()  # xyz rpy of the robot base in the world (default: registry's)
-        backlog: int = 3  # inputs kept waiting, served oldest first (1: only the newest); more let the stage catch up after a slow step instead of dropping frames
 
     def __init__(self, name: str, params: Params | None = None, distance_fn: DistanceFn | None = None) -> None:
         super().__init__(name, params)

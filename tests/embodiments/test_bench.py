@@ -15,7 +15,7 @@ def test_quick_bench_writes_its_summary(tmp_path):
     assert saved["pair"]["two_processes_two_cores"]["rtf"] > 0
     assert summary["kinematics"]["wrapper_us"] > 0
     assert set(summary["planning"]) == {"KPIECE1", "RRTConnect"}
-    assert all(0.0 <= p["success_rate"] <= 1.0 for p in summary["planning"].values())
+    assert all(0.0 <= p["success"]["rate"] <= 1.0 for p in summary["planning"].values())
     rt = summary["runtime"]
     row = rt["rtf"]["1 robot"]
     assert row["one_process"]["outcomes"] == row["split"]["outcomes"] == {"tombatossals": "success"}
