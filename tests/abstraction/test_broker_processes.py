@@ -145,7 +145,9 @@ def test_an_object_the_atd_asks_to_detect_is_found_by_the_vision_node_and_picked
     configs = {
         "broker": {"site": site, "node": "broker_node", "zenoh": {"mode": "peer", "listen": [connect[0]]},
                    "modules": [{"name": "broker", "type": "broker"}]},
-        "world": world_node(site, "pick_place", connect=connect, wait_for=("control", f"vision3d_{robot}"), camera_hz=2.0),
+        # paused while idle: the task starts at the same tick however long the dispatch takes, so the run repeats
+        "world": world_node(site, "pick_place", connect=connect, wait_for=("control", f"vision3d_{robot}"), camera_hz=2.0,
+                            idle="pause"),
         "vision": vision_node(site, robot, connect=connect),
         "control": {"site": site, "node": "control", "clock": "lockstep", "zenoh": {"mode": "peer", "connect": list(connect)},
                     "modules": [{"name": "agent", "type": "robot_agent", "robot": robot, "params": {"robot": robot}},

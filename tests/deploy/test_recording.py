@@ -1,6 +1,7 @@
 """Recording the key space to MCAP, reading it back, re-fusion, replay into a fusion node, the live Foxglove view."""
 
 import json
+import socket
 import threading
 import time
 from collections import Counter
@@ -206,7 +207,13 @@ def test_the_live_view_serves_the_advertised_channels_to_a_websocket_client(tmp_
     port = free_port()
     view = {"name": "view", "type": "foxglove_view", "params": {"port": port}}
     proc, tool = _node(tmp_path, "viewsite", [*SENSING, {**FUSING[0], "params": {**FUSION}}, view], "view")
+
+    def listening() -> bool:  # a module is alive once set up; its server starts when it runs, just after
+        with socket.socket() as sock:
+            return sock.connect_ex(("127.0.0.1", port)) == 0
+
     try:
+        assert wait_for(listening, timeout=30), (tmp_path / "view.log").read_text()[-3000:]
         topics: set[str] = set()
         with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], open_timeout=10) as ws:
             assert ws.subprotocol == "foxglove.sdk.v1"
