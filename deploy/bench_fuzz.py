@@ -88,8 +88,8 @@ def _command(robot: str) -> bytes:
     """A valid command for ``robot``'s first arm (hold where the joints are zero), as a mutation template."""
     spec = registry.get(robot)
     arm = spec.arms[0]
-    return encode(stamp(ArmCommand(robot=robot, arm=arm.name, kind=ArmCommandKind.JOINTS, seq=1,
-                                   values=NDArray.of(np.zeros(len(arm.joints)))), "site/fuzz/fuzz/cmd", 1, 0.0))
+    return encode(stamp(ArmCommand(robot=robot, arm=arm.name, kind=ArmCommandKind.TARGET, seq=1,
+                                   values=NDArray.of(np.zeros((2, len(arm.joints))))), "site/fuzz/fuzz/cmd", 1, 0.0))
 
 
 def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:

@@ -90,8 +90,8 @@ def round_trip(ticks: int, folder: Path) -> dict:
             arm = state.arms[1] if len(state.arms) > 1 else state.arms[0]
             q = arm.q_cmd.numpy()
             sent = time.perf_counter()
-            cmd(encode(ArmCommand(robot="tombatossals", arm=arm.name, kind=ArmCommandKind.JOINTS, seq=seq,
-                                  values=NDArray.of(q))))
+            cmd(encode(ArmCommand(robot="tombatossals", arm=arm.name, kind=ArmCommandKind.TARGET, seq=seq,
+                                  values=NDArray.of(np.stack([q, np.zeros_like(q)])))))
             ack(encode(LockstepAck(node="rtt", tick=state.tick)))
             k = [a.name for a in state.arms].index(arm.name)
 

@@ -140,12 +140,10 @@ class TrueContacts(Message, tag="true_contacts"):
 
 
 class ArmState(msgspec.Struct, kw_only=True):
-    """One arm's controller as the world ran it this tick."""
+    """One arm's drives this tick."""
 
     name: str  # the arm's name
     q_cmd: NDArray  # (n,) float64, rad: the joints' commanded position
-    status: str  # idle | running | success | failure (nodes.status.Status)
-    abort_reason: str = ""  # why the last command failed (no contact, not reached, hardware_failure, ...)
     applied: int = 0  # the sender's sequence number of the last arm command the world applied
 
 
@@ -201,32 +199,25 @@ class RobotState(Message, tag="robot_state"):
 
 
 class ArmCommandKind(StrEnum):
-    """What an arm command's ``values`` hold and how the arm's controller runs it."""
+    """What an arm command asks of the arm's drives (its controllers run on the commanding node)."""
 
-    JOINTS = "joints"  # values: (n,) joint target, interpolated at ``speed`` rad/s
-    WAYPOINTS = "waypoints"  # values: (k, n) joint path, aborted beyond ``abort_force``
-    POSE = "pose"  # values: (4, 4) pose of the controlled frame in ``frame``
-    TWIST = "twist"  # values: (6,) m/s, rad/s in ``frame``
-    WRENCH = "wrench"  # values: (6,) N, N m in ``frame`` (admittance)
-    GUARDED = "guarded"  # values: (6,) twist until the wrist force changes by ``max_force``
-    STOP = "stop"  # hold the commanded position
+    TARGET = "target"  # values: (2, n) joint position (rad) and velocity (rad/s) targets, held until the next
     TARE = "tare"  # zero the arm's wrist F/T sensor
 
 
 class ArmCommand(Message, tag="arm_command"):
-    """A command to one arm's controller; ``seq`` comes back in :class:`ArmState` once applied."""
+    """A command to one arm's drives; ``seq`` comes back in :class:`ArmState` once applied.
+
+    A node's arm controllers (joint paths, Cartesian, admittance, guarded moves: thesis §6.3.2)
+    send the arm's joint target every control tick while they run; the world holds the last one.
+    """
 
     max_bytes = 1 << 20
     robot: str
     arm: str  # the arm's name
     kind: ArmCommandKind  # what ``values`` hold
     seq: int  # the sender's sequence number, echoed as ``applied`` once applied
-    values: NDArray | None = None  # float64; shape by ``kind``
-    frame: str = "world"  # the frame of pose, twist and wrench values
-    speed: float = 0.0  # m/s for pose moves, rad/s for joint moves; 0: the arm's default
-    duration: float = 0.0  # s a twist lasts; 0: until the next command
-    max_force: float = 5.0  # N, guarded moves
-    abort_force: float = 0.0  # N, joint paths stop when the wrist force changes this much; 0: never
+    values: NDArray | None = None  # float64, (2, n) for a target
 
 
 class HandCommand(Message, tag="hand_command"):

@@ -3,10 +3,11 @@
 :class:`RemoteRobot` satisfies :class:`~contactflow.embodiments.primitives.base.Robot`, as
 :class:`~contactflow.embodiments.sim_robot.SimRobot` does, but everything crosses zenoh:
 it reads the newest :class:`RobotState` the world published on ``robot/<robot>/state``,
-computes frames at the measured joints with its own pinocchio model, and sends arm, hand,
-head and camera commands on ``robot/<robot>/command``. A command is pending until a state
-shows the world applied it, so a primitive that commands and then asks ``done()`` sees the
-command running, as it would on the robot itself.
+computes frames at the measured joints with its own pinocchio model, and sends hand, head
+and camera commands on ``robot/<robot>/command``; a hand command is pending until a state
+shows the world applied it, as it would be on the robot itself. The arms' controllers run
+here: the node's tick hook (:meth:`RemoteRobot.after_tick`) steps them after the tick's
+primitives and streams each moving arm's joint target to the world.
 
 One :class:`RobotLink` per node and robot (:func:`connect`) carries the subscriptions and
 announces the node as a controller of the robot (``alive/controller/<robot>/<node>``): when
@@ -15,6 +16,7 @@ the last one drops, the world holds the robot.
 
 from __future__ import annotations
 
+import logging
 import secrets
 import threading
 import time
@@ -23,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from contactflow.embodiments.facade import RobotFacade
+from contactflow.embodiments.control.arm import ArmController, ArmMode
+from contactflow.embodiments.facade import ArmFacade, RobotFacade
 from contactflow.embodiments.messages import (
     ArmCommand,
     ArmCommandKind,
@@ -45,6 +48,8 @@ from contactflow.nodes.status import Status
 from contactflow.nodes.transport import Transport
 from contactflow.nodes.wire import NDArray, WireError, decode, encode, stamp
 
+log = logging.getLogger("contactflow.remote")
+MAX_TICKS = 5  # world ticks one step of the arm controllers may cover (as the Cartesian controller service)
 CAMERA_TIMEOUT = 30.0  # s of wall time a camera frame may take (the first render compiles shaders)
 
 
@@ -194,12 +199,16 @@ def _limits(robot: RemoteRobot, joints: tuple[str, ...]) -> tuple[np.ndarray, np
     return (np.asarray(kin.model.lowerPositionLimit)[idx].copy(), np.asarray(kin.model.upperPositionLimit)[idx].copy())
 
 
-class RemoteArm:
+class RemoteArm(ArmFacade):
     """An arm of a :class:`RemoteRobot` (the :class:`~contactflow.embodiments.primitives.base.ArmLike` of a primitive).
 
-    Joint targets are clipped to the joint limits, as the simulated robot's controllers do: a
-    primitive holding the measured joints of an arm resting at a limit (encoders read past it)
-    must hold it, not have the world refuse the command and keep the arm moving.
+    Its controllers run here, on the node (thesis §6.3.2: the Cartesian controller, the IK
+    solver and the trajectory service are services of the control computer): the node's tick
+    hook (:meth:`RemoteRobot.after_tick`) steps them once per world tick, after the tick's
+    primitives, and sends the arm's joint target to the world. Targets are clipped to the joint
+    limits, as the simulated robot's drives would stop there: a primitive holding the measured
+    joints of an arm resting at a limit (encoders read past it) must hold it, not have the
+    world refuse the target.
     """
 
     def __init__(self, robot: RemoteRobot, spec: Any) -> None:
@@ -207,13 +216,29 @@ class RemoteArm:
         self.name, self.joints, self.home = spec.name, spec.joints, spec.home
         self.lower, self.upper = _limits(robot, spec.joints)
         self._sent = 0
-        self._stop_sent = 0
+        self._streamed: tuple[int, np.ndarray] | None = None  # the last target sent, with its seq
+        self.ctl = ArmController(robot._ctl_kin, spec, measured=robot._kin_q, target=self._target,
+                                 on_contact=lambda detail: log.debug("%s: %s", robot.name, detail))
 
     def _state(self) -> ArmState:
         for a in self.robot.state.arms:
             if a.name == self.name:
                 return a
         raise RemoteError(f"robot {self.robot.name}: the world reports no arm {self.name!r}")
+
+    def _target(self) -> np.ndarray:
+        """The arm's joint target now: the one in flight if this node sent one the world has not applied yet."""
+        s = self._state()
+        if self._streamed is not None and self._streamed[0] > s.applied:
+            return self._streamed[1].copy()
+        return s.q_cmd.numpy().copy()
+
+    @property
+    def _failed(self) -> bool:
+        return self.robot.state.failed
+
+    def _path(self, waypoints: np.ndarray) -> np.ndarray:
+        return np.clip(super()._path(waypoints), self.lower, self.upper)
 
     def q(self) -> np.ndarray:
         return self.robot._q()[self.robot._index(self.joints)].copy()
@@ -223,82 +248,30 @@ class RemoteArm:
 
     @property
     def q_cmd(self) -> np.ndarray:
-        return self._state().q_cmd.numpy().copy()
+        return self.ctl.q_cmd.copy() if self.ctl.mode != ArmMode.IDLE else self._target()
 
-    def ee_pose(self, frame: str = "world") -> np.ndarray:
-        return self.robot.frame_pose(self.spec.ee_frame, frame)
-
-    @property
-    def status(self) -> Status:
-        s = self._state()
-        if self._stop_sent == self._sent and self._sent > s.applied:
-            return Status.IDLE  # a stop in flight: nothing runs
-        return _pending(self._sent, s.applied, s.status)
-
-    @property
-    def abort_reason(self) -> str:
-        s = self._state()
-        return "" if self._sent > s.applied else s.abort_reason
-
-    def done(self) -> bool:
-        return self.status in (Status.SUCCESS, Status.FAILURE)
-
-    def _send(self, kind: ArmCommandKind, values: np.ndarray | None = None, **fields: Any) -> None:
+    def _send(self, kind: ArmCommandKind, values: np.ndarray | None = None) -> None:
         self._sent += 1
         arr = None if values is None else NDArray.of(np.ascontiguousarray(values, dtype=np.float64))
-        self.robot.link.send(ArmCommand(robot=self.robot.name, arm=self.name, kind=kind, seq=self._sent,
-                                        values=arr, **fields))
-
-    def stop(self) -> None:
-        self._send(ArmCommandKind.STOP)
-        self._stop_sent = self._sent
-
-    def set_joint_target(self, q: np.ndarray) -> None:
-        self.move_joints(q, speed=1e6)
-
-    def move_joints(self, q: np.ndarray, speed: float | None = None) -> None:
-        q = np.asarray(q, dtype=np.float64)
-        if q.shape != (len(self.joints),):
-            raise ValueError(f"arm {self.name}: move_joints needs {len(self.joints)} values, got shape {q.shape}")
-        self._send(ArmCommandKind.JOINTS, np.clip(q, self.lower, self.upper), speed=float(speed or 0.0))
-
-    def execute_waypoints(self, waypoints: np.ndarray, speed: float | None = None, abort_force: float = 8.0) -> None:
-        w = np.clip(np.atleast_2d(np.asarray(waypoints, dtype=np.float64)), self.lower, self.upper)
-        self._send(ArmCommandKind.WAYPOINTS, w, speed=float(speed or 0.0),
-                   abort_force=0.0 if not np.isfinite(abort_force) else float(abort_force))
-
-    def execute(self, plan: Any, abort_force: float = 8.0, speed: float | None = None) -> None:
-        self.execute_waypoints(getattr(plan, "waypoints", plan), speed=speed, abort_force=abort_force)
-
-    def move_pose(self, T: np.ndarray, frame: str = "world", speed: float = 0.1) -> None:
-        self._send(ArmCommandKind.POSE, np.asarray(T, dtype=np.float64), frame=frame, speed=float(speed))
-
-    def set_twist(self, twist: np.ndarray, frame: str = "world", duration: float | None = None) -> None:
-        self._send(ArmCommandKind.TWIST, np.asarray(twist, dtype=np.float64), frame=frame,
-                   duration=float(duration or 0.0))
-
-    def set_wrench(self, wrench: np.ndarray, frame: str = "world") -> None:
-        if not self.spec.ft:
-            raise ValueError(f"arm {self.name} has no F/T sensor for wrench control")
-        self._send(ArmCommandKind.WRENCH, np.asarray(wrench, dtype=np.float64), frame=frame)
-
-    def guarded_move(self, twist: np.ndarray, frame: str = "world", max_force: float = 5.0,
-                     duration: float | None = None) -> None:
-        if not self.spec.ft:
-            raise ValueError(f"arm {self.name} has no F/T sensor for a guarded move")
-        self._send(ArmCommandKind.GUARDED, np.asarray(twist, dtype=np.float64), frame=frame,
-                   max_force=float(max_force), duration=float(duration or 0.0))
+        self.robot.link.send(ArmCommand(robot=self.robot.name, arm=self.name, kind=kind, seq=self._sent, values=arr))
 
     def tare(self) -> None:
         self._send(ArmCommandKind.TARE)
 
-    def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
-             obstacles: tuple = (), cloud: np.ndarray | None = None, rest: bool = False):
-        """OMPL plan from the commanded joints, as :meth:`SimRobot.arm(...).plan` (see ``plan_arm``)."""
-        from contactflow.embodiments.control.planning import plan_arm
-
-        return plan_arm(self.robot, self, goal, planner=planner, timeout=timeout, checker=checker,
-                        obstacles=obstacles, cloud=cloud, rest=rest)
+    def _control(self, dt: float) -> None:
+        """One control tick of the arm's controllers; the target goes to the world."""
+        if self._failed:
+            self.ctl.fail()
+            return
+        if self.ctl.mode == ArmMode.IDLE:
+            return
+        reading = self.robot.ft(self.name) if self.spec.ft else None
+        out = self.ctl.update(self.q(), dt, None if reading is None else reading.force,
+                              None if reading is None else reading.vector)
+        if out is not None:
+            q = np.clip(out[0], self.lower, self.upper)
+            self._send(ArmCommandKind.TARGET, np.stack([q, out[1]]))
+            self._streamed = (self._sent, q)
 
 
 class RemoteHand:
@@ -393,14 +366,17 @@ class RemoteRobot(RobotFacade):
         self.spec = registry.get(self.info.embodiment)
         self.base = np.asarray(self.info.base, dtype=np.float64).reshape(4, 4)
         self.kin = Kinematics(self.spec.urdf(), self.base)
+        self._ctl_kin = Kinematics(self.spec.urdf(), self.base)  # the arm controllers' model, at commanded joints
+        self._ctl_tick = -1  # the state tick the controllers last stepped on
+        self._ctl_t = 0.0  # s, its time
         self._kin_tick = -1
         self._names: list[str] = []
         self._index_of: dict[tuple[str, ...], np.ndarray] = {}
+        link.wait_state()  # the arm controllers start from the commanded joints the world reports
         self._arms = {a.name: RemoteArm(self, a) for a in self.spec.arms}
         self._hands = {h.name: RemoteHand(self, h) for h in self.spec.hands}
         self.head = RemoteHead(self, self.spec.head_joints) if self.spec.head_joints else None
         self._tare: dict[str, tuple[int, np.ndarray]] = {}
-        link.wait_state()
 
     # -- state --------------------------------------------------------------------------------
     @property
@@ -503,6 +479,31 @@ class RemoteRobot(RobotFacade):
 
     def add_task_frame(self, name: str, parent: str, T: np.ndarray) -> None:
         self.kin.add_task_frame(name, parent, T)
+        self._ctl_kin.add_task_frame(name, parent, T)
+
+    # -- the arm controllers: the node's tick hook ---------------------------------------------
+    def after_tick(self) -> None:
+        """Step every running arm controller once per world tick, after the tick's primitives."""
+        s = self.link.state
+        if s is None or s.tick == self._ctl_tick:
+            return
+        rate = self.info.control_rate
+        # the ticks since the last step, counted in simulated time: a real-time node may miss a few; a node
+        # far behind a free-running world moves its arms at most MAX_TICKS' worth per step, never in jumps
+        ticks = min(max(1, round((s.t - self._ctl_t) * rate)), MAX_TICKS) if self._ctl_tick >= 0 else 1
+        self._ctl_tick, self._ctl_t = s.tick, s.t
+        dt = ticks / rate
+        for a in self._arms.values():
+            a._control(dt)
+
+    @property
+    def rate_hz(self) -> float:
+        """Hz, the world's control rate: the arm controllers' rate."""
+        return self.info.control_rate
+
+    def busy(self) -> bool:
+        """An arm controller is moving the arm."""
+        return any(a.ctl.mode != ArmMode.IDLE for a in self._arms.values())
 
     def hand_points(self, arm: str) -> np.ndarray:
         """Where ``arm``'s hand is around its controlled frame, as the world measured it (N, 3)."""

@@ -14,16 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.embodiments.control.cartesian import CartesianController, CartesianParams, Mode
-from contactflow.embodiments.control.ik import IKParams, VelocityIK
+from contactflow.embodiments.control.arm import ArmController, ArmMode
 from contactflow.embodiments.control.kinematics import Kinematics
 from contactflow.embodiments.control.mixer import JointCommandMixer
-from contactflow.embodiments.control.trajectory import (
-    ForceWatch,
-    TrajectoryFollower,
-    TrajectoryParams,
-)
-from contactflow.embodiments.facade import RobotFacade
+from contactflow.embodiments.facade import ArmFacade, RobotFacade
 from contactflow.embodiments.faults import Fault, FaultMonitor, FaultParams
 from contactflow.embodiments.registry import ArmSpec, HandSpec, RobotSpec
 from contactflow.embodiments.sensors.camera import DepthCamera, DepthFrame
@@ -63,8 +57,8 @@ class _Commanded:
         return self.status
 
 
-class ArmHandle(_Commanded):
-    """Commands and state of one arm (see API.md)."""
+class ArmHandle(ArmFacade, _Commanded):
+    """Commands and state of one arm (see API.md); its :class:`ArmController` runs in the control hook."""
 
     def __init__(self, robot: SimRobot, spec: ArmSpec) -> None:
         self.robot, self.spec = robot, spec
@@ -73,14 +67,13 @@ class ArmHandle(_Commanded):
         self.home = spec.home
         self._sidx = robot.art.indices(spec.joints)
         self._kidx = robot.kin.q_index(spec.joints)
-        self.ik = VelocityIK(robot._ctl_kin, spec.joints, spec.ee_frame, posture=np.asarray(spec.home), params=IKParams())
-        self.cart = CartesianController(robot._ctl_kin, self.ik, CartesianParams())
-        self.traj: TrajectoryFollower | None = None
-        self.q_cmd = robot.art.qpos()[self._sidx].copy()
-        self.mode = "idle"  # idle | joint | cartesian | guarded
-        self.status = Status.IDLE
-        self.abort_reason = ""
-        self._guard: ForceWatch | None = None
+        self._streamed_at: float | None = None  # s, the time of the last streamed target still driving the arm
+        self.ctl = ArmController(robot._ctl_kin, spec, measured=robot._kin_q, target=lambda: robot.mixer.q[self._sidx],
+                                 on_contact=lambda detail: robot._event(Event.CONTACT, detail))
+
+    @property
+    def _failed(self) -> bool:
+        return self.robot.failed
 
     # -- state -----------------------------------------------------------------------------
     def q(self) -> np.ndarray:
@@ -89,144 +82,36 @@ class ArmHandle(_Commanded):
     def qd(self) -> np.ndarray:
         return self.robot._qd_s[self._sidx].copy()
 
-    def ee_pose(self, frame: str = "world") -> np.ndarray:
-        return self.robot.frame_pose(self.spec.ee_frame, frame)
+    @property
+    def q_cmd(self) -> np.ndarray:
+        return self.ctl.q_cmd
 
-    # -- commands --------------------------------------------------------------------------
-    def _start(self, mode: str) -> None:
-        if self.robot.failed:
-            self.status = Status.FAILURE
-            self.abort_reason = "hardware_failure"
-            return
-        self.mode, self.status, self.abort_reason = mode, Status.RUNNING, ""
+    def stream(self, q: np.ndarray, qd: np.ndarray) -> None:
+        """A joint position and velocity target from a controller elsewhere, for the coming tick.
 
-    def stop(self) -> None:
-        """Hold the current commanded position."""
-        self.cart.stop()
-        self.traj = None
-        self.mode = "idle"
-        if self.status == Status.RUNNING:
-            self.status = Status.IDLE
-
-    def set_joint_target(self, q: np.ndarray) -> None:
-        """Immediate joint position target (no interpolation)."""
-        self.move_joints(q, speed=1e6)
-
-    def move_joints(self, q: np.ndarray, speed: float | None = None) -> None:
-        q = np.asarray(q, dtype=np.float64)
-        if q.shape != (len(self.joints),):
-            raise ValueError(f"arm {self.name}: move_joints needs {len(self.joints)} values, got shape {q.shape}")
-        self.execute_waypoints(q[None], speed=speed, abort_force=np.inf)
-
-    def _resync(self) -> None:
-        """Start a new command from the joints' current target (other sources may have moved it)."""
-        if self.mode == "idle":
-            self.q_cmd = self.robot.mixer.q[self._sidx].copy()
-
-    def execute_waypoints(self, waypoints: np.ndarray, speed: float | None = None, abort_force: float = 8.0) -> None:
-        """Follow joint waypoints; abort when the F/T force changes by more than ``abort_force`` N.
-
-        Each segment is timed alone (``TrajectoryParams.min_segment``), so a densely planned path runs
-        at 0.4 rad/s at most. The empty-box benchmark was measured with this timing: timed along the
-        path with an acceleration bound, its moves that started with the hand pressed against an object
-        aborted more, and more boxes were left unemptied (the planner module uses that timing).
+        The position is held until the next target; the velocity only for that tick: a stream
+        that stops leaves the arm holding its last position, not drifting at its last velocity.
         """
-        self._resync()
-        w = np.asarray(waypoints, dtype=np.float64)
-        if np.linalg.norm(w[0] - self.q_cmd) > 1e-6:
-            w = np.vstack([self.q_cmd, w])
-        self.traj = TrajectoryFollower(w, TrajectoryParams(max_velocity=speed or self.spec.max_velocity, abort_force=abort_force))
-        self._start("joint")
-
-    def execute(self, plan, abort_force: float = 8.0, speed: float | None = None) -> None:
-        """Execute a :class:`~contactflow.embodiments.control.planning.Plan` (or a waypoint array)."""
-        self.execute_waypoints(getattr(plan, "waypoints", plan), speed=speed, abort_force=abort_force)
-
-    def _cart_start(self) -> None:
-        self._resync()
-        self.traj = None
-        self.cart.reset(self.q_cmd)
-        self.robot._ctl_sync(self._kidx, self.q_cmd)
-
-    def move_pose(self, T: np.ndarray, frame: str = "world", speed: float = 0.1) -> None:
-        self._cart_start()
-        self.cart.set_pose(T, frame, speed)
-        self._start("cartesian")
-
-    def set_twist(self, twist: np.ndarray, frame: str = "world", duration: float | None = None) -> None:
-        self._cart_start()
-        self.cart.set_twist(twist, frame, duration)
-        self._start("cartesian")
-
-    def set_wrench(self, wrench: np.ndarray, frame: str = "world") -> None:
-        if not self.spec.ft:
-            raise ValueError(f"arm {self.name} has no F/T sensor for wrench control")
-        self._cart_start()
-        self.cart.set_wrench(wrench, frame)
-        self._start("cartesian")
-
-    def guarded_move(self, twist: np.ndarray, frame: str = "world", max_force: float = 5.0,
-                     duration: float | None = None) -> None:
-        """Move at ``twist`` until the wrist force changes by ``max_force`` N (SUCCESS + CONTACT)."""
-        if not self.spec.ft:
-            raise ValueError(f"arm {self.name} has no F/T sensor for a guarded move")
-        self._cart_start()
-        self.cart.set_twist(twist, frame, duration)
-        self._guard = ForceWatch(max_force)
-        self._start("guarded")
-
-    def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
-             obstacles: tuple = (), cloud: np.ndarray | None = None, rest: bool = False):
-        """OMPL plan from the current commanded joints to a joint goal or a 4x4 pose of the controlled frame.
-
-        Collision-checked against the given ``obstacles`` (planning ``Obstacle`` records) and
-        point ``cloud`` (N, 3) plus the cell's fixtures (the table): what the caller sensed.
-        With ``rest`` a pose goal's joints are solved from the home posture (see ``plan_arm``).
-        """
-        from contactflow.embodiments.control.planning import plan_arm
-
-        return plan_arm(self.robot, self, goal, planner=planner, timeout=timeout, checker=checker,
-                        obstacles=obstacles, cloud=cloud, rest=rest)
+        self.ctl.stop()
+        self.ctl.q_cmd = np.asarray(q, dtype=np.float64).copy()
+        r = self.robot
+        r.mixer.submit(f"arm/{self.name}", self.joints, self.ctl.q_cmd, np.asarray(qd, dtype=np.float64), 1.0, r.time)
+        self._streamed_at = r.time
 
     # -- control tick ----------------------------------------------------------------------
     def _tick(self, dt: float) -> None:
         r = self.robot
-        if self.mode == "idle":
-            # an idle arm sends nothing: the mixer holds the last target and other sources may drive it
-            return
-        force = r.ft(self.name).force if self.spec.ft else None
-        if self.mode == "joint" and self.traj is not None:
-            q, qd = self.traj.step(dt, force)
-            self.q_cmd = q
-            if self.traj.status == Status.FAILURE:
-                self.abort_reason = self.traj.abort_reason
-                r._event(Event.CONTACT, f"arm {self.name}: trajectory aborted on contact")
-                self.q_cmd = r._q_s[self._sidx].copy()
-                qd = np.zeros_like(qd)
-            if self.traj.status != Status.RUNNING:
-                self.status = self.traj.status
-                self.mode = "idle"
-        else:
-            wrench = r.ft(self.name).vector if self.spec.ft else None
-            # measured joints: the controller substitutes its own commanded arm joints
-            q, qd = self.cart.update(r._kin_q(), dt, wrench)
-            self.q_cmd = q
-            if self.mode == "guarded" and force is not None and self._guard is not None:
-                if self._guard.update(force, dt):
-                    self.cart.stop()
-                    self.q_cmd = r._q_s[self._sidx].copy()
-                    qd = np.zeros_like(qd)
-                    self.status, self.mode = Status.SUCCESS, "idle"
-                    r._event(Event.CONTACT, f"arm {self.name}: guarded move stopped on contact")
-                elif self.cart.status == Status.SUCCESS:
-                    self.status, self.mode = Status.FAILURE, "idle"
-                    self.abort_reason = "no contact"
-            elif self.cart.mode == Mode.IDLE:
-                self.status = self.cart.status
-                self.mode = "idle"
-                if self.status == Status.FAILURE:
-                    self.abort_reason = "not reached"
-        r.mixer.submit(f"arm/{self.name}", self.joints, self.q_cmd, qd, 1.0, r.time)
+        if self.ctl.mode == ArmMode.IDLE:
+            if self._streamed_at is not None and self._streamed_at < r.time:
+                # the stream stopped: hold its last position at rest
+                r.mixer.submit(f"arm/{self.name}", self.joints, self.ctl.q_cmd, np.zeros(len(self.joints)), 1.0, r.time)
+                self._streamed_at = None
+            return  # an idle arm sends nothing: the mixer holds the last target and other sources may drive it
+        reading = r.ft(self.name) if self.spec.ft else None
+        out = self.ctl.update(r._q_s[self._sidx], dt, None if reading is None else reading.force,
+                              None if reading is None else reading.vector)
+        if out is not None:
+            r.mixer.submit(f"arm/{self.name}", self.joints, out[0], out[1], 1.0, r.time)
 
 
 class HandHandle(_Commanded):
@@ -479,12 +364,6 @@ class SimRobot(RobotFacade):
         self.kin.update(self._kin_q())
         self._kin_stamp = self.world.steps
 
-    def _ctl_sync(self, kidx: np.ndarray, values: np.ndarray) -> None:
-        """Put the control model at the measured state with ``values`` commanded on ``kidx``."""
-        q = self._kin_q()
-        q[kidx] = values
-        self._ctl_kin.update(q)
-
     def fixtures(self) -> list:
         """The cell's fixtures at their declared pose (planning obstacles)."""
         from contactflow.embodiments.control.planning import fixtures_from_world
@@ -550,11 +429,7 @@ class SimRobot(RobotFacade):
         self.failure = f"{fault.kind}: {fault.detail}"
         self.art.freeze()
         for a in self._arms.values():
-            a.cart.stop()
-            a.traj = None
-            if a.status == Status.RUNNING:
-                a.status, a.abort_reason = Status.FAILURE, "hardware_failure"
-            a.mode = "idle"
+            a.ctl.fail()
         for h in self._hands.values():
             if h.status == Status.RUNNING:
                 h.status = Status.FAILURE

@@ -18,7 +18,7 @@ import time
 import traceback
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from contactflow.nodes.acl import AccessDenied
 from contactflow.nodes.clock import LockstepClock, SimClock, WallClock
@@ -40,6 +40,16 @@ from contactflow.nodes.transport import Handle, Transport, key_matches
 from contactflow.nodes.wire import Header, Message, MsgId, WireError, decode, encode, stamp
 
 STATUS_PERIOD = 1.0  # s between periodic status messages
+class TickHook(Protocol):
+    """Work a node runs after each tick's modules (:meth:`ModuleHost.attach`)."""
+
+    rate_hz: float  # Hz at which it wants to run while busy
+
+    def after_tick(self) -> None: ...
+
+    def busy(self) -> bool: ...
+
+
 STEP_ORDER = {Layer.INTERFACE: 0, Layer.SERVICE: 1, Layer.PRIMITIVE: 2, Layer.TASK: 3}
 """A tick steps the layers bottom-up, as data flows (§6.1): a task sees what its primitives did in the tick,
 and a primitive it starts takes its first step at the next tick, on this node as on any other."""
@@ -211,6 +221,10 @@ class HostedIO:
     def wake(self) -> None:
         self._host.wake(self._hm)
 
+    def attach(self, key: str, hook: TickHook) -> None:
+        """Run ``hook`` after every tick of the node (infrastructure: a robot's arm controllers)."""
+        self._host.attach(key, hook)
+
 
 @dataclass
 class HostedModule:
@@ -255,6 +269,7 @@ class ModuleHost:
         self.log = logging.getLogger(f"contactflow.node.{config.node}")
         self.modules: dict[tuple[str, str], HostedModule] = {}
         self._order: list[HostedModule] = []  # the modules in STEP_ORDER, kept as modules come and go
+        self._hooks: dict[str, TickHook] = {}  # run after each tick's modules; replaced, never changed
         self._lock = threading.RLock()
         self._claim_lock = threading.RLock()  # claims of this node are checked, taken and released one at a time
         self._stop = threading.Event()
@@ -563,7 +578,22 @@ class ModuleHost:
                     self._publish_status(hm)
                 if m.state == Status.RUNNING:
                     next_due = min(next_due, hm.next_due)
+        for key, hook in self._hooks.items():
+            try:
+                hook.after_tick()
+                if hook.busy():  # a wall-clock node ticks at the hook's rate while it works
+                    next_due = min(next_due, now + 1.0 / hook.rate_hz)
+            except Exception:  # a hook's fault is logged; the node's loop goes on
+                self.log.exception("tick hook %s raised", key)
         return next_due
+
+    def attach(self, key: str, hook: TickHook) -> None:
+        """Run ``hook.after_tick()`` after the modules of every tick (once per ``key``), and count
+        ``hook.busy()`` in the node's busy answer. A robot's arm controllers follow what the tick's
+        primitives commanded this way, in the same tick, as a robot's controller box would."""
+        with self._lock:
+            if key not in self._hooks:
+                self._hooks = {**self._hooks, key: hook}
 
     def run(self) -> None:
         """Block, stepping modules until :meth:`shutdown`; a lockstep node answers every world tick.
@@ -619,13 +649,13 @@ class ModuleHost:
         self._resume()
 
     def _busy(self) -> bool:
-        """Whether a module of the node has work under way (:meth:`Module.busy`)."""
-        for hm in self._order:
+        """Whether a module (:meth:`Module.busy`) or a tick hook of the node has work under way."""
+        for name, part in [*((str(hm.addr), hm.module) for hm in self._order), *self._hooks.items()]:
             try:
-                if hm.module.busy():
+                if part.busy():
                     return True
             except Exception:  # a module's own busy() failing must not stop the node's acks
-                self.log.exception("%s: busy() raised", hm.addr)
+                self.log.exception("%s: busy() raised", name)
         return False
 
     def _resume(self) -> None:

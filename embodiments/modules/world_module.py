@@ -495,7 +495,6 @@ class WorldModule(Module):
         r.joints = JointState(robot=name, names=names, position=position, velocity=velocity,
                               effort=NDArray.of(np.asarray(effort, dtype=np.float64)))
         arms = [ArmState(name=a, q_cmd=NDArray.of(np.asarray(sim.arm(a).q_cmd, dtype=np.float64)),
-                         status=str(sim.arm(a).status), abort_reason=sim.arm(a).abort_reason,
                          applied=r.arm_seq.get(a, 0)) for a in sim.arms]
         hands = [HandState(name=h, positions=NDArray.of(sim.hand(h).positions()), status=str(sim.hand(h).status),
                            effort=sim.hand(h).effort, applied=r.hand_seq.get(h, 0)) for h in sim.hands]
@@ -562,7 +561,7 @@ class WorldModule(Module):
         r.held, r.held_at = True, self.tick_no
         for a in r.sim.arms:
             arm = r.sim.arm(a)
-            arm.move_joints(arm.q(), speed=1e6)  # stop where it is; the hands keep their grip
+            arm.stream(arm.q(), np.zeros(len(arm.joints)))  # stop where it is; the hands keep their grip
         detail = f"{robot}: held by the world: {why}"
         self.log.warning(detail)
         self.io.emit(Event.HARDWARE_FAILURE, detail[:500], self._when())
@@ -583,36 +582,13 @@ class WorldModule(Module):
         sim = r.sim
         arm = sim.arm(msg.arm)
         what = f"arm {msg.arm}"
-        v = None if msg.values is None else _finite(msg.values.numpy().astype(np.float64), what)
-        for f in ("speed", "duration", "max_force", "abort_force"):
-            x = getattr(msg, f)
-            if not np.isfinite(x) or x < 0:
-                raise CommandError(f"{what}: {f}={x} is not a finite non-negative number")
-        n = len(arm.joints)
-        need = {ArmCommandKind.JOINTS: (n,), ArmCommandKind.POSE: (4, 4), ArmCommandKind.TWIST: (6,),
-                ArmCommandKind.WRENCH: (6,), ArmCommandKind.GUARDED: (6,)}
-        k = msg.kind
-        if k in need and (v is None or v.shape != need[k]):
-            raise CommandError(f"{what}: {k} needs values of shape {need[k]}, got {None if v is None else v.shape}")
-        if k is ArmCommandKind.WAYPOINTS and (v is None or v.ndim != 2 or v.shape[1] != n or not len(v)):
-            raise CommandError(f"{what}: waypoints need shape (k, {n}), got {None if v is None else v.shape}")
-        speed = msg.speed or None
-        if k is ArmCommandKind.JOINTS:
-            arm.move_joints(self._joint_values(sim, arm.joints, v, what), speed=speed)
-        elif k is ArmCommandKind.WAYPOINTS:
-            arm.execute_waypoints(self._joint_values(sim, arm.joints, v, what), speed=speed,
-                                  abort_force=msg.abort_force or np.inf)
-        elif k is ArmCommandKind.POSE:
-            arm.move_pose(v, frame=msg.frame, speed=msg.speed or 0.1)
-        elif k is ArmCommandKind.TWIST:
-            arm.set_twist(v, frame=msg.frame, duration=msg.duration or None)
-        elif k is ArmCommandKind.WRENCH:
-            arm.set_wrench(v, frame=msg.frame)
-        elif k is ArmCommandKind.GUARDED:
-            arm.guarded_move(v, frame=msg.frame, max_force=msg.max_force, duration=msg.duration or None)
-        elif k is ArmCommandKind.STOP:
-            arm.stop()
-        elif k is ArmCommandKind.TARE:
+        if msg.kind is ArmCommandKind.TARGET:
+            n = len(arm.joints)
+            v = None if msg.values is None else _finite(msg.values.numpy().astype(np.float64), what)
+            if v is None or v.shape != (2, n):
+                raise CommandError(f"{what}: a target needs values of shape (2, {n}), got {None if v is None else v.shape}")
+            arm.stream(self._joint_values(sim, arm.joints, v[0], what), v[1])
+        else:
             sim.tare_ft(msg.arm)
         r.arm_seq[msg.arm] = max(r.arm_seq.get(msg.arm, 0), msg.seq)
 

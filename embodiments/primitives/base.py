@@ -192,9 +192,11 @@ class Primitive(Module):
         if io is None or not robot:
             raise PrimitiveError(f"{self.name}: primitive is not bound to a robot (host it with robot: <name>)")
         try:
-            self.bind(connect(io.transport, io.keyspace, robot, io.node))
+            facade = connect(io.transport, io.keyspace, robot, io.node)
         except RemoteError as exc:
             raise PrimitiveError(f"{self.name}: {exc}") from None
+        io.attach(f"robot/{robot}", facade)  # the node steps the robot's arm controllers after each tick
+        self.bind(facade)
 
     @property
     def arm(self) -> ArmLike:

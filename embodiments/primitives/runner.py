@@ -133,6 +133,25 @@ class LocalPrimitiveRunner:
         self._sync()
         self._host.tick()
 
+    @classmethod
+    def of(cls, robot: Robot) -> LocalPrimitiveRunner:
+        """The robot's in-process node with the robot's defaults, made once: tasks run one after
+        another on it, as on a robot's control node (an arm controller still moving when a task
+        ends goes on in the next, until a primitive commands the arm)."""
+        runner = getattr(robot, "_local_runner", None)
+        if runner is None:
+            runner = robot._local_runner = cls(robot)
+        return runner
+
+    def idle(self, duration: float) -> None:
+        """Let ``duration`` s of simulated time pass, the host ticking as a node does between tasks
+        (the arm controllers finish what the primitives last commanded)."""
+        dt = 1.0 / self.robot.params.control_rate
+        end = self.robot.time + duration - 1e-9
+        while self.robot.time < end:
+            self.advance()
+            self.robot.step(dt)
+
     def _sync(self) -> None:
         """The world's state and clock as they are now (the world may have stepped without the runner)."""
         self._world.publish_state()
@@ -161,7 +180,9 @@ def _co_located(robot: Robot):
     host.add(ModuleConfig("world", "world", WorldModule, params, "site", autostart=False), world)
     link(bus, host.ks, robot.name, node.node)  # subscribed before the world sends the state the facade waits for
     world.publish_state()
-    return host, world, connect(bus, host.ks, robot.name, node.node)
+    facade = connect(bus, host.ks, robot.name, node.node)
+    host.attach(f"robot/{robot.name}", facade)  # the arm controllers step after each tick's primitives
+    return host, world, facade
 
 
 def _resolve_primitive(type_name: str) -> type[Primitive]:
@@ -181,7 +202,7 @@ def run_task(task: TaskGraph, robot: Robot, params: Mapping[str, Any] | None = N
     each tick steps the due primitives, then the task's engine, then advances physics by
     ``dt`` s. A run still going after ``max_time`` s of simulated time is cancelled (result ERROR).
     """
-    runner = runner or LocalPrimitiveRunner(robot)
+    runner = runner or LocalPrimitiveRunner.of(robot)
     module = runner.host_task(task, params, library, on_progress, rate_hz=1.0 / dt)
     engine, run = module.engine, module.run_id
     t_end = robot.time + max_time

@@ -16,7 +16,7 @@ from contactflow.nodes.wire import NDArray, WireError, decode, encode, stamp
 TEMPLATES = [
     stamp(Clock(t=1.5, tick=300), "site/w/world/clock", 3, 1.5),
     stamp(EventMsg(event=Event.SUCCESS, module="r/n/m", values={"x": 1.0}), "r/n/m", 4, 2.0),
-    stamp(ArmCommand(robot="r", arm="right", kind=ArmCommandKind.JOINTS, seq=2, values=NDArray.of(np.zeros(7))),
+    stamp(ArmCommand(robot="r", arm="right", kind=ArmCommandKind.TARGET, seq=2, values=NDArray.of(np.zeros((2, 7)))),
           "r/n/move_to/cmd", 9, 3.0),
     ControlRequest(cmd="stop", params={"gain": 0.5}),
     DispatchRequest(task_id="t1", atd="<atd/>", target="all"),

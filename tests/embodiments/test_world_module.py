@@ -145,13 +145,14 @@ def test_commands_outside_the_robot_are_refused_counted_and_never_applied(world)
     wm, c = world
     q0 = c.state.position.numpy().copy()
     home = np.array(wm.robots["melfa"].sim.spec.arm("arm").home)
+    zero = np.zeros(6)
     bad = [
-        arm_cmd(ArmCommandKind.JOINTS, home + [10.0, 0, 0, 0, 0, 0]),  # outside the joint limits
-        arm_cmd(ArmCommandKind.JOINTS, [np.nan] * 6),
-        arm_cmd(ArmCommandKind.JOINTS, home[:3]),  # wrong shape
-        arm_cmd(ArmCommandKind.TWIST, [0.0, 0, np.inf, 0, 0, 0]),
-        arm_cmd(ArmCommandKind.JOINTS, home, arm="left"),  # no such arm
-        arm_cmd(ArmCommandKind.POSE, np.eye(4), speed=-1.0),
+        arm_cmd(ArmCommandKind.TARGET, [home + [10.0, 0, 0, 0, 0, 0], zero]),  # outside the joint limits
+        arm_cmd(ArmCommandKind.TARGET, [[np.nan] * 6, zero]),
+        arm_cmd(ArmCommandKind.TARGET, [home, [0.0, 0, np.inf, 0, 0, 0]]),
+        arm_cmd(ArmCommandKind.TARGET, home),  # wrong shape: a position without its velocity
+        arm_cmd(ArmCommandKind.TARGET),  # no values
+        arm_cmd(ArmCommandKind.TARGET, [home, zero], arm="left"),  # no such arm
         HandCommand(robot="melfa", hand="gripper", seq=1, preshape="fist"),
         HandCommand(robot="melfa", hand="gripper", seq=2, preshape="open", effort=3.0),
     ]
@@ -159,20 +160,21 @@ def test_commands_outside_the_robot_are_refused_counted_and_never_applied(world)
         c.send(m)
     assert wait_for(lambda: c.state.refused == len(bad), 10), c.state.refused
     # a command naming another robot than its key, and a robot the world does not have
-    c.send(arm_cmd(ArmCommandKind.STOP, robot="baxter"))
+    c.send(arm_cmd(ArmCommandKind.TARE, robot="baxter"))
     other = ZenohTransport(ZenohSettings(connect=c.t.settings.connect)).open()
-    other.publisher(c.ks.robot("walle", "command"))(encode(arm_cmd(ArmCommandKind.STOP, robot="walle")))
+    other.publisher(c.ks.robot("walle", "command"))(encode(arm_cmd(ArmCommandKind.TARE, robot="walle")))
     assert wait_for(lambda: c.state.refused == len(bad) + 1 and wm.refused_unknown == 1, 10)
     other.close()
     assert np.abs(c.state.position.numpy()[:6] - q0[:6]).max() < 0.02  # nothing moved the arm
     assert not c.state.held and not c.state.failed
     # a valid command after all that is applied, and its sequence number comes back
     target = home + [0.2, 0, 0, 0, 0, 0]
-    c.send(arm_cmd(ArmCommandKind.JOINTS, target, seq=7))
+    c.send(arm_cmd(ArmCommandKind.TARGET, [target, zero], seq=7))
     names = c.state.names
     idx = [names.index(j) for j in wm.robots["melfa"].sim.spec.arm("arm").joints]
-    assert wait_for(lambda: c.state.arms[0].applied == 7 and c.state.arms[0].status == "success", 20)
-    assert c.state.position.numpy()[idx] == pytest.approx(target, abs=0.01)
+    assert wait_for(lambda: c.state.arms[0].applied == 7, 20)
+    assert c.state.arms[0].q_cmd.numpy() == pytest.approx(target)
+    assert wait_for(lambda: np.abs(c.state.position.numpy()[idx] - target).max() < 0.01, 20)  # the drives hold it
 
 
 def test_a_lockstep_node_holds_the_world_at_each_tick_until_it_answers(world):
@@ -209,9 +211,11 @@ def test_the_world_holds_a_robot_whose_controller_is_gone_and_raises_hardware_fa
     wm, c = world
     token = c.t.token(c.ks.alive_controller("melfa", "tester"))
     assert wait_for(lambda: "tester" in wm.robots["melfa"].controllers, 10)
-    c.send(arm_cmd(ArmCommandKind.TWIST, [0.0, 0.0, -0.03, 0.0, 0.0, 0.0], seq=1))
+    idx = [c.state.names.index(j) for j in wm.robots["melfa"].sim.spec.arm("arm").joints]
+    far = c.state.position.numpy()[idx] + [1.5, 0, 0, 0, 0, 0]
+    c.send(arm_cmd(ArmCommandKind.TARGET, [far, np.zeros(6)], seq=1))
     assert wait_for(lambda: c.state.arms[0].applied == 1, 10)
-    time.sleep(0.3)
+    assert wait_for(lambda: np.abs(c.state.velocity.numpy()[idx]).max() > 0.1, 10)
     token.close()  # the controller dies mid-motion
     assert wait_for(lambda: c.state.held, 10)
     assert wait_for(lambda: any(e.event is Event.HARDWARE_FAILURE and "melfa" in e.detail for e in c.events), 5)
@@ -221,19 +225,18 @@ def test_the_world_holds_a_robot_whose_controller_is_gone_and_raises_hardware_fa
     assert fault.values["tick"] == pytest.approx(c.state.held_at, abs=10)
     assert fault.hdr.t_sim == pytest.approx(time.time(), abs=10.0)
     time.sleep(0.5)  # the arm stopped where it was and stays there
-    idx = [c.state.names.index(j) for j in wm.robots["melfa"].sim.spec.arm("arm").joints]
     q1 = c.state.position.numpy()[idx].copy()
     time.sleep(0.5)
     assert np.abs(c.state.position.numpy()[idx] - q1).max() < 1e-3
     assert np.abs(c.state.velocity.numpy()[idx]).max() < 0.01
     # a command the dead node sent late does not take the robot back (it is refused and counted)
     refused = c.state.refused
-    c.send(stamp(arm_cmd(ArmCommandKind.TWIST, [0.0, 0.0, -0.03, 0.0, 0.0, 0.0], seq=2), "melfa/tester/m/cmd", 2, 0.0))
+    c.send(stamp(arm_cmd(ArmCommandKind.TARGET, [far, np.zeros(6)], seq=2), "melfa/tester/m/cmd", 2, 0.0))
     assert wait_for(lambda: c.state.refused == refused + 1, 10)
     time.sleep(0.3)
     assert c.state.held and np.abs(c.state.velocity.numpy()[idx]).max() < 0.01
     # a new controller's command takes the robot back
-    c.send(stamp(arm_cmd(ArmCommandKind.STOP, seq=3), "melfa/newcomer/m/cmd", 1, 0.0))
+    c.send(stamp(arm_cmd(ArmCommandKind.TARE, seq=3), "melfa/newcomer/m/cmd", 1, 0.0))
     assert wait_for(lambda: not c.state.held, 10)
 
 
@@ -247,7 +250,7 @@ def test_a_node_linked_to_a_robot_becomes_its_controller_with_its_first_command_
         link.send(CameraRequest(robot="melfa", camera="none", request=7))  # asking for a frame reads the robot
         time.sleep(0.5)
         assert "reader" not in wm.robots["melfa"].controllers and not c.state.held
-        link.send(arm_cmd(ArmCommandKind.STOP, seq=1))
+        link.send(arm_cmd(ArmCommandKind.TARE, seq=1))
         assert wait_for(lambda: "reader" in wm.robots["melfa"].controllers, 10)
         # applied before the link goes (a command applied after the hold would take the robot back)
         assert wait_for(lambda: c.state.arms[0].applied == 1, 10)
@@ -336,7 +339,7 @@ def test_a_realtime_world_follows_the_wall_clock_and_counts_late_commands(tmp_pa
         assert rate == pytest.approx(1.0, abs=0.15)
         # a command answering a state a second old arrives long after the tick it was meant for
         assert c.state.late == 0
-        late = arm_cmd(ArmCommandKind.STOP, seq=1)
+        late = arm_cmd(ArmCommandKind.TARE, seq=1)
         late.hdr.t_sim = c.state.t - 1.0
         c.send(late)
         assert wait_for(lambda: c.state.arms[0].applied == 1, 5)
@@ -357,12 +360,13 @@ def test_a_remote_robot_clips_joint_targets_to_the_limits_as_the_simulated_robot
     hand.set_fingers(hand.upper + 1e-3)
     past = np.asarray(wm.robots["melfa"].sim.arm("arm").q_cmd, dtype=np.float64).copy()
     past[5] = arm.upper[5] + 1e-3
-    arm.move_joints(past)
-    assert wait_for(lambda: c.state.arms[0].applied >= 1 and c.state.hands[0].applied >= 1, 10)
+    arm.move_joints(past, speed=4.0)  # the wrist turns a whole turn to its limit
+    # no node hosts this facade: the test steps its arm controller, as a node's tick hook would
+    assert wait_for(lambda: r.after_tick() or (c.state.arms[0].applied >= 1 and c.state.hands[0].applied >= 1), 10)
     assert c.state.refused == 0
-    assert wait_for(lambda: abs(c.state.arms[0].q_cmd.numpy()[5] - arm.upper[5]) < 1e-4, 30), c.state.arms[0]
+    assert wait_for(lambda: r.after_tick() or abs(c.state.arms[0].q_cmd.numpy()[5] - arm.upper[5]) < 1e-4, 30), c.state.arms[0]
     # what the facade clips is still refused from a client that sends it raw (the world's own check)
-    c.send(arm_cmd(ArmCommandKind.JOINTS, past, seq=9))
+    c.send(arm_cmd(ArmCommandKind.TARGET, [past, np.zeros(6)], seq=9))
     assert wait_for(lambda: c.state.refused == 1, 10)
 
 
@@ -384,3 +388,33 @@ def test_each_tick_the_joints_come_on_their_own_stream_too(world):
         assert j.robot == "melfa" and j.names == s.names and j.hdr.t_sim == s.hdr.t_sim
         assert np.array_equal(j.position.numpy(), s.position.numpy())
         assert j.effort.numpy().shape == (len(s.names),) and np.all(np.isfinite(j.effort.numpy()))
+
+
+def test_a_remote_arm_runs_its_controller_on_the_node_and_streams_joint_targets_the_world_holds(world):
+    """The world takes joint targets only: the pose move is computed by the facade's controller, one target per
+    step of the node; when the node stops stepping, the arm rests where the last target put it."""
+    from contactflow.embodiments.remote import connect
+
+    wm, c = world
+    r = connect(c.t, c.ks, "melfa", "tester")
+    arm = r.arm("arm")
+    kinds: list[str] = []
+    sub = c.t.subscribe(c.ks.robot("melfa", "command"), lambda k, p: kinds.append(decode(p, ArmCommand, k).kind))
+    try:
+        start = arm.ee_pose()
+        goal = start.copy()
+        goal[:3, 3] += [0.0, 0.03, -0.02]
+        arm.move_pose(goal, speed=0.1)
+        time.sleep(0.5)  # the world runs on, the node does not step: nothing moves the arm
+        assert kinds == [] and arm.status.value == "running"
+        assert np.linalg.norm(arm.ee_pose()[:3, 3] - start[:3, 3]) < 1e-3
+        assert wait_for(lambda: r.after_tick() or arm.done(), 30)
+        assert arm.status.value == "success", arm.abort_reason
+        assert wait_for(lambda: len(kinds) == c.state.arms[0].applied, 5)
+        assert set(kinds) == {ArmCommandKind.TARGET} and len(kinds) > 20  # one per step while the move ran
+        time.sleep(0.5)  # no more targets: the arm rests at the goal, its last velocity target not held
+        assert np.linalg.norm(arm.ee_pose()[:3, 3] - goal[:3, 3]) < 0.004
+        idx = [c.state.names.index(j) for j in arm.joints]
+        assert np.abs(c.state.velocity.numpy()[idx]).max() < 0.01
+    finally:
+        sub.close()

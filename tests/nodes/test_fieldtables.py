@@ -30,10 +30,11 @@ def test_every_wire_message_and_every_field_has_a_row():
 def test_a_row_gives_type_default_and_the_comment_of_the_source():
     text = render()
     arm = text.split("### `arm_command`\n", 1)[1].split("\n### ", 1)[0]
-    assert "| `max_force` | float | `5.0` | N, guarded moves |" in arm
-    assert "| `values` | [NDArray](#ndarray) or nil | nil |" in arm
-    assert "[ArmCommandKind](#armcommandkind): one of `joints`" in arm
-    assert "| `guarded` | values: (6,) twist until the wrist force changes by `max_force` |" in text
+    assert "| `values` | [NDArray](#ndarray) or nil | nil | float64, (2, n) for a target |" in arm
+    assert "[ArmCommandKind](#armcommandkind): one of `target`" in arm
+    hand = text.split("### `hand_command`\n", 1)[1].split("\n### ", 1)[0]
+    assert "| `effort` | float | `1.0` | fraction of the fingers' force limit, (0, 1] |" in hand
+    assert "| `tare` | zero the arm's wrist F/T sensor |" in text
     assert "### Header\n" in text and "### MsgId\n" in text  # structures inside messages get their own table
 
 
@@ -55,7 +56,7 @@ def test_comments_and_types_are_read_from_the_struct_itself():
 
 def test_the_check_command_fails_on_a_stale_document(tmp_path):
     stale = tmp_path / "messages.md"
-    stale.write_text(render().replace("N, guarded moves", "N"))
+    stale.write_text(render().replace("zero the arm's wrist F/T sensor", "zero it"))
     runner = CliRunner()
     res = runner.invoke(app, ["fields", "--out", str(stale), "--check"])
     assert res.exit_code == 1 and "differs" in res.output

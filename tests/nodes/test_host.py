@@ -461,3 +461,47 @@ def test_a_node_whose_loop_dies_takes_its_liveliness_down():
     assert host.dead.wait(5.0)
     assert not host.transport.alive(node_key) and not host.transport.alive(host.ks.alive_module())
     host.shutdown()
+
+
+class _Hook:
+    """A tick hook that records what the modules of the tick had done when it ran."""
+
+    rate_hz = 200.0
+
+    def __init__(self, host):
+        self.host, self.seen, self.working = host, [], False
+
+    def after_tick(self):
+        src = self.host.modules[("site", "src")]
+        self.seen.append(src.counters.steps)
+
+    def busy(self):
+        return self.working
+
+
+def test_a_tick_hook_runs_after_the_ticks_modules_once_per_key_and_counts_as_busy():
+    host, clock, _ = make_host(PIPE)
+    hook = _Hook(host)
+    host.attach("robot/r", hook)
+    host.attach("robot/r", _Hook(host))  # a second facade of the same robot: still one hook
+    run_for(host, clock, 0.5, dt=0.05)
+    # every tick, after the source stepped in it: the hook sees the count of steps the tick made
+    assert len(hook.seen) == 10 and hook.seen == list(range(1, 11))
+    assert not host._busy()
+    hook.working = True
+    assert host._busy()
+    # a wall-clock node comes back at the hook's rate while it works, whatever its modules' rates
+    assert host.tick() == pytest.approx(clock.now() + 1.0 / hook.rate_hz)
+
+
+class _Broken(_Hook):
+    def after_tick(self):
+        raise RuntimeError("controller bug")
+
+
+def test_a_tick_hook_that_raises_is_logged_and_the_node_ticks_on(caplog):
+    host, clock, seen = make_host(PIPE)
+    host.attach("robot/x", _Broken(host))
+    run_for(host, clock, 0.5, dt=0.05)
+    assert len([m for k, m in seen if k.endswith("/src/out/signal")]) >= 9
+    assert "tick hook robot/x raised" in caplog.text

@@ -62,10 +62,12 @@ def of(events, inst: str) -> list:
     return [e for _, e in events if e.instance == inst]
 
 
-def held_still(robot: SimRobot, frame: str = "right_grasp", arm: str = "right", duration: float = 0.5) -> tuple[float, float]:
-    """How far ``frame`` moves and the wrist force left after ``duration`` s with nothing commanded."""
+def held_still(runner: LocalPrimitiveRunner, frame: str = "right_grasp", arm: str = "right",
+               duration: float = 0.5) -> tuple[float, float]:
+    """How far ``frame`` moves and the wrist force left after ``duration`` s with no primitive running."""
+    robot = runner.robot
     p = robot.frame_pose(frame)[:3, 3].copy()
-    robot.step(duration)
+    runner.idle(duration)
     return float(np.linalg.norm(robot.frame_pose(frame)[:3, 3] - p)), float(np.linalg.norm(robot.ft(arm).force))
 
 
@@ -85,7 +87,7 @@ def test_touch_without_a_contact_within_max_distance_fails_and_stops(tomba) -> N
     assert Event.CONTACT not in [e.event for e in ev]
     assert 0.05 <= end.values["travelled"] < 0.06
     assert z0 - robot.frame_pose("right_grasp")[2, 3] == pytest.approx(end.values["travelled"], abs=0.003)
-    moved, _ = held_still(robot)
+    moved, _ = held_still(runner)
     assert moved < 0.001  # the guarded motion does not go on after the failure
 
 
@@ -104,7 +106,7 @@ def test_push_and_pull_into_a_fixed_block_stop_at_the_force_limit_and_wait_event
     assert end.event is Event.FAILURE and "force limit 15.0 N" in end.detail, end.detail
     assert end.values["force"] >= 15.0 and 0.03 < end.values["moved"] < 0.07
     assert Event.CONTACT in [e.event for e in of(events, "p")]
-    moved, force = held_still(robot)
+    moved, force = held_still(runner)
     assert moved < 0.001 and force < 3.0  # stopped and let go: no arm pressing on the block
     # wait_event: CONTACT within a control period of the wrist force passing its threshold, then SUCCESS
     seen = [t for t, e in events if e.instance == "watch" and e.event is Event.CONTACT]
@@ -158,7 +160,7 @@ def test_lift_raises_grasp_lost_when_the_object_is_pulled_out_on_the_way() -> No
     got = [e.event for e in of(events, "l")]
     assert got == [Event.GRASP_LOST, Event.FAILURE], events
     assert 0.03 < outcome(of(events, "l")).values["lifted"] < 0.04  # noticed at once, not at the lift's end
-    moved, _ = held_still(robot, **MELFA)
+    moved, _ = held_still(runner, **MELFA)
     assert moved < 0.002
 
 
@@ -179,7 +181,7 @@ def test_place_stops_on_a_support_higher_than_expected() -> None:
     assert 0.025 < end.values["travelled"] < 0.04  # the table was 8 cm down
     plate = robot.ground_truth().object_poses["obj"]
     assert plate[2, 3] == pytest.approx(0.83, abs=0.003)  # standing on the platform (top 0.80), not pushed over
-    moved, force = held_still(robot, **MELFA)
+    moved, force = held_still(runner, **MELFA)
     assert moved < 0.001 and force < 5.0  # stopped, not pressing on
 
 
@@ -230,7 +232,7 @@ def test_move_to_stops_at_an_unexpected_obstacle_planned_or_straight_and_a_guard
         assert ps[:, 1].max() < -0.29
         # the stop came at the contact, not after the arm had pushed the wall with hundreds of N
         assert np.linalg.norm(fs, axis=1).max() < 100.0, (planning, guarded)
-        moved, force = held_still(robot)
+        moved, force = held_still(runner)
         assert moved < 0.001 and force < 3.0, (planning, guarded)
 
 

@@ -279,7 +279,7 @@ def test_the_joint_configuration_tells_where_a_grasped_cylinder_sits_in_the_hand
         above = hand_pose_for("tombatossals", top_grasp_pose((0.55, -0.3, z)))
         assert outcome(run_primitive(runner, "move_to", {"arm": ARM, "target": vec(above)})).event is Event.SUCCESS
     robot.hand(robot.spec.arm(ARM).hand).close(effort=0.5)
-    robot.step(2.0)
+    runner.idle(2.0)
     T = robot.arm(ARM).ee_pose()
     truth = (np.linalg.inv(T) @ robot.ground_truth().object_poses["cyl"])[:3, 3]
     assert robot.ground_truth().object_poses["cyl"][2, 3] > 0.81  # held off the table

@@ -113,7 +113,7 @@ def test_a_pinch_that_slips_off_a_screwed_cap_is_not_a_removed_cap() -> None:
     # pinched 1 cm off and 4 mm high without re-centring, after 0.1 s of settling: the fingers slip off the cap
     # while twisting and the hand pulls 4 cm away with nothing in it (this was reported as the cap removed)
     robot, runner, bottle, _ = over_cap(thread_turns=5.0, offset=(0.0, -0.01, 0.004))
-    robot.step(0.1)
+    runner.idle(0.1)
     events, _ = unscrew(robot, runner, {"max_cycles": 3, "pinch_center": PINCH_CENTER, "recenter": False})
     end = outcome(events)
     assert end.event is Event.FAILURE and "not removed" in end.detail

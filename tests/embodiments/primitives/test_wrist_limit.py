@@ -25,7 +25,7 @@ def at_wrist_limit() -> tuple[SimRobot, LocalPrimitiveRunner]:
     arm.move_joints(q)
     assert arm.wait(8.0) == Status.SUCCESS
     robot.step(0.3)
-    assert arm.q()[6] > arm.ik.upper[6]  # the case under test: the wrist inside the IK's limit margin
+    assert arm.q()[6] > arm.ctl.ik.upper[6]  # the case under test: the wrist inside the IK's limit margin
     return robot, LocalPrimitiveRunner(robot)
 
 
