@@ -502,7 +502,7 @@ class RemoteRobot(RobotFacade):
         return self.info.control_rate
 
     def busy(self) -> bool:
-        """An arm controller is moving the arm."""
+        """An arm controller is moving the arm (its node then ticks at the control rate on the wall clock)."""
         return any(a.ctl.mode != ArmMode.IDLE for a in self._arms.values())
 
     def hand_points(self, arm: str) -> np.ndarray:

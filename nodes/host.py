@@ -588,9 +588,9 @@ class ModuleHost:
         return next_due
 
     def attach(self, key: str, hook: TickHook) -> None:
-        """Run ``hook.after_tick()`` after the modules of every tick (once per ``key``), and count
-        ``hook.busy()`` in the node's busy answer. A robot's arm controllers follow what the tick's
-        primitives commanded this way, in the same tick, as a robot's controller box would."""
+        """Run ``hook.after_tick()`` after the modules of every tick (once per ``key``); while
+        ``hook.busy()``, a wall-clock node ticks at the hook's rate. A robot's arm controllers
+        follow what the tick's primitives commanded this way, in the same tick."""
         with self._lock:
             if key not in self._hooks:
                 self._hooks = {**self._hooks, key: hook}
@@ -649,13 +649,19 @@ class ModuleHost:
         self._resume()
 
     def _busy(self) -> bool:
-        """Whether a module (:meth:`Module.busy`) or a tick hook of the node has work under way."""
-        for name, part in [*((str(hm.addr), hm.module) for hm in self._order), *self._hooks.items()]:
+        """Whether a module of the node has work under way (:meth:`Module.busy`).
+
+        Tick hooks do not count: an arm still moving when the last primitive ended (a twist or an
+        admittance left on) would keep a world with ``idle: pause`` running for as long as it
+        moves, and the next task would start at a tick that depends on the wall clock. Paused,
+        the world's time stands still for the hook too, and its motion goes on at the resume.
+        """
+        for hm in self._order:
             try:
-                if part.busy():
+                if hm.module.busy():
                     return True
             except Exception:  # a module's own busy() failing must not stop the node's acks
-                self.log.exception("%s: busy() raised", name)
+                self.log.exception("%s: busy() raised", hm.addr)
         return False
 
     def _resume(self) -> None:

@@ -362,9 +362,9 @@ def test_a_remote_robot_clips_joint_targets_to_the_limits_as_the_simulated_robot
     past[5] = arm.upper[5] + 1e-3
     arm.move_joints(past, speed=4.0)  # the wrist turns a whole turn to its limit
     # no node hosts this facade: the test steps its arm controller, as a node's tick hook would
-    assert wait_for(lambda: r.after_tick() or (c.state.arms[0].applied >= 1 and c.state.hands[0].applied >= 1), 10)
+    assert wait_for(lambda: r.after_tick() or (c.state.arms[0].applied >= 1 and c.state.hands[0].applied >= 1), 10, 0.005)
     assert c.state.refused == 0
-    assert wait_for(lambda: r.after_tick() or abs(c.state.arms[0].q_cmd.numpy()[5] - arm.upper[5]) < 1e-4, 30), c.state.arms[0]
+    assert wait_for(lambda: r.after_tick() or abs(c.state.arms[0].q_cmd.numpy()[5] - arm.upper[5]) < 1e-4, 30, 0.005), c.state.arms[0]
     # what the facade clips is still refused from a client that sends it raw (the world's own check)
     c.send(arm_cmd(ArmCommandKind.TARGET, [past, np.zeros(6)], seq=9))
     assert wait_for(lambda: c.state.refused == 1, 10)
@@ -408,7 +408,7 @@ def test_a_remote_arm_runs_its_controller_on_the_node_and_streams_joint_targets_
         time.sleep(0.5)  # the world runs on, the node does not step: nothing moves the arm
         assert kinds == [] and arm.status.value == "running"
         assert np.linalg.norm(arm.ee_pose()[:3, 3] - start[:3, 3]) < 1e-3
-        assert wait_for(lambda: r.after_tick() or arm.done(), 30)
+        assert wait_for(lambda: r.after_tick() or arm.done(), 30, 0.005)
         assert arm.status.value == "success", arm.abort_reason
         assert wait_for(lambda: len(kinds) == c.state.arms[0].applied, 5)
         assert set(kinds) == {ArmCommandKind.TARGET} and len(kinds) > 20  # one per step while the move ran
