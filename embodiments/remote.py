@@ -258,12 +258,12 @@ class RemoteArm(ArmFacade):
     def tare(self) -> None:
         self._send(ArmCommandKind.TARE)
 
-    def _control(self, dt: float) -> None:
+    def _control(self, dt: float, failed: bool) -> None:
         """One control tick of the arm's controllers; the target goes to the world."""
-        if self._failed:
-            self.ctl.fail()
-            return
         if self.ctl.mode == ArmMode.IDLE:
+            return
+        if failed:
+            self.ctl.fail()
             return
         reading = self.robot.ft(self.name) if self.spec.ft else None
         out = self.ctl.update(self.q(), dt, None if reading is None else reading.force,
@@ -371,6 +371,7 @@ class RemoteRobot(RobotFacade):
         self._ctl_t = 0.0  # s, its time
         self._kin_tick = -1
         self._names: list[str] = []
+        self._seen: RobotState | None = None  # the last state whose joint order was checked
         self._index_of: dict[tuple[str, ...], np.ndarray] = {}
         link.wait_state()  # the arm controllers start from the commanded joints the world reports
         self._arms = {a.name: RemoteArm(self, a) for a in self.spec.arms}
@@ -384,10 +385,12 @@ class RemoteRobot(RobotFacade):
         s = self.link.state
         if s is None:
             raise RemoteError(f"robot {self.name}: no state received yet")
-        if s.names != self._names:
-            self._names = list(s.names)
-            self._index_of.clear()
-            self._s2k = self.kin.q_index(self._names)
+        if s is not self._seen:  # the joint order compared once per state, not at every read
+            self._seen = s
+            if s.names != self._names:
+                self._names = list(s.names)
+                self._index_of.clear()
+                self._s2k = self.kin.q_index(self._names)
         return s
 
     def _index(self, joints: tuple[str, ...]) -> np.ndarray:
@@ -494,14 +497,14 @@ class RemoteRobot(RobotFacade):
         self._ctl_tick, self._ctl_t = s.tick, s.t
         dt = ticks / rate
         for a in self._arms.values():
-            a._control(dt)
+            a._control(dt, s.failed)
 
     @property
     def rate_hz(self) -> float:
         """Hz, the world's control rate: the arm controllers' rate."""
         return self.info.control_rate
 
-    def busy(self) -> bool:
+    def active(self) -> bool:
         """An arm controller is moving the arm (its node then ticks at the control rate on the wall clock)."""
         return any(a.ctl.mode != ArmMode.IDLE for a in self._arms.values())
 

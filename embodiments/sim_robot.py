@@ -94,9 +94,11 @@ class ArmHandle(ArmFacade, _Commanded):
         """
         self.ctl.stop()
         self.ctl.q_cmd = np.asarray(q, dtype=np.float64).copy()
-        r = self.robot
-        r.mixer.submit(f"arm/{self.name}", self.joints, self.ctl.q_cmd, np.asarray(qd, dtype=np.float64), 1.0, r.time)
-        self._streamed_at = r.time
+        self._submit(self.ctl.q_cmd, np.asarray(qd, dtype=np.float64))
+        self._streamed_at = self.robot.time
+
+    def _submit(self, q: np.ndarray, qd: np.ndarray) -> None:
+        self.robot.mixer.submit(f"arm/{self.name}", self.joints, q, qd, 1.0, self.robot.time)
 
     # -- control tick ----------------------------------------------------------------------
     def _tick(self, dt: float) -> None:
@@ -104,14 +106,14 @@ class ArmHandle(ArmFacade, _Commanded):
         if self.ctl.mode == ArmMode.IDLE:
             if self._streamed_at is not None and self._streamed_at < r.time:
                 # the stream stopped: hold its last position at rest
-                r.mixer.submit(f"arm/{self.name}", self.joints, self.ctl.q_cmd, np.zeros(len(self.joints)), 1.0, r.time)
+                self._submit(self.ctl.q_cmd, np.zeros(len(self.joints)))
                 self._streamed_at = None
             return  # an idle arm sends nothing: the mixer holds the last target and other sources may drive it
         reading = r.ft(self.name) if self.spec.ft else None
         out = self.ctl.update(r._q_s[self._sidx], dt, None if reading is None else reading.force,
                               None if reading is None else reading.vector)
         if out is not None:
-            r.mixer.submit(f"arm/{self.name}", self.joints, out[0], out[1], 1.0, r.time)
+            self._submit(*out)
 
 
 class HandHandle(_Commanded):

@@ -40,14 +40,16 @@ from contactflow.nodes.transport import Handle, Transport, key_matches
 from contactflow.nodes.wire import Header, Message, MsgId, WireError, decode, encode, stamp
 
 STATUS_PERIOD = 1.0  # s between periodic status messages
+
+
 class TickHook(Protocol):
     """Work a node runs after each tick's modules (:meth:`ModuleHost.attach`)."""
 
-    rate_hz: float  # Hz at which it wants to run while busy
+    rate_hz: float  # Hz at which it wants to run while active
 
     def after_tick(self) -> None: ...
 
-    def busy(self) -> bool: ...
+    def active(self) -> bool: ...
 
 
 STEP_ORDER = {Layer.INTERFACE: 0, Layer.SERVICE: 1, Layer.PRIMITIVE: 2, Layer.TASK: 3}
@@ -581,7 +583,7 @@ class ModuleHost:
         for key, hook in self._hooks.items():
             try:
                 hook.after_tick()
-                if hook.busy():  # a wall-clock node ticks at the hook's rate while it works
+                if hook.active():  # a wall-clock node ticks at the hook's rate while it works
                     next_due = min(next_due, now + 1.0 / hook.rate_hz)
             except Exception:  # a hook's fault is logged; the node's loop goes on
                 self.log.exception("tick hook %s raised", key)
@@ -589,7 +591,7 @@ class ModuleHost:
 
     def attach(self, key: str, hook: TickHook) -> None:
         """Run ``hook.after_tick()`` after the modules of every tick (once per ``key``); while
-        ``hook.busy()``, a wall-clock node ticks at the hook's rate. A robot's arm controllers
+        ``hook.active()``, a wall-clock node ticks at the hook's rate. A robot's arm controllers
         follow what the tick's primitives commanded this way, in the same tick."""
         with self._lock:
             if key not in self._hooks:

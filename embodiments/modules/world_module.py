@@ -570,11 +570,10 @@ class WorldModule(Module):
         idx = sim.art.indices(joints)
         lo, hi = sim.art.lower[idx], sim.art.upper[idx]
         tol = 1e-6
-        rows = values.reshape(-1, len(joints))  # one target, or a path of them
-        bad = np.argwhere((rows < lo - tol) | (rows > hi + tol))
-        if len(bad):
-            i, j = (int(x) for x in bad[0])
-            raise CommandError(f"{what}: joint {joints[j]!r} target {rows[i, j]:.4f} "
+        bad = (values < lo - tol) | (values > hi + tol)
+        if bad.any():
+            j = int(np.argmax(bad))
+            raise CommandError(f"{what}: joint {joints[j]!r} target {values[j]:.4f} "
                                f"outside its limits [{lo[j]:.4f}, {hi[j]:.4f}]")
         return values
 

@@ -475,7 +475,7 @@ class _Hook:
         src = self.host.modules[("site", "src")]
         self.seen.append(src.counters.steps)
 
-    def busy(self):
+    def active(self):
         return self.working
 
 
