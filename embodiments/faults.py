@@ -40,28 +40,40 @@ class FaultMonitor:
         self.params = params or FaultParams()
         self._stuck_since = np.full(len(self.names), np.nan)
         self._fast_since = np.full(len(self.names), np.nan)
+        p = self.params
+        self._low, self._high = self.lower - p.limit_excess, self.upper + p.limit_excess
 
     def check(self, t: float, q: np.ndarray, qd: np.ndarray, target: np.ndarray,
               sensor_stamps: dict[str, float] | None = None) -> Fault | None:
+        # runs for every robot at every tick: the common case (nothing over a bound) takes no np.where
         p = self.params
         try:
-            if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
-                bad = [self.names[i] for i in np.nonzero(~(np.isfinite(q) & np.isfinite(qd)))[0]]
+            finite = np.isfinite(q) & np.isfinite(qd)
+            if not finite.all():
+                bad = [self.names[i] for i in np.nonzero(~finite)[0]]
                 return Fault("nan", f"non-finite joint state in {bad[:4]}")
-            over = np.abs(qd) > p.max_joint_speed
-            self._fast_since = np.where(over, np.where(np.isnan(self._fast_since), t, self._fast_since), np.nan)
-            fast = (np.abs(qd) > p.burst_speed) | (over & (t - np.nan_to_num(self._fast_since, nan=t) >= p.explosion_time))
-            out = (q < self.lower - p.limit_excess) | (q > self.upper + p.limit_excess)
+            speed = np.abs(qd)
+            over = speed > p.max_joint_speed
+            if over.any():
+                self._fast_since = np.where(over, np.where(np.isnan(self._fast_since), t, self._fast_since), np.nan)
+                fast = (speed > p.burst_speed) | (over & (t - self._fast_since >= p.explosion_time))
+            else:
+                self._fast_since.fill(np.nan)
+                fast = speed > p.burst_speed
+            out = (q < self._low) | (q > self._high)
             if fast.any() or out.any():
                 i = int(np.nonzero(fast | out)[0][0])
                 return Fault("explosion", f"joint {self.names[i]} q={q[i]:.3f} qd={qd[i]:.2f}")
             err = np.abs(target - q)
-            cond = self.watched & (err > p.stuck_error) & (np.abs(qd) < p.stuck_speed)
-            self._stuck_since = np.where(cond, np.where(np.isnan(self._stuck_since), t, self._stuck_since), np.nan)
-            long = cond & (t - np.nan_to_num(self._stuck_since, nan=t) >= p.stuck_time)
-            if long.any():
-                i = int(np.nonzero(long)[0][0])
-                return Fault("stuck_joint", f"joint {self.names[i]} does not follow (error {err[i]:.3f})")
+            cond = self.watched & (err > p.stuck_error) & (speed < p.stuck_speed)
+            if cond.any():
+                self._stuck_since = np.where(cond, np.where(np.isnan(self._stuck_since), t, self._stuck_since), np.nan)
+                long = cond & (t - self._stuck_since >= p.stuck_time)
+                if long.any():
+                    i = int(np.nonzero(long)[0][0])
+                    return Fault("stuck_joint", f"joint {self.names[i]} does not follow (error {err[i]:.3f})")
+            else:
+                self._stuck_since.fill(np.nan)
             silent = self.silent_streams(t, sensor_stamps or {})
             if silent is not None:
                 return silent

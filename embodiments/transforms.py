@@ -16,13 +16,12 @@ def xyz_rpy_to_matrix(xyz, rpy=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 def pose_to_matrix(pose) -> np.ndarray:
     """A SAPIEN pose (p, q=wxyz) as a 4x4 matrix."""
-    w, x, y, z = (float(v) for v in pose.q)
-    T = np.eye(4)
-    T[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    T[:3, 3] = pose.p
-    return T
+    w, x, y, z = pose.q.tolist()
+    px, py, pz = pose.p.tolist()
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w), px],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w), py],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y), pz],
+                     [0.0, 0.0, 0.0, 1.0]])
 
 
 def inv(T: np.ndarray) -> np.ndarray:

@@ -188,6 +188,8 @@ class SimArticulation:
         self.force_limit = np.zeros(len(self.joints))
         self.target = np.zeros(len(self.joints))
         self.target_vel = np.zeros(len(self.joints))
+        # what the drives were last given (position, velocity): a joint is written only when its target changes
+        self._sent = np.full((2, len(self.joints)), np.nan)
         self.gravity_compensation = True
         self.frozen = False
         self._setup_collisions()
@@ -286,10 +288,12 @@ class SimArticulation:
         q = np.clip(np.asarray(q, dtype=np.float64), self.lower[idx], self.upper[idx])
         qd = np.zeros_like(q) if qd is None else np.asarray(qd, dtype=np.float64)
         self.target[idx], self.target_vel[idx] = q, qd
-        for k, i in enumerate(idx):
-            j = self.joints[int(i)]
+        idx = np.asarray(idx)
+        for k in np.flatnonzero((self._sent[0, idx] != q) | (self._sent[1, idx] != qd)):
+            j = self.joints[int(idx[k])]
             j.set_drive_target(float(q[k]))
             j.set_drive_velocity_target(float(qd[k]))
+        self._sent[0, idx], self._sent[1, idx] = q, qd
 
     def drive_efforts(self) -> np.ndarray:
         """Joint efforts of the position drives (what motor currents would show)."""

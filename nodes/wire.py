@@ -69,6 +69,7 @@ class Header(msgspec.Struct, kw_only=True):
 
 _ITEMSIZE = {name: np.dtype(name).itemsize for name in _ALLOWED_DTYPES}
 _NAME_BY_CHAR = {np.dtype(name).char: name for name in _ALLOWED_DTYPES}  # dtype.name is slow
+_LITTLE = {name: np.dtype(name).newbyteorder("<") for name in _ALLOWED_DTYPES}  # built once: every decode views arrays
 
 
 class NDArray(msgspec.Struct, frozen=True, kw_only=True):
@@ -107,7 +108,7 @@ class NDArray(msgspec.Struct, frozen=True, kw_only=True):
         return cls(dtype=name, shape=list(a.shape), data=data)
 
     def numpy(self) -> np.ndarray:
-        return np.frombuffer(self.data, dtype=np.dtype(self.dtype).newbyteorder("<")).reshape(self.shape)
+        return np.frombuffer(self.data, dtype=_LITTLE[self.dtype]).reshape(self.shape)
 
 
 class Message(msgspec.Struct, kw_only=True, tag_field="type", tag=True):
@@ -207,8 +208,8 @@ def _check_float(value: Any) -> str | None:
 def _check_array(value: Any) -> str | None:
     if value.dtype not in _FLOAT_DTYPES or not value.data.nbytes:
         return None
-    a = value.numpy()
-    return None if np.isfinite(a).all() else f"[{int(np.flatnonzero(~np.isfinite(a.ravel()))[0])}]"
+    a = np.frombuffer(value.data, dtype=_LITTLE[value.dtype])  # flat: the index is the element's in C order
+    return None if np.isfinite(a).all() else f"[{int(np.flatnonzero(~np.isfinite(a))[0])}]"
 
 
 def _checker(t: mi.Type) -> Check:

@@ -71,6 +71,8 @@ def test_mixer_weights_concurrent_sources():
         m.submit("x", ["z"], np.zeros(1))
     with pytest.raises(ValueError, match="non-finite"):
         m.submit("x", ["a"], np.array([np.nan]))
+    with pytest.raises(ValueError, match="named twice"):  # one value per joint and source: a repeat is a fault
+        m.submit("x", ["a", "a"], np.zeros(2))
 
 
 def _scripted_run(realtime: bool = False) -> np.ndarray:
@@ -231,3 +233,26 @@ def test_a_profiled_trajectory_passes_a_repeated_waypoint_takes_its_corner_slowl
     assert np.allclose(f.sample(f.duration)[0], path[-1])
     with pytest.raises(ValueError, match="max_acceleration"):
         TrajectoryFollower(path, TrajectoryParams(max_acceleration=0.0))
+
+
+def test_the_drives_hold_every_target_given_whether_it_changed_or_not():
+    from contactflow.embodiments.sim_robot import SimRobot
+    from contactflow.embodiments.world import World, WorldParams
+
+    art = SimRobot(World(WorldParams()), "melfa").art
+    drives = lambda: np.array([float(j.get_drive_target()[0]) for j in art.joints])  # noqa: E731
+    n = len(art.joints)
+    q = np.clip(np.linspace(-0.2, 0.2, n), art.lower, art.upper)
+    art.set_targets(np.arange(n), q)
+    assert np.allclose(drives(), q, atol=1e-6)
+    q2 = q.copy()
+    q2[[0, 3]] += 0.05  # a partial update: the joints not written keep theirs
+    art.set_targets(np.array([0, 1, 3]), q2[[0, 1, 3]])
+    assert np.allclose(drives(), q2, atol=1e-6)
+    art.freeze()  # holds where the arm is (teleported zeros: home), whatever was sent before
+    assert np.allclose(drives(), art.qpos(), atol=1e-6)
+    art.set_targets(np.arange(n), q2)  # frozen: refused
+    assert np.allclose(drives(), art.qpos(), atol=1e-6)
+    art.unfreeze()
+    art.set_targets(np.arange(n), q2)  # the values sent before the freeze are sent again
+    assert np.allclose(drives(), q2, atol=1e-6)
