@@ -14,7 +14,6 @@ from contactflow.nodes.messages import EventMsg
 from contactflow.nodes.module import Layer, Module, ModuleIO, Port
 from contactflow.nodes.params import ParamError
 from contactflow.nodes.status import Event, Status
-from contactflow.nodes.wire import encode, stamp
 
 
 @dataclass
@@ -40,7 +39,6 @@ class _Running:
     job: _Job
     engine: Any  # TaskEngine
     inner: Any  # ControlRunner
-    monitor: Any  # StationFusion, or None without fusion
     t0: float  # s on the node's clock when it started
     params: dict  # the run's bound parameters (world frame)
     detect: dict[str, str] = field(default_factory=dict)
@@ -53,7 +51,7 @@ class RobotAgentModule(Module):
     The task engine runs in this module's step on the robot's control node, in lockstep with
     the world: it starts and stops the node's primitive modules with control messages and
     follows their events, and the primitives drive the world's robot over the key space. The
-    robot's contact cues are fused here and published as contact events.
+    robot's contact fusion runs beside it, as modules of the node (a manifest node's ``contacts: true``).
     """
 
     layer = Layer.TASK
@@ -64,7 +62,6 @@ class RobotAgentModule(Module):
     class Params:
         rate_hz: float = 20.0  # Hz, task engine ticks
         robot: str = "tombatossals"  # embodiment name
-        fusion: bool = True  # fuse the robot's contact cues and publish contact events
         pool: int = 2  # modules per primitive type on the node (T, T_2, ...)
         max_time: float = 120.0  # s of simulated time a task may run
 
@@ -82,28 +79,6 @@ class RobotAgentModule(Module):
         self._agent: RobotAgent | None = None
         self._jobs: queue.Queue[_Job] = queue.Queue()
         self._run: _Running | None = None  # the task under way
-
-    def _contact_monitor(self, robot):
-        from contactflow.fusion.messages import ContactEventMsg
-        from contactflow.fusion.station import StationFusion, cloud_publisher
-
-        pub = self.io.transport.publisher(self.io.keyspace.fused(self.params.robot, "events"))
-        seq = 0
-
-        def publish(event, inputs) -> None:
-            nonlocal seq
-            seq += 1
-            msg = stamp(ContactEventMsg.of(event), f"{self.params.robot}/{self.io.node}/{self.name}/fusion",
-                        seq, event.t, inputs)
-            pub(encode(msg))
-
-        def readings() -> list:  # the robot state the cues were read from
-            state = robot.link.state
-            return [state.hdr.id] if state is not None and state.hdr.source else []
-
-        source = f"{self.params.robot}/{self.io.node}/{self.name}"
-        return StationFusion(robot, publish, publish_cloud=cloud_publisher(self.io.transport, source),
-                             keyspace=self.io.keyspace, readings=readings)
 
     def start(self) -> None:
         try:
@@ -143,7 +118,7 @@ class RobotAgentModule(Module):
                             on_progress=lambda pr: job.report(tr.abstract(pr)))
         params = bound_params(tr, job.params)
         detect = dict.fromkeys(to_detect(tr, params), "")
-        r = _Running(job, engine, inner, self._contact_monitor(robot) if p.fusion else None, io.now, params, detect)
+        r = _Running(job, engine, inner, io.now, params, detect)
         if not detect:
             r.run_id = engine.launch(tr.estd, params)
         return r
@@ -184,8 +159,6 @@ class RobotAgentModule(Module):
             self._detect(r)
             return
         r.engine.tick()
-        if r.monitor is not None:
-            r.monitor(r.monitor.robot)
         if not r.engine.done(r.run_id):
             if r.job.cancel.is_set():
                 r.engine.cancel(r.run_id, "cancelled")

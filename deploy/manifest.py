@@ -19,6 +19,7 @@ Example (``deploy/manifests/default.yaml`` is the full thesis layout)::
             primitives: 2                        # 2 modules of each primitive type the robot's tasks may run
             primitive_inputs:                    # inputs of those modules, per type: [robot/]module.port or cf/...
               detect_objects: {objects: objects.objects, plane: plane.plane}
+            contacts: true                       # the robot's contact fusion: cue generators and contact_fusion
             modules:                             # same schema as a node configuration
               - {name: source, type: signal_source, params: {rate_hz: 50}}
     robots:
@@ -50,7 +51,7 @@ _TOP = {"site", "zenoh", "security", "hosts", "robots"}
 _ZENOH = {"topology", "routers", "port", "lease_ms"}
 _SECURITY = {"transport", "auth", "certs", "broker", "dispatch_clients", "observers", "insecure"}
 _HOST = {"address", "roles", "nodes"}
-_NODE = {"robot", "clock", "cell", "port", "sensors", "primitives", "primitive_inputs", "modules"}
+_NODE = {"robot", "clock", "cell", "port", "sensors", "primitives", "primitive_inputs", "contacts", "modules"}
 _ROBOT = {"control", "command_ports", "sensors"}
 TRANSPORTS = ("tcp", "tls", "mtls")
 AUTHS = ("none", "usrpwd")
@@ -235,6 +236,15 @@ def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, po
         except KeyError as exc:
             raise doc.error(path + ("robot",), str(exc).strip("'\"")) from None
     _wire_primitives(doc, path, generated)
+    if doc.get(path + ("contacts",), bool, False):
+        from contactflow.embodiments.layout import contact_modules
+
+        if robot == "site":
+            raise doc.error(path + ("contacts",), "contact fusion needs the node's robot")
+        try:
+            generated += contact_modules(robot)
+        except KeyError as exc:
+            raise doc.error(path + ("robot",), str(exc).strip("'\"")) from None
     written = len(modules)
     modules += generated
     parsed = _check_node_modules(doc, path, site, host, name, robot, clock, modules)

@@ -22,6 +22,7 @@ from typing import Any
 import yaml
 
 from contactflow.embodiments.messages import ObjectPoses
+from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.messages import Clock, EventMsg
 from contactflow.nodes.status import Event
 from contactflow.nodes.task_module import TaskProgressMsg
@@ -71,6 +72,22 @@ def primitive_modules(robot: str, embodiment: str = "", types: list[str] | None 
     return out
 
 
+def contact_modules(robot: str, embodiment: str = "") -> list[dict]:
+    """Module entries of a robot's own contact fusion (thesis ch. 4) on its control node: the tactile and wrist
+    F/T generators of every arm with a hand (``contact_cues``), and ``contact_fusion`` over them, whose
+    contacts and events go out on ``contacts/fused/<robot>/...`` (what ``wait_event`` with ``sensor: fused`` reads)."""
+    from contactflow.embodiments import registry
+
+    arms = [a.name for a in registry.home(embodiment or robot).spec.arms if a.hand]
+    # a station's pace (thesis: fusion cycles at ~6-30 Hz): every cue each cycle, a contact broken 0.3 s after its
+    # last sight (a held object's contacts flicker between the pads and the wrist's bi-spheres)
+    cues = [{"name": f"cues_{a}", "type": "contact_cues", "robot": robot, "autostart": True,
+             "params": {"arm": a, "rate_hz": 20.0}} for a in arms]
+    return [*cues, {"name": "contacts", "type": "contact_fusion", "robot": robot, "autostart": True,
+                    "params": {"robot": robot, "sources": f"{robot}/*", "publish_hypotheses": False, "timeout": 0.3,
+                               "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3}}]
+
+
 def _plain(v: Any) -> Any:
     """Plain YAML values: tuples and numpy arrays become lists, numpy scalars numbers."""
     if hasattr(v, "tolist"):
@@ -103,8 +120,10 @@ def world_node(site: str, scene_file: str | Path, node: str = "world", clock: st
 def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, task: str = "",
                  plan: Mapping[str, Any] | None = None, node: str = "", clock: str = "lockstep",
                  listen: str = "", connect: tuple[str, ...] = (), pool: int = 2,
-                 autostart: bool = False, inputs: Mapping[str, Mapping[str, str]] | None = None) -> dict[str, Any]:
-    """A robot's control node: the task module and the primitive modules of its task, in lockstep.
+                 autostart: bool = False, inputs: Mapping[str, Mapping[str, str]] | None = None,
+                 contacts: bool = False) -> dict[str, Any]:
+    """A robot's control node: the task module and the primitive modules of its task, in lockstep;
+    with ``contacts``, the robot's contact fusion too (:func:`contact_modules`).
 
     With ``autostart`` the task starts with the node, at the first tick it steps (a world
     that waits for the node makes that tick 0); else on a RUN control message. ``inputs``
@@ -119,6 +138,8 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
     for m in modules:
         if m["type"] in (inputs or {}):
             m["inputs"] = dict(inputs[m["type"]])
+    if contacts:
+        modules += contact_modules(robot, embodiment)
     modules.append({"name": "task", "type": "task", "robot": robot, "autostart": autostart,
                     "params": {"task_file": str(task_file), "task": name, "robot": robot,
                                "plan": yaml.safe_dump(_plain(dict(plan or {})), default_flow_style=True).strip(),
@@ -172,13 +193,20 @@ class SiteWatch:
         self.events: list[EventMsg] = []
         self.poses: list[ObjectPoses] = []  # the worlds' ground truth (eval/), as it came
         self.progress: list[TaskProgressMsg] = []  # every task module's progress, as it came
+        self.contacts: list[ContactEventMsg] = []  # every robot's fused contact events, as they came
         self.first_tick: tuple[float, float] | None = None  # (sim s, wall s) of tick 1
         self.last_tick: tuple[float, float] | None = None
         self._lock = threading.Lock()
         self._subs = [self.t.subscribe(self.ks.events(), self._on_event),
                       self.t.subscribe(self.ks.clock(), self._on_clock),
                       self.t.subscribe(self.ks.evaluation("*", "object_poses"), self._on_poses),
-                      self.t.subscribe(self.ks.output("*", "*", "task", "progress"), self._on_progress)]
+                      self.t.subscribe(self.ks.output("*", "*", "task", "progress"), self._on_progress),
+                      self.t.subscribe(self.ks.fused("*", "events"), self._on_contact)]
+
+    def _on_contact(self, key: str, payload: bytes) -> None:
+        msg = decode(payload, ContactEventMsg, key)
+        with self._lock:
+            self.contacts.append(msg)
 
     def _on_progress(self, key: str, payload: bytes) -> None:
         msg = decode(payload, TaskProgressMsg, key)
@@ -212,6 +240,11 @@ class SiteWatch:
         with self._lock:
             return list(self.progress)
 
+    def contact_events(self) -> list[ContactEventMsg]:
+        """Every fused contact event so far."""
+        with self._lock:
+            return list(self.contacts)
+
     def object_poses(self) -> list[ObjectPoses]:
         """Every ground-truth message so far."""
         with self._lock:
@@ -243,6 +276,7 @@ class CellRun:
     wall_s: float  # wall s over the same span
     messages: list[EventMsg]  # every event as it came, with its detail and values
     poses: list[ObjectPoses]  # the world's ground truth object poses (eval/), as they came
+    contacts: list[ContactEventMsg]  # the robots' fused contact events, as they came
 
     @property
     def rtf(self) -> float:
@@ -327,7 +361,7 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         if keep is not None and not processes:
             keep(started[0].host.modules[("site", "world")].module)
         return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, watch.messages(),
-                       watch.object_poses())
+                       watch.object_poses(), watch.contact_events())
     finally:
         stop_nodes(started, watch, processes)
 
@@ -405,7 +439,8 @@ def _pose(xyz: tuple[float, float, float]) -> list[float]:
 
 
 def table_cell(site: str, endpoint: str, melfa: bool = False) -> tuple[dict, list[dict]]:
-    """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3);
+    """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3), its grasp
+    watched on its fused contacts while it carries the can;
     with ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube.
 
     Returns the world node (listening on ``endpoint``, waiting for the control nodes before
@@ -413,8 +448,10 @@ def table_cell(site: str, endpoint: str, melfa: bool = False) -> tuple[dict, lis
     """
     from contactflow.embodiments.tasks import TASKS_DIR
 
+    # the full stack of a control node: its contact fusion too, which watches the grasp while the can is carried
     controls = [control_node(site, "tombatossals", "tombatossals", TASKS_DIR / "thesis.yaml", "pick_and_place",
-                             {"target": _pose(PLACE_TARGET)}, connect=(endpoint,), autostart=True)]
+                             {"target": _pose(PLACE_TARGET), "sensor": "fused"}, connect=(endpoint,), autostart=True,
+                             contacts=True)]
     if melfa:
         controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE)},
                                      connect=(endpoint,), autostart=True))

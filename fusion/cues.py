@@ -59,7 +59,9 @@ class ContactCues(Module):
                                  f"({sorted(cues)})")
             self.cue = cues[self.params.arm]
         r = self.robot
+        state = r.link.state  # the sensor message the clouds are computed from: their provenance
+        read = [state.hdr.id] if state is not None and state.hdr.source else []
         for generator, cloud in cue_clouds(r, self.cue, r.time):
             port = generator.removesuffix(f"_{self.cue.name}")
-            io.publish(port, HypothesisCloud.of(cloud, r.name, generator, self.cue.hand))
+            io.publish(port, HypothesisCloud.of(cloud, r.name, generator, self.cue.hand), inputs=read)
         return Status.RUNNING

@@ -7,11 +7,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Primitive, low_pass
+from contactflow.fusion.messages import ContactList
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.module import Port
 from contactflow.nodes.status import Event
 
-SENSORS = ("hand", "tactile", "gripper_effort", "wrist_ft")
+SENSORS = ("hand", "tactile", "gripper_effort", "wrist_ft", "fused")
 """How a grasp is told (thesis Tables 7.3-7.4, one per robot): the hand's contact information or joint
-configuration (§3.3.1), tactile pad pressure, the gripper's motor effort, the load on the wrist."""
+configuration (§3.3.1), tactile pad pressure, the gripper's motor effort, the load on the wrist; or the
+robot's fused contacts (thesis ch. 4: every cue of the robot fused into contacts on its links)."""
 
 
 class WaitEvent(Primitive):
@@ -24,6 +28,7 @@ class WaitEvent(Primitive):
 
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.GRASP_LOST, Event.GRASP_STABLE, Event.CONTACT)
     commands_arm = False
+    inputs = (Port("contacts", ContactList, "the robot's fused contacts (sensor: fused)"),)
 
     @dataclass(frozen=True)
     class Params(Primitive.Params):
@@ -32,14 +37,20 @@ class WaitEvent(Primitive):
         force_threshold: float = 5.0  # N, for "contact"
         finish: bool = True  # end with SUCCESS after the event
         grace: float = 0.2  # s a tactile condition must hold
-        sensor: str = "hand"  # grasp sensing: hand (pads touching or fingers held open) | tactile | gripper_effort | wrist_ft
+        sensor: str = "hand"  # grasp sensing: hand (pads touching or fingers held open) | tactile | gripper_effort | wrist_ft | fused
         threshold: float = 0.0  # N, a grasp holds at this total pad pressure, grip force or wrist load (not "hand")
         min_contacts: int = 1  # pads in contact for a hand or tactile grasp
         filter_hz: float = 0.0  # Hz, low-pass cut-off of the wrist load (0: none; for noisy estimated wrenches)
+        fused_timeout: float = 1.0  # s; sensor fused: a contact list this old says nothing, and none this long fails the wait
 
         def validate(self) -> None:
             if self.sensor not in SENSORS:
                 raise ValueError(f"sensor: {self.sensor!r} is not one of {list(SENSORS)}")
+
+    @classmethod
+    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Params) -> dict[str, str]:
+        """The fused contacts of the robot the module is hosted for (a ``contact_fusion`` module with ``robot`` set)."""
+        return {"contacts": ks.fused(robot, "contacts")}
 
     def begin(self) -> None:
         try:
@@ -48,12 +59,26 @@ class WaitEvent(Primitive):
             raise ValueError(f"{self.name}: params.event {self.params.event!r} is not an event") from None
         if self.event not in (Event.GRASP_LOST, Event.GRASP_STABLE, Event.CONTACT, Event.SUCCESS):
             raise ValueError(f"{self.name}: cannot wait for {self.event} (grasp_lost, grasp_stable, contact, success)")
-        self.f0 = self.wrench_in("world")[:3] if self.event is Event.CONTACT else np.zeros(3)
+        fused = self.params.sensor == "fused"
+        self.f0 = self.wrench_in("world")[:3] if self.event is Event.CONTACT and not fused else np.zeros(3)
+        self.heard = self.r.time  # sensor fused: when a fresh contact list was last read
+        self.evidence = ""  # ... and which one (source#seq), named in the event it fires
         self.since: float | None = None
         self.fired = False
         self.load: float | None = None  # N, the low-passed wrist load
         if self.params.sensor == "wrist_ft" and not self.r.spec.arm(self.arm_name).ft:
             raise ValueError(f"{self.name}: params.sensor wrist_ft: arm {self.arm_name!r} has no wrist F/T")
+        if fused and not self.hand_name:
+            raise ValueError(f"{self.name}: params.sensor fused: arm {self.arm_name!r} has no hand to hold contacts")
+
+    def fused_contacts(self) -> int | None:
+        """Contacts the robot's fusion places on this arm's hand now; None without a fresh contact list."""
+        msg = self.io.latest("contacts") if self.io is not None else None
+        if not isinstance(msg, ContactList) or msg.stamp < self.r.time - self.params.fused_timeout:
+            return None
+        self.heard = self.r.time
+        self.evidence = f"{msg.hdr.source}#{msg.hdr.seq}"
+        return sum(1 for c in msg.contacts if c.robot == self.r.name and c.link == self.hand_name)
 
     def grasped(self) -> bool:
         """The grasp holds, as this robot senses it (``sensor``)."""
@@ -71,6 +96,14 @@ class WaitEvent(Primitive):
     def holds(self) -> bool:
         if self.event is Event.SUCCESS:
             return True
+        if self.params.sensor == "fused":
+            n = self.fused_contacts()
+            if n is None:  # no fused contacts: neither a grasp nor its loss is sensed
+                return False
+            if self.event is Event.CONTACT:
+                return n > 0
+            held = n >= self.params.min_contacts
+            return not held if self.event is Event.GRASP_LOST else held
         if self.event is Event.CONTACT:
             return bool(np.linalg.norm(self.wrench_in("world")[:3] - self.f0) > self.params.force_threshold)
         held = self.grasped()
@@ -85,8 +118,12 @@ class WaitEvent(Primitive):
             if self.r.time - self.since >= (0.0 if self.event in (Event.SUCCESS, Event.CONTACT) else p.grace):
                 self.fired = True
                 if self.event is not Event.SUCCESS:
-                    self.emit_once(self.event, f"{self.event} observed")
+                    by = f" (fused contacts {self.evidence})" if p.sensor == "fused" else ""
+                    self.emit_once(self.event, f"{self.event} observed{by}")
                 if p.finish:
                     self.succeed(waited=self.elapsed)
         else:
             self.since = None
+        if p.sensor == "fused" and self.r.time - self.heard > p.fused_timeout:
+            self.fail(f"no fused contacts of {self.r.name} for {p.fused_timeout:g} s: is a contact_fusion module "
+                      f"running for the robot?")

@@ -13,6 +13,7 @@ from contactflow.deploy.manifest import DEFAULT_MANIFEST, ConfigError, load_mani
 from contactflow.deploy.security import SecurityError, access_control, zenoh_config
 from contactflow.deploy.seqcheck import SequenceMonitor
 from contactflow.deploy.supervisor import backoff_delay
+from contactflow.embodiments import registry
 from contactflow.nodes.config import load_node_config
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.registry import resolve
@@ -65,6 +66,13 @@ def test_default_manifest_runs_the_real_modules_of_the_areas():
     assert {c.__module__.rsplit(".", 1)[-1] for (h, _), c in classes.items() if h == "vision3d"} == {
         "cloud_builder", "plane_detector", "roi_filter", "self_filter", "cluster_extractor"}
     assert classes[("vision2d", "shape")].__module__.endswith("classify_shape")
+    # each robot's control node fuses its own contacts: a cue generator per arm with a hand, and contact_fusion
+    for r in m.robots.values():
+        node = next(n for n in m.nodes() if n.host == r.control and n.robot == r.name)
+        fusion = [mod for mod in node.modules if mod["type"] == "contact_fusion"]
+        assert [mod["params"]["robot"] for mod in fusion] == [r.name]
+        cues = {mod["params"]["arm"] for mod in node.modules if mod["type"] == "contact_cues"}
+        assert cues == {a.name for a in registry.get(r.name).arms if a.hand}
 
 
 def test_default_manifest_wires_tombatossals_detect_objects_to_the_vision3d_objects(tmp_path):
@@ -136,6 +144,10 @@ def test_routers_topology_adds_router_nodes_and_clients(tmp_path):
     (("{cam: a}", "{cam: b}"), "m.yaml:8: hosts.a.nodes.na.sensors[0]", "high-bandwidth"),
     (("        sensors: [cam]\n", "        sensors: [cam]\n        primitive_inputs: {detect_objects: {objects: o.objects}}\n"),
      "m.yaml:9: hosts.a.nodes.na.primitive_inputs.detect_objects", "host no 'detect_objects'"),
+    (("        sensors: [cam]\n", "        sensors: [cam]\n        contacts: true\n"), "m.yaml:7: hosts.a.nodes.na.robot",
+     "unknown robot 'r'"),
+    (("        sensors: [cam]\n", "        sensors: [cam]\n        contacts: yes please\n"),
+     "m.yaml:9: hosts.a.nodes.na.contacts", "expected bool"),
     (("control: a,", "control: z,"), "m.yaml:19: robots.r.control", "not in hosts"),
     (("site: t\n", "site: t\nsecurity: {transport: ssl}\n"), "m.yaml:2: security.transport", "not one of"),
     (("address: 10.1.0.2", "address: 10.1.0.1"), "m.yaml:12: hosts.b.address", "already host"),

@@ -264,3 +264,74 @@ def test_an_idle_world_pauses_and_a_primitive_run_at_any_wall_clock_moment_repea
     assert early["paused_at"] == late["paused_at"] and early["end"] == late["end"]
     assert early["outcome"].hdr.t_sim == late["outcome"].hdr.t_sim
     assert early["outcome"].values == late["outcome"].values
+
+
+FEEL = """
+main: feel
+tasks:
+  feel:
+    params: {arm: right, region: [0.3, -0.6, 0.74, 1.0, 0.1, 1.2]}
+    timeout: 80
+    nodes:
+      detect: {primitive: detect_objects, params: {arm: "${params.arm}", region: "${params.region}", standoff: 0.04}}
+      approach:
+        primitive: move_to
+        params:
+          arm: "${params.arm}"
+          target: ["${detect.x}", "${detect.y}", "${detect.z}", "${detect.roll}", "${detect.pitch}", "${detect.yaw}"]
+      grasp: {primitive: robust_grasp, params: {arm: "${params.arm}", pregrasp_type: open}}
+      lift: {primitive: lift, params: {arm: "${params.arm}", distance: 0.05}}
+      held: {primitive: wait_event, params: {arm: "${params.arm}", event: grasp_stable, sensor: fused, min_contacts: 2}}
+      open: {primitive: release, params: {arm: "${params.arm}", velocity: 0.005}}
+      retreat: {primitive: transport, params: {arm: "${params.arm}", target: [0, 0, 0.08, 0, 0, 0], relative: true}}
+      gone: {primitive: wait_event, params: {arm: "${params.arm}", event: grasp_lost, sensor: fused}}
+      done: {terminal: success}
+      failed: {terminal: failure}
+    edges:
+      - {from: detect, to: approach, on: success}
+      - {from: approach, to: grasp, on: success}
+      - {from: grasp, to: lift, on: success}
+      - {from: lift, to: held, on: success}
+      - {from: held, to: open, on: grasp_stable}
+      - {from: open, to: retreat, on: success}
+      - {from: retreat, to: gone, on: success}
+      - {from: gone, to: done, on: grasp_lost}
+      - {from: detect, to: failed, on: [[failure, error]]}
+      - {from: approach, to: failed, on: [[failure, error]]}
+      - {from: grasp, to: failed, on: [[failure, error]]}
+      - {from: lift, to: failed, on: [[failure, error]]}
+      - {from: held, to: failed, on: [[failure, error]]}
+      - {from: open, to: failed, on: [[failure, error]]}
+      - {from: retreat, to: failed, on: [[failure, error]]}
+      - {from: gone, to: failed, on: [[failure, error]]}
+"""
+
+
+def test_a_task_transitions_on_the_robots_fused_contacts(tmp_path):
+    """Grasp held and grasp lost come from the control node's contact fusion (tactile and wrist F/T
+    clouds fused into contacts on the hand), not from a primitive's own reading of the sensors."""
+    from contactflow.embodiments.layout import CELLS, control_node, world_node
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    (tmp_path / "feel.yaml").write_text(FEEL)
+    control = control_node("rt4", ROBOT, ROBOT, tmp_path / "feel.yaml", connect=(endpoint,), autostart=True,
+                           contacts=True)
+    world = world_node("rt4", CELLS / "pick_place.yaml", listen=endpoint, wait_for=(control["node"],))
+    run = run_cell(tmp_path, world, [control], endpoint)
+    assert run.outcomes[ROBOT].event is Event.SUCCESS, run.events
+    seq = [(m, e) for _, m, e in run.events]
+    stable = seq.index(("wait_event", "grasp_stable"))
+    lost = seq.index(("wait_event", "grasp_lost"))
+    assert ("release", "success") in seq[stable:lost]
+    # the fusion module's own events: contacts made on the hand before the grasp held, broken after the release,
+    # none made once the hand is away
+    made = [i for i, s in enumerate(seq) if s == ("contacts", "contact_made")]
+    broken = [i for i, s in enumerate(seq) if s == ("contacts", "contact_broken")]
+    assert made and made[0] < stable and any(i > stable for i in broken) and made[-1] < lost
+    fired = [m for m in run.messages if m.module.endswith("/wait_event") and m.event is Event.GRASP_STABLE]
+    assert fired and "fused contacts" in fired[0].detail and "/contacts/" in fired[0].detail
+    # on the key space, every fused event names the hand's cue clouds it came from
+    assert run.contacts and all(c.robot == ROBOT and c.link.endswith("_hand") for c in run.contacts)
+    for c in run.contacts:
+        assert c.sources and len(c.hdr.inputs) == len(c.sources), c
+        assert all(f"/control_{ROBOT}/cues_" in i.source for i in c.hdr.inputs), c.hdr.inputs

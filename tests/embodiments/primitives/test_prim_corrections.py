@@ -141,6 +141,17 @@ def test_wait_event_grasp_lost_fires_its_grace_period_after_the_object_is_pulled
     assert end.event is Event.SUCCESS and end.values["waited"] == pytest.approx(0.7, abs=0.05)
 
 
+def test_wait_event_on_fused_contacts_fails_when_no_fusion_runs_for_the_robot() -> None:
+    robot = melfa_around_plate(0.1)
+    runner = LocalPrimitiveRunner(robot)
+    t0 = robot.time
+    end = outcome(run_primitive(runner, "wait_event", {"arm": "arm", "event": "grasp_lost", "sensor": "fused",
+                                                       "fused_timeout": 0.5}))
+    # neither a grasp nor its loss is sensed without contact lists: it fails, it does not fire grasp_lost
+    assert end.event is Event.FAILURE and "contact_fusion" in end.detail
+    assert robot.time - t0 == pytest.approx(0.5, abs=0.05)
+
+
 def test_lift_raises_grasp_lost_when_the_object_is_pulled_out_on_the_way() -> None:
     robot = melfa_around_plate(0.1)
     runner = LocalPrimitiveRunner(robot)
