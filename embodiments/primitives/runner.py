@@ -128,6 +128,21 @@ class LocalPrimitiveRunner:
             raise RuntimeError(f"run {module.run_id!r} ended without a result")
         return res
 
+    def host_contacts(self) -> None:
+        """The robot's contact fusion on this runner's host, as on a control node with ``contacts: true``
+        (:func:`~contactflow.embodiments.layout.contact_modules`): what ``wait_event`` with ``sensor: fused`` reads."""
+        from contactflow.embodiments.layout import contact_modules
+
+        self._sync()
+        for entry in contact_modules(self.robot.name, self.robot.spec.name):
+            cls = resolve(entry["type"])
+            params = replace_params(cls.Params(), entry["params"], where=f"{entry['name']}.params.")
+            self._host.add(ModuleConfig(entry["name"], entry["type"], cls, params, self.robot.name, autostart=False),
+                           cls(entry["name"], params))
+            reply = self._host.send_control(f"{self.robot.name}/{entry['name']}", Command.RUN, {})
+            if not reply.ok:
+                raise RuntimeError(f"{entry['name']} did not start: {reply.error}")
+
     def advance(self) -> None:
         """Step every primitive whose period has elapsed (call once per control tick)."""
         self._sync()

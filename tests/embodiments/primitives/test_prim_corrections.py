@@ -141,6 +141,33 @@ def test_wait_event_grasp_lost_fires_its_grace_period_after_the_object_is_pulled
     assert end.event is Event.SUCCESS and end.values["waited"] == pytest.approx(0.7, abs=0.05)
 
 
+def test_wait_event_on_fused_contacts_sees_the_held_object_pulled_out() -> None:
+    """The same pull as above, told by the robot's contact fusion (its pads' and wrist's clouds fused) instead
+    of the hand's own reading: held while the fused contacts lie on the gripper, lost once they are gone."""
+    robot = melfa_around_plate(0.1)
+    runner = LocalPrimitiveRunner(robot)
+    runner.host_contacts()
+    assert outcome(run_primitive(runner, "close_until_force", {})).event is Event.SUCCESS
+    pulled: list[float] = []
+    t0 = robot.time
+
+    def pull_out(r: SimRobot) -> None:
+        if not pulled and r.time - t0 >= 1.0:
+            away = np.eye(4)
+            away[:3, 3] = (0.3, 0.5, 0.78)
+            r.world.objects["obj"].set_pose(away)
+            pulled.append(r.time)
+
+    events, _ = drive(runner, "w", "wait_event", {"arm": "arm", "event": "grasp_lost", "sensor": "fused",
+                                                  "grace": 0.2}, max_time=4.0, during=pull_out, **MELFA)
+    lost = [(t, e) for t, e in events if e.event is Event.GRASP_LOST]
+    assert len(lost) == 1 and "fused contacts" in lost[0][1].detail, events
+    # held for the second before the pull; lost once the fused list had emptied and the grace passed: a cue
+    # cycle (<= 0.05 s), the hypotheses' 0.3 s lifetime in the voxel space, the 0.2 s grace
+    assert 0.5 <= lost[0][0] - pulled[0] <= 0.6
+    assert outcome(of(events, "w")).event is Event.SUCCESS
+
+
 def test_wait_event_on_fused_contacts_fails_when_no_fusion_runs_for_the_robot() -> None:
     robot = melfa_around_plate(0.1)
     runner = LocalPrimitiveRunner(robot)
