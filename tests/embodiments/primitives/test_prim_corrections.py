@@ -117,26 +117,35 @@ def test_push_and_pull_into_a_fixed_block_stop_at_the_force_limit_and_wait_event
     assert [e.event for e in of(events, "watch")][-1] is Event.SUCCESS
 
 
-def test_wait_event_grasp_lost_fires_its_grace_period_after_the_object_is_pulled_out() -> None:
+def _plate_pulled_out(after: float, fused: bool = False) -> tuple[list, float]:
+    """Melfa closes on a plate, then a grasp-lost wait_event runs while the plate is taken out of the gripper
+    ``after`` s later; its events and the time of the pull (``fused``: the robot's contact fusion tells it)."""
     robot = melfa_around_plate(0.1)
     runner = LocalPrimitiveRunner(robot)
+    if fused:
+        runner.host_contacts()
     assert outcome(run_primitive(runner, "close_until_force", {})).event is Event.SUCCESS
     pulled: list[float] = []
     t0 = robot.time
 
     def pull_out(r: SimRobot) -> None:
-        if not pulled and r.time - t0 >= 0.5:
+        if not pulled and r.time - t0 >= after:
             away = np.eye(4)
             away[:3, 3] = (0.3, 0.5, 0.78)
             r.world.objects["obj"].set_pose(away)
             pulled.append(r.time)
 
-    events, _ = drive(runner, "w", "wait_event", {"arm": "arm", "event": "grasp_lost", "grace": 0.2},
-                      max_time=3.0, during=pull_out, **MELFA)
+    params = {"arm": "arm", "event": "grasp_lost", "grace": 0.2, **({"sensor": "fused"} if fused else {})}
+    events, _ = drive(runner, "w", "wait_event", params, max_time=after + 3.0, during=pull_out, **MELFA)
+    return events, pulled[0]
+
+
+def test_wait_event_grasp_lost_fires_its_grace_period_after_the_object_is_pulled_out() -> None:
+    events, pulled = _plate_pulled_out(0.5)
     lost = [t for t, e in events if e.event is Event.GRASP_LOST]
     assert len(lost) == 1, events
     # held for 0.5 s without an event; lost once the empty grasp held for the 0.2 s grace
-    assert 0.2 <= lost[0] - pulled[0] <= 0.25
+    assert 0.2 <= lost[0] - pulled <= 0.25
     end = outcome(of(events, "w"))
     assert end.event is Event.SUCCESS and end.values["waited"] == pytest.approx(0.7, abs=0.05)
 
@@ -144,27 +153,12 @@ def test_wait_event_grasp_lost_fires_its_grace_period_after_the_object_is_pulled
 def test_wait_event_on_fused_contacts_sees_the_held_object_pulled_out() -> None:
     """The same pull as above, told by the robot's contact fusion (its pads' and wrist's clouds fused) instead
     of the hand's own reading: held while the fused contacts lie on the gripper, lost once they are gone."""
-    robot = melfa_around_plate(0.1)
-    runner = LocalPrimitiveRunner(robot)
-    runner.host_contacts()
-    assert outcome(run_primitive(runner, "close_until_force", {})).event is Event.SUCCESS
-    pulled: list[float] = []
-    t0 = robot.time
-
-    def pull_out(r: SimRobot) -> None:
-        if not pulled and r.time - t0 >= 1.0:
-            away = np.eye(4)
-            away[:3, 3] = (0.3, 0.5, 0.78)
-            r.world.objects["obj"].set_pose(away)
-            pulled.append(r.time)
-
-    events, _ = drive(runner, "w", "wait_event", {"arm": "arm", "event": "grasp_lost", "sensor": "fused",
-                                                  "grace": 0.2}, max_time=4.0, during=pull_out, **MELFA)
+    events, pulled = _plate_pulled_out(1.0, fused=True)
     lost = [(t, e) for t, e in events if e.event is Event.GRASP_LOST]
     assert len(lost) == 1 and "fused contacts" in lost[0][1].detail, events
     # held for the second before the pull; lost once the fused list had emptied and the grace passed: a cue
     # cycle (<= 0.05 s), the hypotheses' 0.3 s lifetime in the voxel space, the 0.2 s grace
-    assert 0.5 <= lost[0][0] - pulled[0] <= 0.6
+    assert 0.5 <= lost[0][0] - pulled <= 0.6
     assert outcome(of(events, "w")).event is Event.SUCCESS
 
 
