@@ -137,8 +137,7 @@ class LocalPrimitiveRunner:
         for entry in contact_modules(self.robot.name, self.robot.spec.name):
             cls = resolve(entry["type"])
             params = replace_params(cls.Params(), entry["params"], where=f"{entry['name']}.params.")
-            self._host.add(ModuleConfig(entry["name"], entry["type"], cls, params, self.robot.name, autostart=False),
-                           cls(entry["name"], params))
+            self._host.add(ModuleConfig(entry["name"], entry["type"], cls, params, self.robot.name, autostart=False))
             reply = self._host.send_control(f"{self.robot.name}/{entry['name']}", Command.RUN, {})
             if not reply.ok:
                 raise RuntimeError(f"{entry['name']} did not start: {reply.error}")
