@@ -158,7 +158,7 @@ class HandState(msgspec.Struct, kw_only=True):
 
 
 class WrenchSample(msgspec.Struct, kw_only=True):
-    """One wrist F/T sample: world axes at the sensor origin, minus the tare."""
+    """One wrist F/T sample: world axes at the sensor origin; ``force``/``torque`` minus the last tare."""
 
     arm: str  # the arm's name
     force: list[float]  # N
@@ -166,6 +166,8 @@ class WrenchSample(msgspec.Struct, kw_only=True):
     frame: str  # sensor link
     rotation: list[float]  # 9 values, row-major: the sensor frame's axes in the world
     estimated: bool = False  # solved from joint efforts, not measured
+    external_force: list[float]  # N: untared, minus the hand's own weight and motion (what the environment and a held load exert)
+    external_torque: list[float]  # N m, likewise
 
 
 class TactileSample(msgspec.Struct, kw_only=True):

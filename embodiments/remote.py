@@ -437,7 +437,8 @@ class RemoteRobot(RobotFacade):
                 del self._tare[arm]
             else:  # the world tares at its next tick: read as if it had
                 v = v - at_tare
-        return WrenchReading(self.time, v[:3], v[3:], w.frame, np.asarray(w.rotation).reshape(3, 3), w.estimated)
+        return WrenchReading(self.time, v[:3], v[3:], w.frame, np.asarray(w.rotation).reshape(3, 3), w.estimated,
+                             np.asarray([*w.external_force, *w.external_torque], dtype=np.float64))
 
     def tare_ft(self, arm: str) -> None:
         a = self.arm(arm)

@@ -44,9 +44,10 @@ def taxel_readings(robot, hand: str) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 def wrist_hypotheses(robot, arm: str, ft_link: str, caps: np.ndarray, now: float,
                      band: float = FT_BAND) -> tuple[Hypotheses, tuple]:
-    """F/T hypotheses (eq. 4.8-4.9) inside the hand's bounding box; also the raw wrench used."""
+    """F/T hypotheses (eq. 4.8-4.9) inside the hand's bounding box; also the wrench used: the external
+    one (the hand's own weight removed, not a primitive's tare, so a load that falls reads as none)."""
     T_s = robot.frame_pose(ft_link)
-    f_s, tau_s = robot.ft(arm).in_sensor_frame()
+    f_s, tau_s = robot.ft(arm).external_in_sensor_frame()
     lo, hi = hand_box(caps, T_s)
     params = ForceTorqueParams(box_lo=lo, box_hi=hi, surface_band=band)
     return ft_hypotheses(f_s, tau_s, T_s, distance_fn(caps), now, params), (f_s, tau_s, T_s, caps)

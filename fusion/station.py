@@ -55,7 +55,7 @@ def cue_clouds(robot: object, cue: Cue, now: float) -> list[tuple[str, Hypothese
         cloud = tactile_hypotheses(pressure, taxels, now, normals)
     out = [(f"tactile_{cue.name}", cloud)]
     if cue.ft_link:
-        force = np.linalg.norm(robot.ft(cue.arm).in_sensor_frame()[0])
+        force = np.linalg.norm(robot.ft(cue.arm).external[:3])
         cloud = Hypotheses.empty(now)
         if force >= cue.min_force:
             cloud, _ = wrist_hypotheses(robot, cue.arm, cue.ft_link, hand_capsules(robot, cue.links), now)

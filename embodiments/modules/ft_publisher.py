@@ -11,7 +11,8 @@ from contactflow.nodes.status import Event, Status
 
 
 class FTPublisher(Module):
-    """Publishes the tared wrist wrench of ``params.arm`` (world axes)."""
+    """Publishes the external wrist wrench of ``params.arm`` (world axes, the hand's own weight removed):
+    what contact generators explain, untouched by the tares a primitive takes."""
 
     layer = Layer.INTERFACE
     outputs = (Port("wrench", Wrench, "wrist wrench in world axes"),)
@@ -30,6 +31,6 @@ class FTPublisher(Module):
         if self.robot.failed:
             return Status.RUNNING
         r = self.robot.ft(self.params.arm)
-        self.io.publish("wrench", Wrench(arm=self.params.arm, sensor_frame=r.frame, force=[float(x) for x in r.force],
-                                         torque=[float(x) for x in r.torque], estimated=bool(getattr(r, "estimated", False))))
+        self.io.publish("wrench", Wrench(arm=self.params.arm, sensor_frame=r.frame, force=[float(x) for x in r.external[:3]],
+                                         torque=[float(x) for x in r.external[3:]], estimated=r.estimated))
         return Status.RUNNING

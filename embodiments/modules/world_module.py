@@ -505,7 +505,9 @@ class WorldModule(Module):
                 wrenches.append(WrenchSample(arm=a.name, force=[float(v) for v in w.force],
                                              torque=[float(v) for v in w.torque], frame=w.frame,
                                              rotation=[float(v) for v in np.asarray(w.R_world_sensor).ravel()],
-                                             estimated=w.estimated))
+                                             estimated=w.estimated,
+                                             external_force=[float(v) for v in w.external[:3]],
+                                             external_torque=[float(v) for v in w.external[3:]]))
         tactile = []
         for h in sim.spec.hands:
             if h.pads:

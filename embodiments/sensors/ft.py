@@ -3,16 +3,21 @@
 The measured wrench is the one the environment and the load exert on the hand, in world
 axes, minus a tare taken in world axes. A PhysX incoming-joint force is the constraint
 wrench from parent to child expressed in the joint frame; it includes the weight of the
-hand, which the tare removes. For ``estimated`` sensors (Baxter, App. A.4.2) the wrench is
-solved from the arm drive efforts through the transposed Jacobian, as the real robot does,
-and is noisier.
+hand, which the tare removes. Beside the tared wrench a reading carries the *external*
+wrench (thesis §4.4.3: "the external forces and torques applied to the end effector"): the
+raw one minus what the hand's own weight and motion press on the sensor, from the robot's
+model (`HandLoad`), so it reads the load of a held object, stays still while the arm jerks,
+and drops to zero when the object is lost, whatever a primitive tared meanwhile. For
+``estimated`` sensors (Baxter, App. A.4.2) the wrench is solved from the arm drive efforts
+through the transposed Jacobian, as the real robot does, and is noisier.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+import pinocchio as pin
 
 from contactflow.embodiments.registry import FTSpec
 from contactflow.embodiments.transforms import pose_to_matrix
@@ -28,14 +33,21 @@ class WrenchReading:
     frame: str  # sensor link
     R_world_sensor: np.ndarray  # rotation of the sensor frame (for sensor-frame values)
     estimated: bool = False  # True when solved from joint efforts rather than measured
+    external: np.ndarray = field(default_factory=lambda: np.zeros(6))  # N, N m: untared, minus the hand's own weight and motion
 
     @property
     def vector(self) -> np.ndarray:
         return np.concatenate([self.force, self.torque])
 
-    def in_sensor_frame(self) -> tuple[np.ndarray, np.ndarray]:
+    def external_in_sensor_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """The external wrench (what the environment and a held load exert) in the sensor frame."""
         R = self.R_world_sensor
-        return R.T @ self.force, R.T @ self.torque
+        return R.T @ self.external[:3], R.T @ self.external[3:]
+
+
+def _rotate(R: np.ndarray, wrench: np.ndarray) -> np.ndarray:
+    """A wrench's force and torque rotated by ``R`` (same origin)."""
+    return np.concatenate([R @ wrench[:3], R @ wrench[3:]])
 
 
 class WristFT:
@@ -54,6 +66,7 @@ class WristFT:
                 raise ValueError(f"F/T {spec.name}: estimated sensors need the kinematics and the arm joints")
             self._sidx = art.indices(arm_joints)
             self._kidx = kin.q_index(arm_joints)
+        self._hand_model = None if spec.estimated or kin is None else HandLoad(art, kin, spec.link)
 
     def _raw(self) -> np.ndarray:
         if self.spec.estimated:
@@ -62,9 +75,15 @@ class WristFT:
             # drives balance the external wrench: tau = -J^T w
             return -np.linalg.lstsq(J.T, tau, rcond=None)[0]
         fw = np.asarray(self.art.articulation.get_link_incoming_joint_forces()[self.link.get_index()], dtype=np.float64)
-        R = pose_to_matrix(self.link.get_joint().get_global_pose())[:3, :3]
         # the constraint acts on the hand; the load on the sensor is its opposite
-        return -np.concatenate([R @ fw[:3], R @ fw[3:]])
+        return -_rotate(pose_to_matrix(self.link.get_joint().get_global_pose())[:3, :3], fw)
+
+    def _load(self) -> np.ndarray:
+        """What the hand's own weight and motion press on the sensor (world axes, about its origin);
+        an estimated wrench never sees them (the arm's drives are gravity-compensated)."""
+        if self._hand_model is None:
+            return np.zeros(6)
+        return _rotate(self._pose()[:3, :3], self._hand_model.wrench())
 
     def _pose(self) -> np.ndarray:
         return pose_to_matrix(self.link.get_entity_pose())
@@ -90,9 +109,64 @@ class WristFT:
             return self._last
         if self._last is not None and (t - self._last.t) < 1.0 / self.spec.rate_hz - 1e-9:
             return self._last
-        w = self._raw() - self.tare_value
+        raw = self._raw()
         s = self.spec
         noise = np.concatenate([self.rng.normal(0, s.force_noise, 3), self.rng.normal(0, s.torque_noise, 3)])
-        w = w + noise + np.asarray(s.bias, dtype=np.float64)
-        self._last = WrenchReading(t, w[:3], w[3:], s.link, self._pose()[:3, :3], s.estimated)
+        noise += np.asarray(s.bias, dtype=np.float64)
+        w = raw - self.tare_value + noise
+        self._last = WrenchReading(t, w[:3], w[3:], s.link, self._pose()[:3, :3], s.estimated,
+                                   raw - self._load() + noise)
         return self._last
+
+
+class HandLoad:
+    """The wrench the hand's links (every link past the sensor) press on the sensor, from the
+    robot's model: their weight and the force that accelerates them (recursive Newton-Euler on the
+    simulator's joint positions, velocities and accelerations). What a robot's F/T compensation
+    computes from its encoders and its hand's identified inertia; the rest of the reading is
+    external: the environment's and a held load's."""
+
+    def __init__(self, art, kin, sensor_link: str) -> None:
+        self.art = art
+        self.model = pin.Model(kin.model)
+        R_base = kin.base[:3, :3]
+        self.model.gravity.linear = R_base.T @ np.asarray(art.world.params.gravity, dtype=np.float64)
+        self.data = self.model.createData()
+        self._q = np.zeros(self.model.nq)
+        self._kidx = kin.q_index(art.joint_names)
+        sensor = art.links[sensor_link]
+        hand_joints = set()
+        for lk in art.articulation.get_links():
+            up = lk
+            while up is not None and up is not sensor:
+                up = up.get_joint().get_parent_link() if up.get_joint() is not None else None
+            if up is sensor:
+                hand_joints.add(lk.get_joint().get_name())
+        fid = self.model.getFrameId(sensor_link)
+        if fid >= len(self.model.frames):
+            raise ValueError(f"F/T on {sensor_link!r}: the robot's model has no such link")
+        self.joint = self.model.frames[fid].parentJoint
+        # the hand's links fixed to the sensor's body (their inertia sits on the fixed joint
+        # frames that hang them), and the hand's moving joints whose subtrees are fingers
+        self.fixed = pin.Inertia.Zero()
+        for f in self.model.frames:
+            if f.parentJoint == self.joint and f.type == pin.FrameType.FIXED_JOINT and f.name in hand_joints:
+                self.fixed += f.placement.act(f.inertia)
+        self.roots = [i for i in range(1, self.model.njoints)
+                      if self.model.parents[i] == self.joint and self.model.names[i] in hand_joints]
+        self.origin = self.model.frames[fid].placement  # the sensor's origin on its body
+
+    def wrench(self) -> np.ndarray:
+        """The load on the sensor, in its link's frame."""
+        a = self.art.articulation
+        q, v, acc = (np.zeros(self.model.nq) for _ in range(3))
+        q[self._kidx], v[self._kidx], acc[self._kidx] = a.get_qpos(), a.get_qvel(), a.get_qacc()
+        d = self.data
+        pin.rnea(self.model, d, q, v, acc)
+        j = self.joint
+        # the support the sensor's body gives the hand: fixed links plus each finger subtree
+        support = self.fixed * d.a_gf[j] + d.v[j].cross(self.fixed * d.v[j])
+        for i in self.roots:
+            support += d.liMi[i].act(d.f[i])
+        # the load on the sensor is the opposite of that support
+        return -self.origin.actInv(support).vector

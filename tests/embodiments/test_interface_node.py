@@ -292,7 +292,9 @@ def test_the_planner_service_goes_around_a_sensed_wall_and_refuses_an_unreachabl
         path.append(kin.frame_pose(spec.arm("arm").ee_frame)[:3, 3])
     path = np.array(path)
     crossing = path[np.abs(path[:, 1]) < 0.02]
-    assert len(crossing) and (crossing[:, 2] > 1.12).all(), "the tcp crossed the wall's plane through the wall"
+    # over the wall or around its side (OMPL's route depends on the CPU time it gets), never through it
+    through = (crossing[:, 0] > 0.28 - 0.02) & (crossing[:, 0] < 0.52 + 0.02) & (crossing[:, 2] < 1.12 + 0.02)
+    assert len(crossing) and not through.any(), f"the tcp crossed the wall's plane through the wall: {crossing[through]}"
 
     far = np.eye(4)
     far[:3, 3] = (3.0, 0.0, 1.0)

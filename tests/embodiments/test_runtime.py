@@ -16,6 +16,7 @@ def can_position(wm) -> np.ndarray:
     return wm.robots[ROBOT].sim.ground_truth().object_poses["cyl"][:3, 3].copy()
 
 
+@pytest.mark.exclusive
 def test_pick_and_place_runs_over_the_key_space_and_repeats_exactly_in_one_process_and_in_two(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     kept = {}
@@ -170,6 +171,7 @@ def test_the_readme_world_and_control_nodes_work_as_written(tmp_path, monkeypatc
         watch.close()
 
 
+@pytest.mark.exclusive
 def test_world_control_and_vision_pick_and_place_what_the_vision_node_segmented_and_repeat_in_three_processes(tmp_path):
     from contactflow.embodiments.layout import (
         CELLS,
@@ -253,6 +255,7 @@ def _idle_world_run(tmp_path, site: str, delay: float) -> dict:
             n.stop()
 
 
+@pytest.mark.exclusive
 def test_an_idle_world_pauses_and_a_primitive_run_at_any_wall_clock_moment_repeats_to_the_tick(tmp_path):
     early = _idle_world_run(tmp_path, "rti1", 0.1)
     late = _idle_world_run(tmp_path, "rti2", 1.5)

@@ -42,6 +42,50 @@ def test_ft_reads_the_held_weight(grasp):
     assert np.linalg.norm(f[:2]) < 0.05 * MASS * 9.81
 
 
+def quiet(wrench: np.ndarray) -> bool:
+    """A wrench within 5 sigma of the sensor's noise (FTSpec: 0.05 N, 0.005 N m per axis)."""
+    return bool(np.linalg.norm(wrench[:3]) < 0.25 and np.linalg.norm(wrench[3:]) < 0.025)
+
+
+def test_the_external_wrench_reads_the_load_whatever_was_tared_and_none_once_it_is_gone() -> None:
+    # a primitive tares with the plate in hand (transport does): the tared reading then calls
+    # the plate's loss a 5 N pull, the external one (the hand's own weight removed) an empty hand
+    robot = melfa_around_plate(MASS)
+    arm, hand = robot.arm("arm"), robot.hand("gripper")
+    assert quiet(robot.ft("arm").external)  # the open hand beside the plate: nothing
+    hand.close()
+    assert hand.wait(3.0) == Status.SUCCESS
+    up = arm.ee_pose()
+    up[2, 3] = 0.95
+    arm.move_pose(up, speed=0.15)
+    assert arm.wait(5.0) == Status.SUCCESS
+    robot.step(0.3)
+    robot.tare_ft("arm")
+    robot.step(0.02)
+    held = robot.ft("arm")
+    assert np.linalg.norm(held.force) < 0.05 * MASS * 9.81
+    assert held.external[2] == pytest.approx(-MASS * 9.81, rel=0.05)
+    robot.world.remove_object("obj")
+    robot.step(0.2)
+    gone = robot.ft("arm")
+    assert gone.force[2] == pytest.approx(MASS * 9.81, rel=0.05)
+    assert quiet(gone.external)
+
+
+def test_the_external_wrench_of_an_empty_hand_stays_zero_as_the_wrist_turns() -> None:
+    # the hand's weight pulls about the sensor differently in every pose: a tare holds for one
+    robot = make_robot("tombatossals")
+    arm = robot.arm("right")
+    q = arm.q().copy()
+    q[-2:] += (0.6, 1.0)
+    arm.move_joints(q, speed=0.5)
+    assert arm.wait(5.0) == Status.SUCCESS
+    robot.step(0.3)
+    turned = robot.ft("right")
+    assert np.linalg.norm(turned.torque) > 0.1  # the boot tare no longer matches the hand's weight
+    assert quiet(turned.external)
+
+
 def test_tactile_shows_pressure_only_under_contact(grasp):
     _, open_tactile, held = grasp
     assert all(np.all(v == 0) for v in open_tactile.values())

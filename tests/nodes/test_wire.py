@@ -114,7 +114,8 @@ def test_a_message_is_refused_exactly_when_it_carries_a_non_finite_number(values
     arr = encode(Array(array=NDArray.of(np.asarray(array, dtype=np.float32))))
     state = encode(RobotState(robot="r", tick=1, t=0.0, names=[], position=NDArray.of(np.zeros(0)),
                               velocity=NDArray.of(np.zeros(0)), arms=[], hands=[],
-                              wrenches=[WrenchSample(arm="a", force=values[:3], torque=[], frame="f", rotation=[])]))
+                              wrenches=[WrenchSample(arm="a", force=values[:3], torque=[], frame="f", rotation=[],
+                                                      external_force=[], external_torque=[])]))
     cases = [(vec, Vector, values), (ev, EventMsg, list(extra.values())), (arr, Array, array),
              (state, RobotState, values[:3])]
     for payload, type_, numbers in cases:

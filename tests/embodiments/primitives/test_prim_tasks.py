@@ -146,6 +146,41 @@ def test_pick_and_place_runs_end_to_end_while_the_head_tracks_the_object() -> No
     assert np.hypot(obj[0, 3] - 0.55, obj[1, 3] + 0.3) > 0.1  # somewhere else
 
 
+def test_a_can_taken_from_the_hand_during_the_carry_ends_the_place_on_fused_contacts() -> None:
+    # thesis Table 7.2, grasp lost during transport, told by the robot's contact fusion: the carry tares
+    # the wrist with the can in hand, so only the external wrench (the hand's own weight and motion
+    # removed) reads the hand as empty once the can is gone
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
+    robot = SimRobot(world, "tombatossals")
+    runner = LocalPrimitiveRunner(robot)
+    runner.host_contacts()
+    tasks, _ = load()
+    target = pose6(top_grasp_pose((0.55, -0.12, 0.93)))
+    taken: list[float] = []
+    lost: list = []
+
+    def watch(p) -> None:
+        if p.kind is ProgressKind.ENTERED and p.label == "carry":
+            away = np.eye(4)
+            away[:3, 3] = (0.3, 0.5, 0.8)
+            world.objects["cyl"].set_pose(away)
+            taken.append(robot.time)
+        if p.kind is ProgressKind.EVENT and p.event is Event.GRASP_LOST and p.node == "carry":
+            lost.append((robot.time, p.detail))
+
+    res, _ = run_task(tasks["pick_and_place"], robot, {"target": [target[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")],
+                                                       "sensor": "fused"},
+                      library=tasks, max_time=40.0, runner=runner, on_progress=watch)
+    assert res.status is Status.FAILURE and taken and len(lost) == 1, (res, taken, lost)
+    t, detail = lost[0]
+    assert "fused contacts" in detail
+    # a cue cycle (<= 0.05 s), the hypotheses' 0.3 s lifetime, the 0.2 s grace, a fusion cycle (<= 0.05 s):
+    # the carry's start (the arm's jerk reads 10 N on the tared wrist) kept no contact alive
+    assert 0.5 <= t - taken[0] <= 0.6, (t, taken)
+
+
 def test_clear_the_table_cycles_until_no_object_is_left() -> None:
     # two grasps in a row are contact-chaotic: a tenth of a millimetre in the first cluster's
     # centroid (rendered vs ray-cast cylinder tessellation) changes where the second object ends
