@@ -74,18 +74,33 @@ def primitive_modules(robot: str, embodiment: str = "", types: list[str] | None 
 
 def contact_modules(robot: str, embodiment: str = "") -> list[dict]:
     """Module entries of a robot's own contact fusion (thesis ch. 4) on its control node: the tactile and wrist
-    F/T generators of every arm with a hand (``contact_cues``), and ``contact_fusion`` over them, whose
-    contacts and events go out on ``contacts/fused/<robot>/...`` (what ``wait_event`` with ``sensor: fused`` reads)."""
+    F/T generators of every arm with a hand (``contact_cues``), the robot's posed model (``model``, from the
+    joints the world publishes) feeding motion support (§4.5.1: where the hands go next) and null hypotheses
+    (§4.2.1: the space they swept), and ``contact_fusion`` over them all, whose contacts and events go out on
+    ``contacts/fused/<robot>/...`` (what ``wait_event`` with ``sensor: fused`` reads)."""
     from contactflow.embodiments import registry
+    from contactflow.fusion.station import hand_links
 
-    arms = [a.name for a in registry.home(embodiment or robot).spec.arms if a.hand]
-    # a station's pace (thesis: fusion cycles at ~6-30 Hz): every cue each cycle, a contact broken 0.3 s after its
-    # last sight (a held object's contacts flicker between the pads and the wrist's bi-spheres)
-    cues = [{"name": f"cues_{a}", "type": "contact_cues", "robot": robot, "autostart": True,
-             "params": {"arm": a, "rate_hz": 20.0}} for a in arms]
-    return [*cues, {"name": "contacts", "type": "contact_fusion", "robot": robot, "autostart": True,
-                    "params": {"robot": robot, "sources": f"{robot}/*", "publish_hypotheses": False, "timeout": 0.3,
-                               "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3}}]
+    spec = registry.home(embodiment or robot).spec
+    arms = [a.name for a in spec.arms if a.hand]
+    hands = list(dict.fromkeys(p for a in arms for p in hand_links(spec, a)))
+    # a station's pace (thesis: fusion cycles at ~6-30 Hz): every generator each cycle, a contact broken 0.3 s
+    # after its last sight (a held object's contacts flicker between the pads and the wrist's bi-spheres)
+    pace = {"autostart": True, "robot": robot}
+    cues = [{"name": f"cues_{a}", "type": "contact_cues", **pace, "params": {"arm": a, "rate_hz": 20.0}} for a in arms]
+    model = {"name": "model", "type": "contactflow.embodiments.modules.model_publisher:RobotModelPublisher", **pace,
+             "params": {"rate_hz": 20.0}}
+    on_model = {"robot_model": "model.robot_model"}
+    generators = [{"name": "motion", "type": "motion_support_hypotheses", **pace, "inputs": on_model,
+                   "params": {"robot": robot, "rate_hz": 20.0, "links": hands}},
+                  # null where the hands are now, not where they were: a held object moves with the hand,
+                  # into the space its trailing side just left
+                  {"name": "null", "type": "null_hypotheses", **pace, "inputs": on_model,
+                   "params": {"robot": robot, "rate_hz": 20.0, "links": hands, "memory": 0.0}}]
+    return [*cues, model, *generators,
+            {"name": "contacts", "type": "contact_fusion", **pace,
+             "params": {"robot": robot, "sources": f"{robot}/*", "publish_hypotheses": False, "timeout": 0.3,
+                        "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3}}]
 
 
 def _plain(v: Any) -> Any:

@@ -72,7 +72,13 @@ def _contact(fused: Fused, idx: np.ndarray) -> Contact:
     sources = int(np.bitwise_or.reduce(fused.sources[idx])) if idx.size else 0
     robot = link = ""
     if fused.per_source.shape[1]:
-        col = int(np.argmax(fused.per_source[idx].sum(axis=0)))
+        mass = fused.per_source[idx].sum(axis=0)
+        # the link of the source with the most evidence among those that name one: a support or null
+        # cloud spanning both hands (motion, null) names none, and a voxel it supports stays on its link
+        named = np.array([bool(lk) for lk in fused.links[:mass.size]])
+        if named.any() and mass[named].max() > 0:
+            mass = np.where(named, mass, -np.inf)
+        col = int(np.argmax(mass))
         robot, link = fused.robots[col], fused.links[col]
     return Contact(c, min(1.0, wsum), sigma, force, direction, int(idx.size), sources, robot, link)
 

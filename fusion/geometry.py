@@ -97,7 +97,7 @@ def interior_points(caps: np.ndarray, step: float, depth: float) -> np.ndarray:
         lo = np.floor(lo / step) * step
         pts = grid_points(lo, hi, step)
         out.append(pts[capsule_distance(pts, cap[None]) < -depth])
-    return np.unique(np.concatenate(out), axis=0) if out else np.zeros((0, 3))
+    return _distinct_cells(out, step)
 
 
 def capsule_surface(caps: np.ndarray, step: float, band: float | None = None) -> np.ndarray:
@@ -111,5 +111,35 @@ def capsule_surface(caps: np.ndarray, step: float, band: float | None = None) ->
         lo = np.floor((np.minimum(cap[0:3], cap[4:7]) - r) / step) * step
         hi = np.maximum(cap[0:3], cap[4:7]) + r
         pts = grid_points(lo, hi, step)
+        # near this part's own surface first (one part, cheap); of those, the ones on the union's surface (a
+        # point near the union's surface but not this part's lies near another part's, whose own grid has it)
+        pts = pts[np.abs(capsule_distance(pts, cap[None])) <= band]
         out.append(pts[np.abs(capsule_distance(pts, caps)) <= band])
-    return np.unique(np.concatenate(out), axis=0) if out else np.zeros((0, 3))
+    return _distinct_cells(out, step)
+
+
+def _distinct_cells(parts: list[np.ndarray], step: float) -> np.ndarray:
+    """The distinct cell centres of one global grid (cell ``step``) among ``parts``, sorted: by integer
+    cell keys, as parts gridded from different corners differ in the last bits of the same centre."""
+    from contactflow.fusion.hypotheses import voxel_centers, voxel_keys
+
+    if not parts:
+        return np.zeros((0, 3))
+    return voxel_centers(np.unique(voxel_keys(np.concatenate(parts), step)), step)
+
+
+class PoseMemo:
+    """Points computed from bi-spheres (``fn(caps)``), kept while the bi-spheres stay within ``tol`` of
+    the ones they were computed for: a robot at rest, whose joint readings jitter by micrometres, costs
+    one computation, not one per cycle."""
+
+    def __init__(self, fn: Callable[[np.ndarray], np.ndarray], tol: float = 1e-3) -> None:
+        self.fn, self.tol = fn, tol
+        self._caps: np.ndarray | None = None
+        self._points = np.zeros((0, 3))
+
+    def __call__(self, caps: np.ndarray) -> np.ndarray:
+        if self._caps is None or self._caps.shape != caps.shape or np.abs(self._caps - caps).max() > self.tol:
+            self._caps, self._points = caps.copy(), self.fn(caps)
+        return self._points
+

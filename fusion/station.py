@@ -29,6 +29,16 @@ class Cue:
     min_force: float  # N, below this the wrist reading is noise
 
 
+def hand_links(spec, arm: str) -> tuple[str, ...]:
+    """Name prefixes of the links of ``arm``'s hand in the robot's model: its palm and fingertips (where
+    pads and contacts are), else the wrist sensor's link; () for an arm without a hand."""
+    a = spec.arm(arm)
+    if not a.hand:
+        return ()
+    hand = spec.hand(a.hand)
+    return tuple(p for p in (hand.palm_link, *hand.fingertips) if p) or ((spec.ft(a.ft).link,) if a.ft else ())
+
+
 def robot_cues(robot: object, min_force: float) -> list[Cue]:
     """The cues of every arm of ``robot`` with a hand (a SimRobot, or a world's robot over the key space)."""
     spec = robot.spec
@@ -36,10 +46,10 @@ def robot_cues(robot: object, min_force: float) -> list[Cue]:
     for arm in spec.arms:
         if not arm.hand:
             continue
-        hand = spec.hand(arm.hand)
         ft = spec.ft(arm.ft) if arm.ft else None
         ft_link = ft.link if ft is not None else ""
-        prefixes = tuple(p for p in (hand.palm_link, *hand.fingertips) if p) or (ft_link,)
+        hand = spec.hand(arm.hand)
+        prefixes = hand_links(spec, arm.name)
         # 4 sigma above the sensor noise: an estimated wrench (Baxter) is far noisier
         floor = max(min_force, 4.0 * ft.force_noise) if ft is not None else min_force
         cues.append(Cue(arm.name, arm.name, hand.name, ft_link, prefixes, floor))

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -10,13 +12,16 @@ from contactflow.embodiments.control.kinematics import Kinematics, KinematicsErr
 from contactflow.embodiments.messages import JointState, RobotModel, TaxelPoses
 from contactflow.embodiments.registry import PadSpec, RobotSpec
 from contactflow.embodiments.spherical import SphericalModel
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Status
 from contactflow.nodes.wire import NDArray
 
 
+@functools.lru_cache(maxsize=256)
 def pad_taxels(pad: PadSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Taxel centres and outward unit normals of ``pad`` in its link frame, each (rows, cols, 3)."""
+    """Taxel centres and outward unit normals of ``pad`` in its link frame, each (rows, cols, 3), read-only
+    (computed once per pad: every cue cycle poses them)."""
     from contactflow.embodiments.sensors.tactile import _pad_axes, taxel_positions
 
     local = taxel_positions(pad)
@@ -26,6 +31,8 @@ def pad_taxels(pad: PadSpec) -> tuple[np.ndarray, np.ndarray]:
         normals = (local - c) / np.linalg.norm(local - c, axis=-1, keepdims=True)
     else:
         normals = np.broadcast_to(n, local.shape).copy()
+    local.setflags(write=False)
+    normals.setflags(write=False)
     return local, normals
 
 
@@ -36,7 +43,11 @@ def sensor_frames(spec: RobotSpec) -> tuple[str, ...]:
 
 
 class RobotModelPublisher(Module):
-    """Subscribes the joint state and publishes the posed spherical model with the sensor frames, and each hand's taxel poses."""
+    """Subscribes the joint state and publishes the posed spherical model with the sensor frames, and each hand's taxel poses.
+
+    Given no ``spec`` (hosted from a node's configuration) it models the robot it is hosted for,
+    as the world built it (embodiment and base), and reads that robot's ``robot/<robot>/joints``.
+    """
 
     layer = Layer.INTERFACE
     inputs = (Port("joint_state", JointState, "joint positions of the robot"),)
@@ -50,29 +61,50 @@ class RobotModelPublisher(Module):
         rate_hz: float = 50.0  # Hz, at most once per new joint state
         frames: tuple[str, ...] = ()  # extra frames to pose besides the sensor links
 
-    def __init__(self, name: str, spec: RobotSpec, base: np.ndarray, robot: str = "",
-                 params: Params | None = None) -> None:
+    def __init__(self, name: str, params: Params | None = None, spec: RobotSpec | None = None,
+                 base: np.ndarray | None = None, robot: str = "") -> None:
         super().__init__(name, params)
         self.spec = spec
-        self.base = np.asarray(base, dtype=np.float64)
-        self.robot = robot or spec.name
+        self.base = None if base is None else np.asarray(base, dtype=np.float64)
+        self.robot = robot or (spec.name if spec is not None else "")
         self.kin: Kinematics | None = None
         self.model: SphericalModel | None = None
 
+    @classmethod
+    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        """The joints the world publishes of the robot the module is hosted for."""
+        return {"joint_state": ks.robot(robot, "joints")}
+
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
-        self.kin = Kinematics(self.spec.urdf(), self.base)
-        self.model = SphericalModel.from_urdf(self.kin, str(self.spec.urdf()))
-        self.frames = tuple(dict.fromkeys((*sensor_frames(self.spec), *self.params.frames)))
+        self._last = None
+        if self.spec is None:
+            from contactflow.embodiments.remote import link
+
+            link(io.transport, io.keyspace, io.robot, io.node)  # the world's description, asked at the first step
+        else:
+            self._build(self.spec, self.base if self.base is not None else np.eye(4))
+
+    def _build(self, spec: RobotSpec, base: np.ndarray) -> None:
+        self.spec, self.base = spec, base
+        self.kin = Kinematics(spec.urdf(), base)
+        self.model = SphericalModel.from_urdf(self.kin, str(spec.urdf()))
+        self.frames = tuple(dict.fromkeys((*sensor_frames(spec), *self.params.frames)))
         for f in self.frames:
             self.kin.frame_id(f)
         self.hands = [(h.name, [p.name for p in h.pads], [p.link for p in h.pads],
                        np.stack([pad_taxels(p)[0] for p in h.pads]), np.stack([pad_taxels(p)[1] for p in h.pads]))
-                      for h in self.spec.hands if h.pads]
-        self._last = None
+                      for h in spec.hands if h.pads]
 
     def step(self) -> Status:
-        assert self.io is not None and self.kin is not None and self.model is not None
+        assert self.io is not None
+        if self.kin is None:
+            from contactflow.embodiments.remote import connect
+
+            robot = connect(self.io.transport, self.io.keyspace, self.io.robot, self.io.node)
+            self.robot = self.robot or robot.name
+            self._build(robot.spec, robot.base)
+        assert self.kin is not None and self.model is not None
         msg = self.io.latest("joint_state")
         if msg is None or msg is self._last:
             return Status.RUNNING

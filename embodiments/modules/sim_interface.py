@@ -168,8 +168,8 @@ class SimInterface(Module):
         parts += [(TactilePublisher(f"tactile_{h.name}", robot, TactilePublisher.Params(rate_hz=p.rate_hz, hand=h.name)), every)
                   for h in spec.hands if h.pads]
         if p.model_hz > 0:
-            parts.append((RobotModelPublisher("model", spec, robot.art.base, robot.name,
-                                              RobotModelPublisher.Params(rate_hz=p.model_hz)), 1.0 / p.model_hz))
+            parts.append((RobotModelPublisher("model", RobotModelPublisher.Params(rate_hz=p.model_hz),
+                                              spec, robot.art.base, robot.name), 1.0 / p.model_hz))
         if p.camera_hz > 0 and spec.cameras:
             parts.append((CameraPublisher("camera", robot, CameraPublisher.Params(
                 rate_hz=p.camera_hz, camera=spec.cameras[0].name, stride=p.camera_stride)), 1.0 / p.camera_hz))

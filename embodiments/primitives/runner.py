@@ -8,7 +8,7 @@ from typing import Any
 
 from contactflow.embodiments import registry
 from contactflow.embodiments.primitives.base import Primitive, PrimitiveError, Robot
-from contactflow.nodes.config import ModuleConfig
+from contactflow.nodes.config import ModuleConfig, parse_source
 from contactflow.nodes.keys import ModuleAddr
 from contactflow.nodes.messages import Command, EventMsg
 from contactflow.nodes.params import replace_params
@@ -137,7 +137,9 @@ class LocalPrimitiveRunner:
         for entry in contact_modules(self.robot.name, self.robot.spec.name):
             cls = resolve(entry["type"])
             params = replace_params(cls.Params(), entry["params"], where=f"{entry['name']}.params.")
-            self._host.add(ModuleConfig(entry["name"], entry["type"], cls, params, self.robot.name, autostart=False))
+            inputs = {port: parse_source(src) for port, src in entry.get("inputs", {}).items()}
+            self._host.add(ModuleConfig(entry["name"], entry["type"], cls, params, self.robot.name, inputs=inputs,
+                                        autostart=False))
             reply = self._host.send_control(f"{self.robot.name}/{entry['name']}", Command.RUN, {})
             if not reply.ok:
                 raise RuntimeError(f"{entry['name']} did not start: {reply.error}")

@@ -79,6 +79,13 @@ def capsules_of(msg: Message | None, port: str, module: str, prefixes: tuple[str
     return check_capsules(caps, where)
 
 
+def link_groups(msg: Message, module: str, prefixes: tuple[str, ...]) -> list[np.ndarray]:
+    """The bi-spheres of a ``RobotModel`` input per link name prefix (all of them as one group without
+    prefixes): what moves together, so a shape computed from a group is redone only when it moves."""
+    groups = [capsules_of(msg, "robot_model", module, (p,)) for p in prefixes or ("",)]
+    return [g for g in groups if g is not None]
+
+
 def frame_of(msg: RobotModel, frame: str, module: str) -> np.ndarray:
     """World pose (4, 4) of ``frame`` carried by a ``RobotModel`` input."""
     if frame not in msg.frames or msg.poses is None:

@@ -8,13 +8,13 @@ support hypotheses of fixed likelihood ``weight`` (0.3 in the thesis) are placed
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from contactflow.embodiments.messages import RobotModel
-from contactflow.fusion.generators.base import GeneratorModule, capsules_of
-from contactflow.fusion.geometry import capsule_surface
+from contactflow.fusion.generators.base import GeneratorModule, link_groups
+from contactflow.fusion.geometry import PoseMemo, capsule_surface
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType, voxelize
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
@@ -29,7 +29,7 @@ class MotionParams:
     robot: str = "robot"
     weight: float = 0.3  # likelihood of every support hypothesis (thesis §4.5.1)
     voxel_size: float = VOXEL_SIZE  # m
-    links: tuple[str, ...] = ()  # name prefixes of the links whose next surface gets support; () = all
+    links: tuple[str, ...] = ()  # name prefixes of the links whose next surface gets support (each its own surface); () = all, one surface
 
 
 def predict(q: np.ndarray, q_prev: np.ndarray) -> np.ndarray:
@@ -73,10 +73,12 @@ class MotionSupportHypothesesGenerator(GeneratorModule):
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
-        self._prev: np.ndarray | None = None
+        self.reset()
 
     def reset(self) -> None:
-        self._prev = None
+        self._prev: list[np.ndarray] | None = None
+        self._surfaces: dict[int, PoseMemo] = {}
+        self._last: tuple[list[np.ndarray], Hypotheses] | None = None  # the surfaces of the last cloud, the cloud
 
     def step(self) -> Status:
         assert self.io is not None
@@ -84,19 +86,26 @@ class MotionSupportHypothesesGenerator(GeneratorModule):
         if not frames:
             return Status.RUNNING
         msg = frames[-1]
-        caps = capsules_of(msg, "robot_model", self.name, self.params.links)
-        assert caps is not None
-        prev, self._prev = self._prev, caps
-        if prev is None or prev.shape != caps.shape:
+        groups = link_groups(msg, self.name, self.params.links)
+        prev, self._prev = self._prev, groups
+        if prev is None or [g.shape for g in prev] != [g.shape for g in groups]:
             return Status.RUNNING
-        nxt = caps.copy()
-        nxt[:, 0:3] = predict(caps[:, 0:3], prev[:, 0:3])
-        nxt[:, 4:7] = predict(caps[:, 4:7], prev[:, 4:7])
-        pts = capsule_surface(nxt, self.params.voxel_size)
+        parts = []
+        for i, (caps, before) in enumerate(zip(groups, prev, strict=True)):
+            nxt = caps.copy()
+            nxt[:, 0:3] = predict(caps[:, 0:3], before[:, 0:3])
+            nxt[:, 4:7] = predict(caps[:, 4:7], before[:, 4:7])
+            surface = self._surfaces.setdefault(i, PoseMemo(lambda c: capsule_surface(c, self.params.voxel_size)))
+            parts.append(surface(nxt))
         stamp = self.stamp_of(msg)
-        if pts.shape[0] == 0:
-            self.publish_cloud(Hypotheses.empty(stamp))
+        if self._last is not None and all(a is b for a, b in zip(parts, self._last[0], strict=True)):
+            self.publish_cloud(replace(self._last[1], stamp=stamp))  # nothing moved: the same support
             return Status.RUNNING
-        h = Hypotheses.make(pts, self.params.weight, HypothesisType.SUPPORT, stamp=stamp, where=self.name)
-        self.publish_cloud(voxelize(h, self.params.voxel_size, reduce="max"))
+        pts = np.concatenate(parts)
+        h = Hypotheses.empty(stamp)
+        if pts.shape[0]:
+            h = voxelize(Hypotheses.make(pts, self.params.weight, HypothesisType.SUPPORT, stamp=stamp, where=self.name),
+                         self.params.voxel_size, reduce="max")
+        self._last = (parts, h)
+        self.publish_cloud(h)
         return Status.RUNNING

@@ -9,13 +9,13 @@ discarded by the integrator.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from contactflow.embodiments.messages import RobotModel
-from contactflow.fusion.generators.base import GeneratorModule, capsules_of
-from contactflow.fusion.geometry import grid_points, interior_points
+from contactflow.fusion.generators.base import GeneratorModule, link_groups
+from contactflow.fusion.geometry import PoseMemo, grid_points, interior_points
 from contactflow.fusion.hypotheses import (
     VOXEL_SIZE,
     Hypotheses,
@@ -34,6 +34,7 @@ class NullParams:
     margin: float = 0.015  # m, depth under the robot surface from which space counts as swept
     memory: float = 0.5  # s, how long swept space stays null
     voxel_size: float = VOXEL_SIZE  # m
+    links: tuple[str, ...] = ()  # name prefixes of the links whose swept volume is null; () = all
 
 
 class NullGenerator:
@@ -46,12 +47,28 @@ class NullGenerator:
         vs = self.params.voxel_size
         boxes = [grid_points(lo, hi, vs) for lo, hi in free_boxes]
         self.free = np.unique(voxel_keys(np.concatenate(boxes), vs)) if boxes else np.zeros(0, dtype=np.int64)
+        self._last: tuple[np.ndarray, float, float, Hypotheses] | None = None  # points, since, computed at, cloud
 
     def update(self, inside: np.ndarray | None, stamp: float) -> Hypotheses:
         """Add the points now inside the robot (deeper than ``margin``, see
-        :func:`~contactflow.fusion.geometry.interior_points`); null hypotheses of all."""
+        :func:`~contactflow.fusion.geometry.interior_points`); null hypotheses of all. The same points
+        (the same array) for longer than ``memory`` make the same cloud, computed once."""
+        last = self._last
+        same = inside is not None and last is not None and inside is last[0]
+        if same and last[2] - last[1] > self.params.memory:
+            # every other point expired before that cloud was made: the swept voxels are these, swept now
+            self.when = np.full_like(self.when, stamp)
+            return replace(last[3], stamp=stamp)
+        out = self._update(inside, stamp)
+        self._last = (inside, last[1] if same else stamp, stamp, out) if inside is not None else None
+        return out
+
+    def _update(self, inside: np.ndarray | None, stamp: float) -> Hypotheses:
         p = self.params
-        if inside is not None:
+        if p.memory <= 0:  # only where the robot is now: nothing to merge with what it swept
+            self.keys = np.unique(voxel_keys(inside, p.voxel_size)) if inside is not None else self.keys[:0]
+            self.when = np.full(self.keys.size, stamp)
+        elif inside is not None:
             inside = np.asarray(inside, dtype=float).reshape(-1, 3)
             keys = np.concatenate([self.keys, voxel_keys(inside, p.voxel_size)])
             when = np.concatenate([self.when, np.full(inside.shape[0], stamp)])
@@ -76,10 +93,13 @@ class NullHypothesesGenerator(GeneratorModule):
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
-        self.core = NullGenerator(self.params)
+        self.reset()
 
     def reset(self) -> None:
         self.core = NullGenerator(self.params)
+        self._inside: dict[int, PoseMemo] = {}
+        self._parts: list[np.ndarray] = []
+        self._all = np.zeros((0, 3))
 
     def step(self) -> Status:
         assert self.io is not None
@@ -87,8 +107,12 @@ class NullHypothesesGenerator(GeneratorModule):
         if not frames:
             return Status.RUNNING
         msg = frames[-1]
-        caps = capsules_of(msg, "robot_model", self.name)
-        assert caps is not None
-        inside = interior_points(caps, self.params.voxel_size, self.params.margin)
-        self.publish_cloud(self.core.update(inside, self.stamp_of(msg)))
+        parts = []
+        for i, caps in enumerate(link_groups(msg, self.name, self.params.links)):
+            memo = self._inside.setdefault(i, PoseMemo(lambda c: interior_points(c, self.params.voxel_size,
+                                                                                  self.params.margin)))
+            parts.append(memo(caps))
+        if len(parts) != len(self._parts) or any(a is not b for a, b in zip(parts, self._parts, strict=False)):
+            self._parts, self._all = parts, np.concatenate(parts)  # a new array only when a group moved
+        self.publish_cloud(self.core.update(self._all, self.stamp_of(msg)))
         return Status.RUNNING

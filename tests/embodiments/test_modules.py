@@ -114,7 +114,7 @@ def test_robot_model_publisher_poses_the_spherical_model_sensor_frames_and_taxel
 
     js = FakeIO()
     run_module(JointStatePublisher("js", robot), js, steps=1)
-    pub = RobotModelPublisher("model", robot.spec, robot.art.base)
+    pub = RobotModelPublisher("model", spec=robot.spec, base=robot.art.base)
     io = FakeIO()
     run_module(pub, io, steps=1)
     assert io.published["robot_model"] == []  # nothing before the first joint state

@@ -63,6 +63,18 @@ def test_contact_gets_robot_and_link_of_main_source():
     assert c.likelihood == pytest.approx(1 - 0.1 * 0.9)
 
 
+def test_a_support_cloud_naming_no_link_does_not_take_the_contact_off_its_link():
+    # motion support spans both hands and names no link; it outweighs a thin F/T line on the voxel it
+    # supports, and the contact stays on the hand the F/T names
+    from contactflow.fusion.hypotheses import HypothesisType
+
+    integ = Integrator()
+    integ.offer("r1/force_torque", Hypotheses.make(A[None], 0.05), 0.0, robot="r1", link="right_hand")
+    integ.offer("r1/motion", Hypotheses.make(A[None], 0.3, HypothesisType.SUPPORT), 0.0, robot="r1", link="")
+    (c,) = condense(integ.cycle(0.0), CondensationParams(threshold=0.01, min_mass=0.0))
+    assert (c.robot, c.link) == ("r1", "right_hand")
+
+
 def test_bad_params_are_refused():
     with pytest.raises(ValueError, match="cluster_eps"):
         CondensationParams(cluster_eps=0).validate()

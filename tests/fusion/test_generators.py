@@ -191,6 +191,25 @@ def test_simulator_support_and_pose_sampling():
     assert poses.shape == (500, 4, 4) and abs(poses[:, :3, 3].std() - 0.02) < 0.003
 
 
+def test_a_robot_at_rest_gets_the_null_clouds_it_would_get_were_each_computed_afresh():
+    # a hand that moved and then holds still: its points come as the same array (the shell's memo), so the
+    # generator reuses its cloud once everything swept before has expired; fresh copies never are reused
+    caps = np.array([[0.5, 0, 0.8, 0.03, 0.5, 0, 0.8, 0.03]])
+    before, after = (interior_points(c, 0.005, 0.01) for c in (caps, caps + [0.1, 0, 0, 0, 0.1, 0, 0, 0]))
+    reused, fresh = (NullGenerator(NullParams(margin=0.01, memory=0.25)) for _ in range(2))
+    reused.update(before, 0.0)
+    fresh.update(before.copy(), 0.0)
+    sizes = []
+    for k in range(1, 12):
+        t = 0.05 * k
+        a, b = reused.update(after, t), fresh.update(after.copy(), t)
+        assert np.array_equal(a.location, b.location) and a.stamp == b.stamp == t, t
+        sizes.append(len(a))
+    assert sizes[0] > sizes[-1] == len(after)  # both positions, then only where the hand rests
+    reused.update(before, 0.65)  # it moves back: both again
+    assert len(reused.update(before, 0.7)) > len(after)
+
+
 def test_null_generator_swept_space_and_free_boxes():
     gen = NullGenerator(NullParams(margin=0.01, memory=0.5), free_boxes=[(np.array([1.0, 1, 1]), np.array([1.02, 1.02, 1.02]))])
     caps = np.array([[0.5, 0, 0.8, 0.03, 0.5, 0, 0.8, 0.03]])

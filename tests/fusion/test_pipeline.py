@@ -95,7 +95,7 @@ def wire(robot, fusion_name: str = "fusion") -> Bus:
     """Interface publishers -> robot model, tactile and F/T generators -> contact fusion, on one bus."""
     bus = Bus()
     bus.add(JointStatePublisher("joint_state", robot))
-    bus.add(RobotModelPublisher("model", robot.spec, robot.art.base), joint_state="joint_state.joint_state")
+    bus.add(RobotModelPublisher("model", spec=robot.spec, base=robot.art.base), joint_state="joint_state.joint_state")
     bus.add(TactilePublisher("tactile_pub", robot, TactilePublisher.Params(hand="gripper")))
     bus.add(FTPublisher("ft_pub", robot, FTPublisher.Params(arm="arm")))
     bus.add(GroundTruthPublisher("truth", robot))
