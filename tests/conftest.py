@@ -12,9 +12,18 @@ import pytest
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "heavy: one of the suite's longest tests, started early so no worker ends alone on it")
     config.addinivalue_line(
         "markers", "exclusive: runs while no other test runs (its assertions compare wall-clock-sensitive runs, "
                    "e.g. a lockstep run repeated across process layouts, which CPU contention can reorder)")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The heavy tests first and the exclusive ones last (a worker's test file goes with them): the short
+    tests between let the two workers end together, and an exclusive test waits for the other worker's
+    current test, short at the end (behind the demo it would wait two minutes)."""
+    items.sort(key=lambda item: (item.get_closest_marker("heavy") is None)
+               + 2 * (item.get_closest_marker("exclusive") is not None))
 
 
 @contextmanager

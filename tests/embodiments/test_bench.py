@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from contactflow.embodiments.bench_sim import run
 
 
+@pytest.mark.heavy
 def test_quick_bench_writes_its_summary(tmp_path):
     summary = run(tmp_path, quick=True)
     saved = json.loads((tmp_path / "sim.json").read_text())

@@ -5,10 +5,12 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from contactflow.embodiments import bench_grasp
 
 
+@pytest.mark.heavy
 def test_bench_grasp_quick_runs_the_same_trials_in_process_and_on_the_runtime(tmp_path) -> None:
     summary = bench_grasp.run(tmp_path, quick=True, executor="both")
     assert {r["controller"] for r in summary["rows"]} == {"naive", "robust", "naive + error", "robust + error"}
@@ -25,8 +27,6 @@ def test_bench_grasp_quick_runs_the_same_trials_in_process_and_on_the_runtime(tm
 
 
 def test_bench_grasp_refuses_an_unknown_executor(tmp_path) -> None:
-    import pytest
-
     from contactflow.nodes.params import ParamError
 
     with pytest.raises(ParamError, match="--executor 'sim' is not one of"):

@@ -12,34 +12,6 @@ from contactflow.nodes.status import Event
 ROBOT = "tombatossals"
 
 
-def can_position(wm) -> np.ndarray:
-    return wm.robots[ROBOT].sim.ground_truth().object_poses["cyl"][:3, 3].copy()
-
-
-@pytest.mark.exclusive
-def test_pick_and_place_runs_over_the_key_space_and_repeats_exactly_in_one_process_and_in_two(tmp_path):
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    kept = {}
-    one = run_cell(tmp_path / "one", *table_cell("rt1", endpoint), endpoint,
-                   keep=lambda wm: kept.update(can=can_position(wm), overruns=wm.overruns,
-                                               refused=wm.robots[ROBOT].refused))
-    assert one.outcomes[ROBOT].event is Event.SUCCESS, one.events
-    assert kept["overruns"] == 0 and kept["refused"] == 0
-    # the can left its place and stands on the table near the place target
-    cyl = kept["can"]
-    assert cyl[2] == pytest.approx(0.81, abs=0.015)
-    assert np.hypot(cyl[0] - 0.55, cyl[1] + 0.3) > 0.1
-    visited = {m for _, m, _ in one.events}
-    assert {"detect_objects", "move_to", "robust_grasp", "lift", "transport", "place", "release"} <= visited
-
-    # the same configuration, each node a process of its own
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    two = run_cell(tmp_path / "two", *table_cell("rt1", endpoint), endpoint, processes=True)
-    assert two.outcomes[ROBOT].event is Event.SUCCESS
-    assert two.outcomes[ROBOT].hdr.t_sim == pytest.approx(one.outcomes[ROBOT].hdr.t_sim, abs=1e-9)
-    assert two.events == one.events
-
-
 def test_two_robots_in_one_cell_each_run_a_task_without_disturbing_the_other(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     kept = {}
@@ -169,104 +141,6 @@ def test_the_readme_world_and_control_nodes_work_as_written(tmp_path, monkeypatc
         for p in reversed(procs):
             stop_process(p)
         watch.close()
-
-
-@pytest.mark.exclusive
-def test_world_control_and_vision_pick_and_place_what_the_vision_node_segmented_and_repeat_in_three_processes(tmp_path):
-    from contactflow.embodiments.layout import (
-        CELLS,
-        PLACE_TARGET,
-        VISION_INPUTS,
-        control_node,
-        vision_node,
-        world_node,
-    )
-    from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
-    from contactflow.embodiments.tasks import TASKS_DIR
-
-    target = list(pose6(top_grasp_pose(PLACE_TARGET)).values())
-    runs = []
-    for processes in (False, True):
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        control = control_node("rtv", ROBOT, ROBOT, TASKS_DIR / "thesis.yaml", "pick_and_place", {"target": target},
-                               connect=(endpoint,), autostart=True, inputs=VISION_INPUTS)
-        vision = vision_node("rtv", ROBOT, connect=(endpoint,))
-        world = world_node("rtv", CELLS / "pick_place.yaml", listen=endpoint,
-                           wait_for=(control["node"], vision["node"]), camera_hz=2.0)
-        runs.append(run_cell(tmp_path / str(processes), world, [control], endpoint, processes=processes,
-                             services=(vision,), timeout=180))
-    one, three = runs
-    assert three.outcomes[ROBOT].event is Event.SUCCESS, three.events
-    detected = [e for e in three.messages if e.event is Event.OBJECT_DETECTED]
-    assert len(detected) == 1, [(e.module, e.event, e.detail) for e in three.messages]
-    (detected,) = detected
-    # the objects came from the vision node, cut from a frame of the world's depth stream; no frame of its own
-    assert "vision chain, depth frame site/world/world/tombatossals/depth#" in detected.detail, detected.detail
-    assert (detected.values["cx"], detected.values["cy"]) == pytest.approx((0.55, -0.3), abs=0.025)  # the can (r 3 cm)
-    assert (detected.values["tx"], detected.values["ty"]) == pytest.approx((0.55, -0.3), abs=0.01)  # its top, seen whole
-    visited = {m for _, m, _ in three.events}
-    assert {"robust_grasp", "lift", "transport", "place", "release"} <= visited
-    # the vision node in lockstep: the same detection of the same depth frame at the same tick in one process and
-    # in three, and the same events at the same simulated times; the detection repeats to a micrometre, not always
-    # to the last bit (a full-suite run differed by 2e-8 m)
-    (first,) = [e for e in one.messages if e.event is Event.OBJECT_DETECTED]
-    assert first.detail == detected.detail and first.hdr.t_sim == detected.hdr.t_sim
-    assert first.values == pytest.approx(detected.values, abs=1e-6)
-    assert one.events == three.events
-
-
-def _idle_world_run(tmp_path, site: str, delay: float) -> dict:
-    """A paused-when-idle world and its control node; ``move_to`` run by hand ``delay`` s of wall time after the
-    world went idle; what the world did meanwhile and when the move ended."""
-    import time
-
-    from contactflow.embodiments.layout import SiteWatch
-    from contactflow.nodes.config import load_node_config
-    from contactflow.nodes.messages import Command
-    from contactflow.nodes.node import Node
-    from contactflow.nodes.procs import wait_for, write_config
-
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    world, (control,) = table_cell(site, endpoint)
-    world["modules"][0]["params"]["idle"] = "pause"
-    control["modules"][-1]["autostart"] = False  # no task: the node is idle until a primitive is run by hand
-    nodes = [Node(load_node_config(write_config(tmp_path / f"{site}_{c['node']}.yaml", c))) for c in (world, control)]
-    for n in nodes:
-        n.start()
-    watch = SiteWatch(site, endpoint)
-    wm = nodes[0].host.modules[("site", "world")].module
-    try:
-        assert wait_for(lambda: wm.paused, 60)
-        paused_at = wm.tick_no
-        assert wm.status_detail().startswith(f"paused at tick {paused_at} ")  # what `contactflow ls` shows
-        time.sleep(delay)
-        idle_ticks = wm.tick_no - paused_at
-        far = [0.4, -0.4, 1.1, 3.14159, 0.0, 0.0]
-        assert nodes[1].host.send_control(f"{ROBOT}/move_to", Command.RUN, {"target": far, "arm": "right"}).ok
-        assert wait_for(lambda: watch.outcome("move_to") is not None, 120)
-        assert wait_for(lambda: wm.paused, 10)  # idle again once the move ended
-        end = wm.tick_no
-        time.sleep(0.3)
-        return {"paused_at": paused_at, "idle_ticks": idle_ticks, "outcome": watch.outcome("move_to"),
-                "end": end, "after_end": wm.tick_no - end, "pauses": wm.pauses}
-    finally:
-        watch.close()
-        for n in reversed(nodes):
-            n.stop()
-
-
-@pytest.mark.exclusive
-def test_an_idle_world_pauses_and_a_primitive_run_at_any_wall_clock_moment_repeats_to_the_tick(tmp_path):
-    early = _idle_world_run(tmp_path, "rti1", 0.1)
-    late = _idle_world_run(tmp_path, "rti2", 1.5)
-    for run in (early, late):
-        # no tick while the node was idle, before the move or after it; paused twice
-        assert run["idle_ticks"] == 0 and run["after_end"] == 0 and run["pauses"] == 2, run
-        assert run["outcome"].event is Event.SUCCESS, run["outcome"]
-    # the world waited at the same tick, and the move ran the same ticks, however long the wait was
-    assert early["paused_at"] == late["paused_at"] and early["end"] == late["end"]
-    assert early["outcome"].hdr.t_sim == late["outcome"].hdr.t_sim
-    assert early["outcome"].values == late["outcome"].values
 
 
 FEEL = """

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
 from contactflow.embodiments.primitives.robust_grasp import RobustGrasp
@@ -96,6 +97,7 @@ def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
     assert robot.ground_truth().object_poses["cyl"][2, 3] > 0.87
 
 
+@pytest.mark.heavy
 def test_robust_grasp_that_closed_on_nothing_looks_for_the_object_and_grasps_it() -> None:
     def block_scene() -> tuple[SimRobot, LocalPrimitiveRunner]:
         world = World(WorldParams())
@@ -251,8 +253,6 @@ def test_robust_grasp_finger_lost_correction_fires_and_shifts_toward_the_contact
 
 
 def test_a_parallel_gripper_refuses_the_finger_lost_correction() -> None:
-    import pytest
-
     from contactflow.embodiments.primitives.base import PrimitiveError
 
     robot = SimRobot(World(WorldParams()), "melfa")
