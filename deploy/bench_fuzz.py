@@ -107,7 +107,9 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
     sent: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     t0 = time.time()
     try:
-        up = wait_for(lambda: len(tool.alive(ks.alive_robot(), timeout=0.5)) >= len(ROBOTS), timeout=120)
+        # every node announced (a busy machine brings the vision nodes up after the robots) and every robot
+        up = wait_for(lambda: len(tool.alive(ks.alive_node(), timeout=0.5)) >= len(launches)
+                      and len(tool.alive(ks.alive_robot(), timeout=0.5)) >= len(ROBOTS), timeout=120)
         if not up:
             raise RuntimeError(f"the deployment did not come up; see {out / 'fuzz-logs'}")
         time.sleep(1.5)

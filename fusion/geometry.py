@@ -87,6 +87,7 @@ def interior_points(caps: np.ndarray, step: float, depth: float) -> np.ndarray:
     part's own bounding box so a long arm costs no more than its volume."""
     caps = check_capsules(caps)
     out = []
+    budget = _Budget(step)
     for cap in caps:
         r = max(cap[3], cap[7])
         if r <= depth:
@@ -95,9 +96,27 @@ def interior_points(caps: np.ndarray, step: float, depth: float) -> np.ndarray:
         hi = np.maximum(cap[0:3], cap[4:7]) + r
         # Snap to the global grid so that cells of neighbouring parts coincide.
         lo = np.floor(lo / step) * step
+        budget.spend(lo, hi)
         pts = grid_points(lo, hi, step)
         out.append(pts[capsule_distance(pts, cap[None]) < -depth])
     return _distinct_cells(out, step)
+
+
+MAX_CELLS = 4_000_000  # grid cells one shape may take (a robot's two hands at 5 mm take about 0.1 M)
+
+
+class _Budget:
+    """Counts the grid cells a shape's parts take and refuses past ``MAX_CELLS``: bi-spheres of a
+    corrupted model (metres wide) would grid for minutes."""
+
+    def __init__(self, step: float) -> None:
+        self.step, self.cells = step, 0
+
+    def spend(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        self.cells += int(np.prod(np.maximum(np.ceil((hi - lo) / self.step), 0)))
+        if self.cells > MAX_CELLS:
+            raise ValueError(f"bi-spheres spanning {np.round(hi - lo, 2).tolist()} m take over {MAX_CELLS:,} cells "
+                             f"of {self.step:g} m: not a robot's parts")
 
 
 def capsule_surface(caps: np.ndarray, step: float, band: float | None = None) -> np.ndarray:
@@ -106,10 +125,12 @@ def capsule_surface(caps: np.ndarray, step: float, band: float | None = None) ->
     caps = check_capsules(caps)
     band = step * np.sqrt(3) / 2 if band is None else band
     out = []
+    budget = _Budget(step)
     for cap in caps:
         r = max(cap[3], cap[7]) + band
         lo = np.floor((np.minimum(cap[0:3], cap[4:7]) - r) / step) * step
         hi = np.maximum(cap[0:3], cap[4:7]) + r
+        budget.spend(lo, hi)
         pts = grid_points(lo, hi, step)
         # near this part's own surface first (one part, cheap); of those, the ones on the union's surface (a
         # point near the union's surface but not this part's lies near another part's, whose own grid has it)

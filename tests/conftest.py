@@ -1,4 +1,4 @@
-"""Suite-wide fixtures: tests marked ``exclusive`` run alone when the suite runs on several workers."""
+"""Suite-wide order and locks on several workers: the heavy tests first, and tests marked ``exclusive`` last and alone."""
 
 from __future__ import annotations
 

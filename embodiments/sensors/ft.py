@@ -132,7 +132,6 @@ class HandLoad:
         R_base = kin.base[:3, :3]
         self.model.gravity.linear = R_base.T @ np.asarray(art.world.params.gravity, dtype=np.float64)
         self.data = self.model.createData()
-        self._q = np.zeros(self.model.nq)
         self._kidx = kin.q_index(art.joint_names)
         sensor = art.links[sensor_link]
         hand_joints = set()

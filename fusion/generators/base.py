@@ -15,6 +15,8 @@ from contactflow.nodes.messages import Array
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.wire import Message
 
+MAX_PART = 2.0  # m, the largest radius or length of one bi-sphere a robot model may carry
+
 
 class GeneratorModule(Module):
     """Base of the generator shells. ``Params`` of subclasses carry ``robot`` (the robot whose
@@ -76,7 +78,16 @@ def capsules_of(msg: Message | None, port: str, module: str, prefixes: tuple[str
         if not keep.any():
             raise ValueError(f"{where}: no link starts with {list(prefixes)} (links: {msg.links})")
         caps = caps[keep]
-    return check_capsules(caps, where)
+    caps = check_capsules(caps, where)
+    # a link's bi-sphere is a robot's part: a message claiming a bigger one (a corrupted or hostile model) would
+    # make the shape generators grid cubic metres at 5 mm, a loop stalled for minutes
+    radius, length = caps[:, [3, 7]].max(axis=1, initial=0.0), np.linalg.norm(caps[:, 4:7] - caps[:, 0:3], axis=1)
+    big = np.flatnonzero((radius > MAX_PART) | (length > MAX_PART))
+    if big.size:
+        link = [lk for lk, k in zip(msg.links, keep if prefixes else [True] * m, strict=True) if k][big[0]]
+        raise ValueError(f"{where}: link {link!r} has a bi-sphere of radius {radius[big[0]]:.3g} m and length "
+                         f"{length[big[0]]:.3g} m; a part of a robot is at most {MAX_PART:g} m")
+    return caps
 
 
 def link_groups(msg: Message, module: str, prefixes: tuple[str, ...]) -> list[np.ndarray]:

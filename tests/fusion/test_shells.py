@@ -210,3 +210,18 @@ def test_simulator_and_null_shells():
     null.step()
     (h,) = clouds(io)
     assert len(h) > 10 and (h.kind == HypothesisType.NULL).all()
+
+
+def test_a_robot_model_with_a_part_metres_wide_is_refused_by_the_shape_generators_naming_the_link():
+    # a corrupted or hostile model: gridding a 1.9 m bi-sphere at 5 mm would stall the node's loop for minutes
+    from contactflow.fusion.geometry import capsule_surface, interior_points
+
+    for gen in (NullHypothesesGenerator("null"), MotionSupportHypothesesGenerator("motion")):
+        io = started(gen)
+        io.feed("robot_model", robot_model([[0.5, 0, 0.8, 3.0, 0.5, 0, 0.9, 0.02], [0.5, 0.2, 0.8, 0.02, 0.5, 0.2, 0.9, 0.02]]))
+        with pytest.raises(ValueError, match=r"link 'link0' has a bi-sphere of radius 3 m .* at most 2 m"):
+            gen.step()
+    wide = np.array([[0.0, 0, 0, 1.9, 0, 0, 0.5, 1.9]])
+    for shape in (lambda: capsule_surface(wide, 0.005), lambda: interior_points(wide, 0.005, 0.01)):
+        with pytest.raises(ValueError, match="cells of 0.005 m: not a robot's parts"):
+            shape()
