@@ -8,7 +8,8 @@ from contactflow.embodiments.sensors.camera import shape_mesh
 from contactflow.embodiments.transforms import pose_to_matrix
 
 
-def _subtree(root) -> list:
+def link_subtree(root) -> list:
+    """``root`` and every link past it (a SAPIEN link and its descendants)."""
     out, todo = [], [root]
     while todo:
         link = todo.pop()
@@ -43,7 +44,7 @@ def hand_points(robot, arm: str, edge_step: float = 0.0) -> np.ndarray:
         raise ValueError(f"{robot.name}: arm {arm!r} has no link driven by its last joint {last!r}")
     T_ee_inv = np.linalg.inv(robot.frame_pose(spec.ee_frame))
     points = []
-    for link in _subtree(root):
+    for link in link_subtree(root):
         T = pose_to_matrix(link.get_entity_pose())
         for shape in link.get_collision_shapes():
             mesh = shape_mesh(shape)

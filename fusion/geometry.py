@@ -11,6 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from contactflow.fusion.hypotheses import voxel_centers, voxel_keys
+
 DistanceFn = Callable[[np.ndarray], np.ndarray]
 """Signed distance (n,) of world points (n, 3) to the robot surface: < 0 inside."""
 
@@ -142,8 +144,6 @@ def capsule_surface(caps: np.ndarray, step: float, band: float | None = None) ->
 def _distinct_cells(parts: list[np.ndarray], step: float) -> np.ndarray:
     """The distinct cell centres of one global grid (cell ``step``) among ``parts``, sorted: by integer
     cell keys, as parts gridded from different corners differ in the last bits of the same centre."""
-    from contactflow.fusion.hypotheses import voxel_centers, voxel_keys
-
     if not parts:
         return np.zeros((0, 3))
     return voxel_centers(np.unique(voxel_keys(np.concatenate(parts), step)), step)
@@ -163,4 +163,3 @@ class PoseMemo:
         if self._caps is None or self._caps.shape != caps.shape or np.abs(self._caps - caps).max() > self.tol:
             self._caps, self._points = caps.copy(), self.fn(caps)
         return self._points
-

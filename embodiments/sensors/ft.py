@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from contactflow.embodiments.hand_geometry import link_subtree
 from contactflow.embodiments.registry import FTSpec
 from contactflow.embodiments.transforms import pose_to_matrix
 
@@ -78,12 +79,12 @@ class WristFT:
         # the constraint acts on the hand; the load on the sensor is its opposite
         return -_rotate(pose_to_matrix(self.link.get_joint().get_global_pose())[:3, :3], fw)
 
-    def _load(self) -> np.ndarray:
+    def _load(self, R_world_sensor: np.ndarray) -> np.ndarray:
         """What the hand's own weight and motion press on the sensor (world axes, about its origin);
         an estimated wrench never sees them (the arm's drives are gravity-compensated)."""
         if self._hand_model is None:
             return np.zeros(6)
-        return _rotate(self._pose()[:3, :3], self._hand_model.wrench())
+        return _rotate(R_world_sensor, self._hand_model.wrench())
 
     def _pose(self) -> np.ndarray:
         return pose_to_matrix(self.link.get_entity_pose())
@@ -114,8 +115,8 @@ class WristFT:
         noise = np.concatenate([self.rng.normal(0, s.force_noise, 3), self.rng.normal(0, s.torque_noise, 3)])
         noise += np.asarray(s.bias, dtype=np.float64)
         w = raw - self.tare_value + noise
-        self._last = WrenchReading(t, w[:3], w[3:], s.link, self._pose()[:3, :3], s.estimated,
-                                   raw - self._load() + noise)
+        R = self._pose()[:3, :3]
+        self._last = WrenchReading(t, w[:3], w[3:], s.link, R, s.estimated, raw - self._load(R) + noise)
         return self._last
 
 
@@ -133,14 +134,7 @@ class HandLoad:
         self.model.gravity.linear = R_base.T @ np.asarray(art.world.params.gravity, dtype=np.float64)
         self.data = self.model.createData()
         self._kidx = kin.q_index(art.joint_names)
-        sensor = art.links[sensor_link]
-        hand_joints = set()
-        for lk in art.articulation.get_links():
-            up = lk
-            while up is not None and up is not sensor:
-                up = up.get_joint().get_parent_link() if up.get_joint() is not None else None
-            if up is sensor:
-                hand_joints.add(lk.get_joint().get_name())
+        hand_joints = {lk.get_joint().get_name() for lk in link_subtree(art.links[sensor_link])}
         fid = self.model.getFrameId(sensor_link)
         if fid >= len(self.model.frames):
             raise ValueError(f"F/T on {sensor_link!r}: the robot's model has no such link")

@@ -72,29 +72,33 @@ def capsules_of(msg: Message | None, port: str, module: str, prefixes: tuple[str
     m = len(msg.links)
     if not (c1.shape[0] == c2.shape[0] == r1.shape[0] == r2.shape[0] == m):
         raise ValueError(f"{where}: {m} links but c1 {c1.shape}, r1 {r1.shape}, c2 {c2.shape}, r2 {r2.shape}")
-    caps = np.concatenate([c1, r1[:, None], c2, r2[:, None]], axis=1).astype(np.float64)
-    if prefixes:
-        keep = np.array([any(link.startswith(p) for p in prefixes) for link in msg.links], dtype=bool)
-        if not keep.any():
-            raise ValueError(f"{where}: no link starts with {list(prefixes)} (links: {msg.links})")
-        caps = caps[keep]
-    caps = check_capsules(caps, where)
+    caps = check_capsules(np.concatenate([c1, r1[:, None], c2, r2[:, None]], axis=1).astype(np.float64), where)
     # a link's bi-sphere is a robot's part: a message claiming a bigger one (a corrupted or hostile model) would
     # make the shape generators grid cubic metres at 5 mm, a loop stalled for minutes
     radius, length = caps[:, [3, 7]].max(axis=1, initial=0.0), np.linalg.norm(caps[:, 4:7] - caps[:, 0:3], axis=1)
     big = np.flatnonzero((radius > MAX_PART) | (length > MAX_PART))
     if big.size:
-        link = [lk for lk, k in zip(msg.links, keep if prefixes else [True] * m, strict=True) if k][big[0]]
-        raise ValueError(f"{where}: link {link!r} has a bi-sphere of radius {radius[big[0]]:.3g} m and length "
-                         f"{length[big[0]]:.3g} m; a part of a robot is at most {MAX_PART:g} m")
-    return caps
+        raise ValueError(f"{where}: link {msg.links[big[0]]!r} has a bi-sphere of radius {radius[big[0]]:.3g} m and "
+                         f"length {length[big[0]]:.3g} m; a part of a robot is at most {MAX_PART:g} m")
+    return caps[_links_of(msg, prefixes, where)] if prefixes else caps
+
+
+def _links_of(msg: RobotModel, prefixes: tuple[str, ...], where: str) -> np.ndarray:
+    """The mask of the links whose names start with one of ``prefixes``; none is an error."""
+    keep = np.array([any(link.startswith(p) for p in prefixes) for link in msg.links], dtype=bool)
+    if not keep.any():
+        raise ValueError(f"{where}: no link starts with {list(prefixes)} (links: {msg.links})")
+    return keep
 
 
 def link_groups(msg: Message, module: str, prefixes: tuple[str, ...]) -> list[np.ndarray]:
     """The bi-spheres of a ``RobotModel`` input per link name prefix (all of them as one group without
     prefixes): what moves together, so a shape computed from a group is redone only when it moves."""
-    groups = [capsules_of(msg, "robot_model", module, (p,)) for p in prefixes or ("",)]
-    return [g for g in groups if g is not None]
+    caps = capsules_of(msg, "robot_model", module)  # decoded and checked once
+    if caps is None or not prefixes:
+        return [] if caps is None else [caps]
+    where = f"{module}: input 'robot_model' ({msg.robot})"
+    return [caps[_links_of(msg, (p,), where)] for p in prefixes]
 
 
 def frame_of(msg: RobotModel, frame: str, module: str) -> np.ndarray:

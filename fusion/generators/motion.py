@@ -95,8 +95,9 @@ class MotionSupportHypothesesGenerator(GeneratorModule):
             nxt = caps.copy()
             nxt[:, 0:3] = predict(caps[:, 0:3], before[:, 0:3])
             nxt[:, 4:7] = predict(caps[:, 4:7], before[:, 4:7])
-            surface = self._surfaces.setdefault(i, PoseMemo(lambda c: capsule_surface(c, self.params.voxel_size)))
-            parts.append(surface(nxt))
+            if i not in self._surfaces:
+                self._surfaces[i] = PoseMemo(lambda c: capsule_surface(c, self.params.voxel_size))
+            parts.append(self._surfaces[i](nxt))
         stamp = self.stamp_of(msg)
         if self._last is not None and all(a is b for a, b in zip(parts, self._last[0], strict=True)):
             self.publish_cloud(replace(self._last[1], stamp=stamp))  # nothing moved: the same support

@@ -109,9 +109,9 @@ class NullHypothesesGenerator(GeneratorModule):
         msg = frames[-1]
         parts = []
         for i, caps in enumerate(link_groups(msg, self.name, self.params.links)):
-            memo = self._inside.setdefault(i, PoseMemo(lambda c: interior_points(c, self.params.voxel_size,
-                                                                                  self.params.margin)))
-            parts.append(memo(caps))
+            if i not in self._inside:
+                self._inside[i] = PoseMemo(lambda c: interior_points(c, self.params.voxel_size, self.params.margin))
+            parts.append(self._inside[i](caps))
         if len(parts) != len(self._parts) or any(a is not b for a, b in zip(parts, self._parts, strict=False)):
             self._parts, self._all = parts, np.concatenate(parts)  # a new array only when a group moved
         self.publish_cloud(self.core.update(self._all, self.stamp_of(msg)))

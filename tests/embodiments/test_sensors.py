@@ -22,8 +22,14 @@ MASS = 0.5
 def grasp():
     """melfa picks a 0.5 kg box: (robot, tactile while open, tactile while holding)."""
     robot = melfa_around_plate(MASS)
-    arm, hand = robot.arm("arm"), robot.hand("gripper")
     open_tactile = robot.tactile("gripper")
+    lift_the_plate(robot)
+    return robot, open_tactile, robot.tactile("gripper")
+
+
+def lift_the_plate(robot) -> None:
+    """melfa closes on the plate it stands around and lifts it to 0.95 m, then lets it settle 0.3 s."""
+    arm, hand = robot.arm("arm"), robot.hand("gripper")
     hand.close()
     assert hand.wait(3.0) == Status.SUCCESS
     up = arm.ee_pose()
@@ -31,7 +37,6 @@ def grasp():
     arm.move_pose(up, speed=0.15)
     assert arm.wait(5.0) == Status.SUCCESS
     robot.step(0.3)
-    return robot, open_tactile, robot.tactile("gripper")
 
 
 def test_ft_reads_the_held_weight(grasp):
@@ -51,15 +56,8 @@ def test_the_external_wrench_reads_the_load_whatever_was_tared_and_none_once_it_
     # a primitive tares with the plate in hand (transport does): the tared reading then calls
     # the plate's loss a 5 N pull, the external one (the hand's own weight removed) an empty hand
     robot = melfa_around_plate(MASS)
-    arm, hand = robot.arm("arm"), robot.hand("gripper")
     assert quiet(robot.ft("arm").external)  # the open hand beside the plate: nothing
-    hand.close()
-    assert hand.wait(3.0) == Status.SUCCESS
-    up = arm.ee_pose()
-    up[2, 3] = 0.95
-    arm.move_pose(up, speed=0.15)
-    assert arm.wait(5.0) == Status.SUCCESS
-    robot.step(0.3)
+    lift_the_plate(robot)
     robot.tare_ft("arm")
     robot.step(0.02)
     held = robot.ft("arm")

@@ -116,14 +116,21 @@ def test_empty_box_vision_approach_leaves_the_pregrasp_room_above_the_object() -
     assert reach + 0.02 < standoff  # at least 2 cm of room between the fingertips and the object's top
 
 
-def test_pick_and_place_runs_end_to_end_while_the_head_tracks_the_object() -> None:
-    # Fig. 6.3: the pick and place task and the tracking task (Fig. 6.2) run side by side
+PLACE_TARGET = list(pose6(top_grasp_pose((0.55, -0.12, 0.93))).values())  # 18 cm left of the can, top grasp
+
+
+def can_on_the_table() -> SimRobot:
+    """tombatossals before a table with a 0.2 kg can (r 3 cm, 12 cm tall) standing at (0.55, -0.3)."""
     world = World(WorldParams())
     world.add_table()
     world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
-    robot = SimRobot(world, "tombatossals")
+    return SimRobot(world, "tombatossals")
+
+
+def test_pick_and_place_runs_end_to_end_while_the_head_tracks_the_object() -> None:
+    # Fig. 6.3: the pick and place task and the tracking task (Fig. 6.2) run side by side
+    robot = can_on_the_table()
     tasks, main = load()
-    target = pose6(top_grasp_pose((0.55, -0.12, 0.93)))
     visited: list[str] = []
     gaze: dict[str, float] = {"start": gaze_deg(robot, "cyl")}
 
@@ -132,8 +139,7 @@ def test_pick_and_place_runs_end_to_end_while_the_head_tracks_the_object() -> No
             visited.append(p.label)
             gaze[p.label] = gaze_deg(robot, "cyl")
 
-    res, engine = run_task(tasks["look_and_pick_and_place"], robot,
-                           {"target": [target[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
+    res, engine = run_task(tasks["look_and_pick_and_place"], robot, {"target": PLACE_TARGET},
                            library=tasks, max_time=60.0, runner=LocalPrimitiveRunner(robot), on_progress=entered)
     assert res.status is Status.SUCCESS and res.terminal == "done", (res, visited)
     for node in ("localize", "follow", "detect", "approach", "grasp", "lift", "carry", "put", "open", "retreat"):
@@ -150,14 +156,11 @@ def test_a_can_taken_from_the_hand_during_the_carry_ends_the_place_on_fused_cont
     # thesis Table 7.2, grasp lost during transport, told by the robot's contact fusion: the carry tares
     # the wrist with the can in hand, so only the external wrench (the hand's own weight and motion
     # removed) reads the hand as empty once the can is gone
-    world = World(WorldParams())
-    world.add_table()
-    world.add_object(cylinder("cyl", 0.03, 0.12, xyz=(0.55, -0.3, 0.81), mass=0.2, friction=0.8))
-    robot = SimRobot(world, "tombatossals")
+    robot = can_on_the_table()
+    world = robot.world
     runner = LocalPrimitiveRunner(robot)
     runner.host_contacts()
     tasks, _ = load()
-    target = pose6(top_grasp_pose((0.55, -0.12, 0.93)))
     taken: list[float] = []
     lost: list = []
 
@@ -170,8 +173,7 @@ def test_a_can_taken_from_the_hand_during_the_carry_ends_the_place_on_fused_cont
         if p.kind is ProgressKind.EVENT and p.event is Event.GRASP_LOST and p.node == "carry":
             lost.append((robot.time, p.detail))
 
-    res, _ = run_task(tasks["pick_and_place"], robot, {"target": [target[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")],
-                                                       "sensor": "fused"},
+    res, _ = run_task(tasks["pick_and_place"], robot, {"target": PLACE_TARGET, "sensor": "fused"},
                       library=tasks, max_time=40.0, runner=runner, on_progress=watch)
     assert res.status is Status.FAILURE and taken and len(lost) == 1, (res, taken, lost)
     t, detail = lost[0]
