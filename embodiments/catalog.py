@@ -2,6 +2,7 @@
 
 CATALOG = {
     "world": "contactflow.embodiments.modules.world_module:WorldModule",
+    "predictor": "contactflow.embodiments.modules.predictor:Predictor",
     "sim_interface": "contactflow.embodiments.modules.sim_interface:SimInterface",
     "cartesian_controller_left": "contactflow.embodiments.modules.cartesian_service:LeftArmCartesianController",
     "cartesian_controller_right": "contactflow.embodiments.modules.cartesian_service:RightArmCartesianController",

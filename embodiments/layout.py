@@ -136,9 +136,10 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
                  plan: Mapping[str, Any] | None = None, node: str = "", clock: str = "lockstep",
                  listen: str = "", connect: tuple[str, ...] = (), pool: int = 2,
                  autostart: bool = False, inputs: Mapping[str, Mapping[str, str]] | None = None,
-                 contacts: bool = False) -> dict[str, Any]:
+                 contacts: bool = False, predictor: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """A robot's control node: the task module and the primitive modules of its task, in lockstep;
-    with ``contacts``, the robot's contact fusion too (:func:`contact_modules`).
+    with ``contacts``, the robot's contact fusion too (:func:`contact_modules`); with ``predictor``
+    (its params, e.g. ``{"belief": scene_file}``), the robot's predictor (thesis ch. 5).
 
     With ``autostart`` the task starts with the node, at the first tick it steps (a world
     that waits for the node makes that tick 0); else on a RUN control message. ``inputs``
@@ -155,6 +156,9 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
             m["inputs"] = dict(inputs[m["type"]])
     if contacts:
         modules += contact_modules(robot, embodiment)
+    if predictor is not None:
+        modules.append({"name": "predictor", "type": "predictor", "robot": robot, "autostart": True,
+                        "params": {k: _plain(v) for k, v in predictor.items()}})
     modules.append({"name": "task", "type": "task", "robot": robot, "autostart": autostart,
                     "params": {"task_file": str(task_file), "task": name, "robot": robot,
                                "plan": yaml.safe_dump(_plain(dict(plan or {})), default_flow_style=True).strip(),
@@ -453,9 +457,10 @@ def _pose(xyz: tuple[float, float, float]) -> list[float]:
     return [p[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
 
 
-def table_cell(site: str, endpoint: str, melfa: bool = False) -> tuple[dict, list[dict]]:
+def table_cell(site: str, endpoint: str, melfa: bool = False,
+               predictor: Mapping[str, Any] | None = None) -> tuple[dict, list[dict]]:
     """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3), its grasp
-    watched on its fused contacts while it carries the can;
+    watched on its fused contacts while it carries the can (and by its predictor, with ``predictor``: its params);
     with ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube.
 
     Returns the world node (listening on ``endpoint``, waiting for the control nodes before
@@ -466,7 +471,7 @@ def table_cell(site: str, endpoint: str, melfa: bool = False) -> tuple[dict, lis
     # the full stack of a control node: its contact fusion too, which watches the grasp while the can is carried
     controls = [control_node(site, "tombatossals", "tombatossals", TASKS_DIR / "thesis.yaml", "pick_and_place",
                              {"target": _pose(PLACE_TARGET), "sensor": "fused"}, connect=(endpoint,), autostart=True,
-                             contacts=True)]
+                             contacts=True, predictor=predictor)]
     if melfa:
         controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE)},
                                      connect=(endpoint,), autostart=True))

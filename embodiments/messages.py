@@ -297,3 +297,49 @@ class RobotInfo(Message, tag="robot_info"):
     clock: str = "lockstep"  # lockstep | realtime
     control_rate: float = 200.0  # Hz, one tick
     seed: int = 0  # the run's seed: controllers seed their planners with it, so a run repeats
+
+
+# -- a robot's predictor (cf/<site>/predict/<robot>/...) -----------------------------------------
+
+
+class PredictedState(Message, tag="predicted_state"):
+    """What a robot's predictor (its own simulation, fed the robot's commands) holds after world tick ``tick``."""
+
+    max_bytes = 4 << 20
+    robot: str
+    tick: int  # the world tick it predicts the state after
+    t: float  # s, simulated time of that tick
+    names: list[str]  # every active joint
+    position: NDArray  # (n,) float64, rad or m: predicted joints
+    joint_error: float  # rad, largest difference of an arm joint from the measured
+    objects: list[str] = []  # the objects the predictor believes in
+    poses: NDArray | None = None  # (k, 4, 4) float64, their predicted world poses
+    contacts: NDArray | None = None  # (m, 3) float64, m: predicted contact points of the robot's hands, world
+    contact_links: list[str] = []  # the link of each contact point
+    contact_hands: list[str] = []  # the hand of each contact point
+    arms: list[str] = []  # the arms with a wrist F/T
+    force: list[float] = []  # N, per arm 3 values: predicted external force at the wrist, world axes
+    force_error: list[float] = []  # N, per arm: its difference from the measured external force
+
+
+class MismatchKind(StrEnum):
+    """How prediction and sensing disagree (thesis §5.7)."""
+
+    UNEXPECTED_CONTACT = "unexpected_contact"  # a sensed contact where none was predicted
+    MISSING_CONTACT = "missing_contact"  # a predicted contact that was not sensed (never came, or lost)
+    JOINTS = "joints"  # the measured arm joints left the predicted ones (an arm held back, pushed)
+    FORCE = "force"  # the measured wrist load differs from the predicted (a heavier object, a push)
+
+
+class PredictionMismatch(Message, tag="prediction_mismatch"):
+    """Prediction and sensing disagree: what differed, where and since when."""
+
+    robot: str
+    kind: MismatchKind  # what differed
+    t: float  # s, simulated time at which it was decided
+    since: float  # s, simulated time at which the difference began (the evidence's time)
+    location: list[float] = []  # m, world: where (contacts), empty when it has no place
+    part: str = ""  # the hand or arm concerned, when known
+    value: float = 0.0  # the size of the difference: m for contacts (distance to the nearest counterpart, -1: none), rad, N
+    bound: float = 0.0  # the bound it crossed, same unit
+    detail: str = ""  # human-readable what

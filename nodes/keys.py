@@ -13,6 +13,7 @@ Layout (``docs/protocol.md`` documents it with examples)::
     cf/<site>/broker/progress/<task_id>                    abstract progress stream
     cf/<site>/broker/robots/<robot>/{caps,translate,run}   per-robot broker queryables
     cf/<site>/eval/<robot>/<stream>                        ground truth, for evaluation only
+    cf/<site>/predict/<robot>/{state,mismatch}             a robot's predictor (thesis ch. 5): predicted state, mismatches
     cf/<site>/robot/<robot>/{state,joints,command,camera,depth,info}
                                                            a world's robot: state per tick, commands in, camera
                                                            frames on request, depth stream, description (queryable)
@@ -47,6 +48,8 @@ CLAIM_MODES = ("excl", "mix")
 BENCH_SIGNALS = ("ready", "done")
 ROBOT_STREAMS = ("state", "joints", "command", "camera", "depth", "info")
 """A world's robot: its state each tick, the commands it takes, camera frames, its description."""
+PREDICT_STREAMS = ("state", "mismatch")
+"""A robot's predictor: what its simulation predicts each tick, and where prediction and sensing disagree."""
 
 
 class KeyExprError(ValueError):
@@ -159,6 +162,12 @@ class KeySpace:
 
     def alive_controller(self, robot: str = ANY, node: str = ANY) -> str:
         return f"{self.prefix}/alive/controller/{segment(robot, 'robot')}/{segment(node, 'node')}"
+
+    # -- prediction (thesis ch. 5) ----------------------------------------------------
+    def predict(self, robot: str = ANY, stream: str = ANY) -> str:
+        if stream != ANY and stream not in PREDICT_STREAMS:
+            raise KeyExprError(f"stream={stream!r}: predictor streams are {', '.join(PREDICT_STREAMS)}")
+        return f"{self.prefix}/predict/{segment(robot, 'robot')}/{stream}"
 
     # -- evaluation (ground truth; primitives and fusion never subscribe) -------------
     def evaluation(self, robot: str = ANY, stream: str = ANY) -> str:

@@ -78,6 +78,48 @@ def _finite(a: np.ndarray, what: str) -> np.ndarray:
     return a
 
 
+def _joint_values(sim: Any, joints: tuple[str, ...], values: np.ndarray, what: str) -> np.ndarray:
+    idx = sim.art.indices(joints)
+    lo, hi = sim.art.lower[idx], sim.art.upper[idx]
+    tol = 1e-6
+    bad = (values < lo - tol) | (values > hi + tol)
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise CommandError(f"{what}: joint {joints[j]!r} target {values[j]:.4f} "
+                           f"outside its limits [{lo[j]:.4f}, {hi[j]:.4f}]")
+    return values
+
+
+def apply_arm(sim: Any, msg: ArmCommand) -> None:
+    """Validate an arm command and hand it to the arm's drives of ``sim`` (a SimRobot); CommandError if refused."""
+    arm = sim.arm(msg.arm)
+    what = f"arm {msg.arm}"
+    if msg.kind is ArmCommandKind.TARGET:
+        n = len(arm.joints)
+        v = None if msg.values is None else _finite(msg.values.numpy().astype(np.float64), what)
+        if v is None or v.shape != (2, n):
+            raise CommandError(f"{what}: a target needs values of shape (2, {n}), got {None if v is None else v.shape}")
+        arm.stream(_joint_values(sim, arm.joints, v[0], what), v[1])
+    else:
+        sim.tare_ft(msg.arm)
+
+
+def apply_hand(sim: Any, msg: HandCommand) -> None:
+    """Validate a hand command and start it on the hand of ``sim``; CommandError if refused."""
+    hand = sim.hand(msg.hand)
+    if not 0.0 < msg.effort <= 1.0:
+        raise CommandError(f"hand {msg.hand}: effort {msg.effort} is not in (0, 1]")
+    if msg.preshape:
+        hand.preshape(msg.preshape, msg.effort)
+        return
+    if msg.values is None:
+        raise CommandError(f"hand {msg.hand}: a command needs values or a preshape")
+    v = _finite(msg.values.numpy().astype(np.float64), f"hand {msg.hand}")
+    if v.shape != (len(hand.joints),):
+        raise CommandError(f"hand {msg.hand}: needs {len(hand.joints)} values, got shape {v.shape}")
+    hand.set_fingers(_joint_values(sim, hand.joints, v, f"hand {msg.hand}"), msg.effort)
+
+
 @dataclass
 class _Robot:
     sim: Any  # SimRobot
@@ -568,44 +610,12 @@ class WorldModule(Module):
         self.log.warning(detail)
         self.io.emit(Event.HARDWARE_FAILURE, detail[:500], self._when())
 
-    def _joint_values(self, sim: Any, joints: tuple[str, ...], values: np.ndarray, what: str) -> np.ndarray:
-        idx = sim.art.indices(joints)
-        lo, hi = sim.art.lower[idx], sim.art.upper[idx]
-        tol = 1e-6
-        bad = (values < lo - tol) | (values > hi + tol)
-        if bad.any():
-            j = int(np.argmax(bad))
-            raise CommandError(f"{what}: joint {joints[j]!r} target {values[j]:.4f} "
-                               f"outside its limits [{lo[j]:.4f}, {hi[j]:.4f}]")
-        return values
-
     def _arm(self, r: _Robot, msg: ArmCommand) -> None:
-        sim = r.sim
-        arm = sim.arm(msg.arm)
-        what = f"arm {msg.arm}"
-        if msg.kind is ArmCommandKind.TARGET:
-            n = len(arm.joints)
-            v = None if msg.values is None else _finite(msg.values.numpy().astype(np.float64), what)
-            if v is None or v.shape != (2, n):
-                raise CommandError(f"{what}: a target needs values of shape (2, {n}), got {None if v is None else v.shape}")
-            arm.stream(self._joint_values(sim, arm.joints, v[0], what), v[1])
-        else:
-            sim.tare_ft(msg.arm)
+        apply_arm(r.sim, msg)
         r.arm_seq[msg.arm] = max(r.arm_seq.get(msg.arm, 0), msg.seq)
 
     def _hand(self, r: _Robot, msg: HandCommand) -> None:
-        hand = r.sim.hand(msg.hand)
-        if not 0.0 < msg.effort <= 1.0:
-            raise CommandError(f"hand {msg.hand}: effort {msg.effort} is not in (0, 1]")
-        if msg.preshape:
-            hand.preshape(msg.preshape, msg.effort)
-        else:
-            if msg.values is None:
-                raise CommandError(f"hand {msg.hand}: a command needs values or a preshape")
-            v = _finite(msg.values.numpy().astype(np.float64), f"hand {msg.hand}")
-            if v.shape != (len(hand.joints),):
-                raise CommandError(f"hand {msg.hand}: needs {len(hand.joints)} values, got shape {v.shape}")
-            hand.set_fingers(self._joint_values(r.sim, hand.joints, v, f"hand {msg.hand}"), msg.effort)
+        apply_hand(r.sim, msg)
         r.hand_seq[msg.hand] = max(r.hand_seq.get(msg.hand, 0), msg.seq)
 
     def _head(self, r: _Robot, msg: HeadCommand) -> None:

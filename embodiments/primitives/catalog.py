@@ -22,5 +22,6 @@ CATALOG = {
     "detect_objects": f"{_P}.detect_objects:DetectObjects",
     "place_location": f"{_P}.place_location:PlaceLocation",
     "wait_event": f"{_P}.wait_event:WaitEvent",
+    "watch_prediction": f"{_P}.watch_prediction:WatchPrediction",
     "track": f"{_P}.track:Track",
 }

@@ -1,0 +1,402 @@
+"""A robot's predictor (thesis ch. 5): its own SAPIEN scene beside the robot, fed the robot's commands, compared with what it senses.
+
+The module builds a simulation of what the robot believes: its embodiment at its base (the
+world's description of the robot), the cell's fixtures and the objects of a *belief* scene
+file (where the task thinks they are: the ATD's locations, not the world's truth), posed at
+the robot's first measured joints. It subscribes the robot's command port, as the world does,
+and the robot's state: for every world tick it applies the commands the world applied before
+that tick (the state's ``applied`` sequence numbers say which), steps its scene by one tick
+and compares:
+
+- its hands' contact points with the robot's fused contacts (``contacts/fused/<robot>/contacts``),
+- its arm joints with the measured ones, its wrist loads with the measured external wrench,
+
+through :class:`~contactflow.embodiments.prediction.MismatchDetector`. Each mismatch goes out
+on ``predict/<robot>/mismatch`` and as a ``prediction_mismatch`` event, and the predictor
+resynchronises its robot to the measured joints (also every ``resync`` s). What it predicts
+goes out on ``predict/<robot>/state`` at ``publish_hz``. Nothing here reads ``eval/``.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from contactflow.embodiments.messages import (
+    ArmCommand,
+    CameraRequest,
+    HandCommand,
+    HeadCommand,
+    PredictedState,
+    PredictionMismatch,
+    RobotInfo,
+    RobotState,
+)
+from contactflow.embodiments.prediction import Mismatch, MismatchDetector, MismatchParams
+from contactflow.fusion.messages import ContactList
+from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.module import Layer, Module, Port
+from contactflow.nodes.status import Event, Status
+from contactflow.nodes.wire import NDArray
+
+_commands = msgspec.msgpack.Decoder(ArmCommand | HandCommand | HeadCommand | CameraRequest)
+MAX_PENDING = 4096  # commands kept while waiting for the states that apply them
+
+
+class Predictor(Module):
+    """Simulates the robot from its commands and reports where prediction and sensing disagree."""
+
+    layer = Layer.SERVICE
+    inputs = (
+        Port("state", RobotState, "the robot's state after each world tick"),
+        Port("sensed", ContactList, "the robot's fused contacts, every cycle"),
+    )
+    outputs = (
+        Port("predicted", PredictedState, "what the predictor holds after a world tick"),
+        Port("mismatch", PredictionMismatch, "where prediction and sensing disagree"),
+    )
+    events = (Event.PREDICTION_MISMATCH,)
+
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 200.0  # Hz; each step predicts every world tick that came since the last
+        belief: str = ""  # a scene file of what the robot believes: fixtures and objects (its robots are not read); "": the world's fixtures only
+        window: float = 0.1  # s, how far in time a sensed and a predicted contact may lie apart
+        radius: float = 0.08  # m, how far in space, for a sensed contact that names no hand
+        hold: float = 0.3  # s the robot's fusion keeps a contact after its last sight (its tracker's hold)
+        absent: float = 0.3  # s a hand that should feel a predicted contact must feel nothing before it is missing
+        sustain: float = 0.1  # s a predicted contact or a joint or load difference lasts before it counts
+        joint_bound: float = 0.1  # rad, arm joints (thesis Fig. 5.16)
+        force_bound: float = 5.0  # N, external wrist force (undisturbed pick and place: medians differ up to 4.3 N as the can touches down)
+        min_force: float = 1.5  # N, the contact cues' wrist floor: a predicted contact is expected to be felt when the hand's pads would feel it or its wrist this much
+        quiet: float = 1.0  # s before the same kind at the same place is reported again
+        resync: float = 1.0  # s between resynchronisations to the measured joints (0: only on a mismatch)
+        publish_hz: float = 20.0  # Hz of simulated time, predicted states on predict/<robot>/state
+        command_wait: float = 0.5  # s of wall time a state waits for a command it says was applied
+
+    def __init__(self, name: str, params: Params | None = None) -> None:
+        super().__init__(name, params)
+        self.robot = ""
+        self._names: list[str] = []
+        self.sim: Any = None  # the predictor's SimRobot
+        self.world: Any = None
+        self.detector: MismatchDetector | None = None
+        self.mismatches: list[PredictionMismatch] = []
+        self.tick = -1
+        self.t = 0.0
+        self.joint_error = 0.0
+        self.force_error: dict[str, float] = {}
+        self.missed = 0  # commands a state said were applied that never came
+        self.ignored = 0  # commands the predictor could not apply (refused by the world too)
+        self.refused = 0  # states of other joints than the robot's first state
+        self._pending: deque = deque()
+        self._seen: dict[str, int] = {}  # part (arm or hand) -> highest command seq received
+        self._lock = threading.Lock()
+        self._states: deque[RobotState] = deque()
+        self._last: RobotState | None = None  # the newest state predicted
+        self._waiting_since: float | None = None
+        self._published_at = -np.inf
+        self._resynced_at = 0.0
+        self._handles: list[Any] = []
+        self.log = logging.getLogger(f"contactflow.predictor.{name}")
+
+    @classmethod
+    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        """The state the world publishes of the robot the module is hosted for, and the robot's fused contacts."""
+        return {"state": ks.robot(robot, "state"), "sensed": ks.fused(robot, "contacts")}
+
+    @classmethod
+    def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
+        return {"predicted": ks.predict(robot, "state"), "mismatch": ks.predict(robot, "mismatch")}
+
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        p = self.params
+        self._mismatch_params().validate(f"{self.name}.params")
+        if p.publish_hz <= 0 or p.resync < 0 or p.command_wait < 0 or p.min_force < 0:
+            raise ValueError(f"{self.name}.params: publish_hz must be > 0, resync, command_wait and min_force >= 0")
+        if p.belief:
+            from contactflow.embodiments.scene_file import load_scene
+
+            load_scene(p.belief)  # a bad belief file is refused now, naming its line, not at the first tick
+        self.robot = io.robot
+        self._handles.append(io.transport.subscribe(io.keyspace.robot(self.robot, "command"), self._on_command))
+
+    def _mismatch_params(self) -> MismatchParams:
+        p = self.params
+        return MismatchParams(window=p.window, radius=p.radius, hold=p.hold, absent=p.absent, sustain=p.sustain,
+                              joint_bound=p.joint_bound, force_bound=p.force_bound, quiet=p.quiet)
+
+    def stop(self) -> None:
+        for h in self._handles:
+            h.close()
+        self._handles.clear()
+
+    # -- zenoh callback: decode and queue -------------------------------------------------------
+    def _on_command(self, key: str, payload: bytes) -> None:
+        try:
+            msg = _commands.decode(payload)
+        except (msgspec.ValidationError, msgspec.DecodeError):
+            return  # the world refuses and counts it; it never reaches the robot, nor the prediction
+        if isinstance(msg, CameraRequest) or msg.robot != self.robot:
+            return
+        part = msg.arm if isinstance(msg, ArmCommand) else msg.hand if isinstance(msg, HandCommand) else "head"
+        with self._lock:
+            if len(self._pending) < MAX_PENDING:
+                self._pending.append((part, getattr(msg, "seq", 0), msg))
+                self._seen[part] = max(self._seen.get(part, 0), getattr(msg, "seq", 0))
+
+    # -- the loop -------------------------------------------------------------------------------
+    def step(self) -> Status:
+        assert self.io is not None
+        self._states.extend(self.io.take("state"))
+        for msg in self.io.take("sensed"):
+            if self.detector is not None:
+                mine = [c for c in msg.contacts if c.robot in ("", self.robot)]
+                self.detector.sense(msg.stamp, np.array([c.location for c in mine], dtype=np.float64).reshape(-1, 3),
+                                    [c.link if c.link in self._hand_names else "" for c in mine])
+        while self._states:
+            state = self._states[0]
+            if self.sim is None:
+                self._build(state)
+            elif state.tick <= self.tick or state.names != self._names or not np.isfinite(state.t):
+                # a repeat of a tick (the world republishes while it waits), or not the robot this predictor models
+                self.refused += state.tick > self.tick
+                self._states.popleft()
+                continue
+            elif not self._commands_in(state):
+                break
+            else:
+                self._predict(state)
+            self._states.popleft()
+        if self.detector is not None:
+            for m in self.detector.check():
+                self._report(m)
+        return Status.RUNNING
+
+    def status_detail(self) -> str:
+        if self.sim is None:
+            return "waiting for the robot's first state"
+        return (f"tick {self.tick}: joint error {self.joint_error:.3f} rad, "
+                f"{len(self.mismatches)} mismatch(es), {self.missed} command(s) missed")
+
+    # -- building the prediction scene ----------------------------------------------------------
+    def _build(self, state: RobotState) -> None:
+        from contactflow.embodiments.remote import link
+        from contactflow.embodiments.sim_robot import SimRobot, SimRobotParams
+        from contactflow.embodiments.world import World, WorldParams
+
+        assert self.io is not None
+        info: RobotInfo = link(self.io.transport, self.io.keyspace, self.robot, self.io.node).info()
+        self.world = world = World(WorldParams(camera_backend="raycast"))
+        self._furnish(world, info)
+        self.sim = sim = SimRobot(world, info.embodiment, name=self.robot,
+                                  base=np.asarray(info.base, dtype=np.float64).reshape(4, 4),
+                                  params=SimRobotParams(control_rate=info.control_rate, seed=info.seed + 7919))
+        self._every = max(1, int(round(1.0 / (info.control_rate * world.params.timestep))))
+        self._names = list(state.names)
+        self._index = sim.art.indices(tuple(self._names))
+        self._arm_idx = {a.name: sim.art.indices(a.joints) for a in sim.spec.arms}
+        self._ft_arms = [a.name for a in sim.spec.arms if a.ft]
+        self._hand = self._hand_links(sim)
+        self._hand_names = set(self._hand.values())
+        from contactflow.fusion.station import robot_cues
+
+        self._cues = robot_cues(sim, self.params.min_force)
+        self._resync(state, commanded=True)
+        self.detector = MismatchDetector(self._mismatch_params())
+        self.tick, self.t, self._last = state.tick, state.t, state
+        self.log.info("%s: predicting from tick %d (t=%.3f s) with objects %s", self.robot, state.tick, state.t,
+                      sorted(n for n, o in world.objects.items() if not o.spec.static))
+
+    def _furnish(self, world: Any, info: RobotInfo) -> None:
+        """The believed cell: a belief scene file's fixtures and objects, else the world's fixtures."""
+        from contactflow.embodiments.world import ObjectSpec, ShapeSpec
+
+        if self.params.belief:
+            from contactflow.embodiments.scene_file import load_scene
+            from contactflow.embodiments.scenes import SCENES
+
+            scene = load_scene(self.params.belief)
+            if scene.scene:
+                SCENES[scene.scene](world)
+            for obj in scene.objects:
+                world.add_object(obj)
+            return
+        for f in info.fixtures:
+            if f.name == "floor":
+                continue  # the world's ground
+            obj = world.add_object(ObjectSpec(f.name, (ShapeSpec(f.kind, tuple(f.size)),), static=True, category="table"))
+            obj.set_pose(np.asarray(f.pose, dtype=np.float64).reshape(4, 4))
+
+    def _hand_links(self, sim: Any) -> dict[str, str]:
+        """``robot/link`` -> hand of every link past the last joint of an arm with a hand: where fusion places contacts."""
+        from contactflow.embodiments.hand_geometry import link_subtree
+
+        out = {}
+        for a in sim.spec.arms:
+            if not a.hand:
+                continue
+            root = next(lk for lk in sim.art.links.values()
+                        if lk.get_joint() is not None and lk.get_joint().get_name() == a.joints[-1])
+            out |= {f"{self.robot}/{lk.get_name()}": a.hand for lk in link_subtree(root)}
+        return out
+
+    def _resync(self, state: RobotState, commanded: bool = False) -> None:
+        """Put the predictor's robot at the measured joints (and, at the start, its arms at their commanded ones)."""
+        art = self.sim.art
+        q, qd = art.qpos(), art.qvel()
+        q[self._index] = state.position.numpy()
+        qd[self._index] = state.velocity.numpy()
+        if commanded:
+            art.set_state(q)
+            self.sim.mixer.hold(q)
+            for a in state.arms:
+                self.sim.arm(a.name).stream(a.q_cmd.numpy(), np.zeros(len(a.q_cmd.numpy())))
+        else:
+            art.articulation.set_qpos(q)
+            art.articulation.set_qvel(qd)
+        self._resynced_at = state.t
+
+    # -- one world tick -------------------------------------------------------------------------
+    def _commands_in(self, state: RobotState) -> bool:
+        """Whether every command ``state`` says the world applied has come (or waiting for it is over)."""
+        applied = {a.name: a.applied for a in state.arms} | {h.name: h.applied for h in state.hands}
+        with self._lock:
+            short = [part for part, seq in applied.items() if seq > self._seen.get(part, 0)]
+        if not short:
+            self._waiting_since = None
+            return True
+        now = time.monotonic()
+        self._waiting_since = self._waiting_since or now
+        if now - self._waiting_since < self.params.command_wait:
+            return False
+        self.missed += len(short)
+        self.log.warning("%s: tick %d: commands for %s the world applied never came", self.robot, state.tick, short)
+        with self._lock:
+            for part in short:
+                self._seen[part] = applied[part]
+        self._waiting_since = None
+        return True
+
+    def _predict(self, state: RobotState) -> None:
+        from contactflow.embodiments.modules.world_module import CommandError, apply_arm, apply_hand
+
+        applied = {a.name: a.applied for a in state.arms} | {h.name: h.applied for h in state.hands}
+        with self._lock:
+            due = [c for c in self._pending if c[1] <= applied.get(c[0], 0) or c[0] == "head"]
+            self._pending = deque(c for c in self._pending if not (c[1] <= applied.get(c[0], 0) or c[0] == "head"))
+        for _, _, msg in due:
+            try:
+                if isinstance(msg, ArmCommand):
+                    apply_arm(self.sim, msg)
+                elif isinstance(msg, HandCommand):
+                    apply_hand(self.sim, msg)
+                elif self.sim.head is not None:
+                    self.sim.head.move_joints(np.asarray(msg.values, dtype=np.float64))
+            except (CommandError, ValueError, KeyError):
+                self.ignored += 1
+        self.world.step(self._every * max(1, state.tick - self.tick))
+        self.tick, self.t, self._last = state.tick, state.t, state
+        self._compare(state)
+
+    def _compare(self, state: RobotState) -> None:
+        det = self.detector
+        assert det is not None
+        t = state.t
+        q = self.sim.art.qpos()
+        measured = state.position.numpy()
+        worst, joint = 0.0, ""
+        for idx in self._arm_idx.values():
+            sel = np.isin(self._index, idx)
+            err = np.abs(q[self._index[sel]] - measured[sel])
+            if err.size and float(err.max()) > worst:
+                worst, joint = float(err.max()), state.names[int(np.flatnonzero(sel)[int(err.argmax())])]
+        self.joint_error = worst
+        found = det.joints(t, worst, joint)
+        sensed = {w.arm: np.asarray(w.external_force, dtype=np.float64) for w in state.wrenches}
+        forces = []
+        for arm in self._ft_arms:
+            f = np.asarray(self.sim.ft(arm).external[:3], dtype=np.float64)
+            forces.append(f)
+            if arm in sensed:
+                self.force_error[arm] = float(np.linalg.norm(f - sensed[arm]))
+                det.force(t, arm, f, sensed[arm])
+        points, links, hands, felt = self._contacts()
+        det.predict(t, points, hands, felt)
+        if found is not None:
+            self._report(found)
+        if self.params.resync > 0 and t - self._resynced_at >= self.params.resync:
+            self._resync(state)
+        if t - self._published_at >= 1.0 / self.params.publish_hz - 1e-9:
+            self._published_at = t
+            self._publish(state, points, links, hands, forces)
+
+    def _felt(self) -> set[str]:
+        """The hands whose contact the robot's cues would feel, by the predictor's own sensors: a taxel
+        pressed, or the wrist's external force above the cue's floor (a grasp's squeeze alone does not
+        reach the wrist: its forces cancel inside the hand)."""
+        from contactflow.embodiments.primitives.base import TACTILE_CONTACT
+
+        felt = set()
+        for cue in self._cues:
+            pads = self.sim.tactile(cue.hand)
+            if any(float(np.max(v)) > TACTILE_CONTACT for v in pads.values()) or (
+                    cue.ft_link and float(np.linalg.norm(self.sim.ft(cue.arm).external[:3])) >= cue.min_force):
+                felt.add(cue.hand)
+        return felt
+
+    def _contacts(self) -> tuple[np.ndarray, list[str], list[str], set[str]]:
+        """Contact points of the robot's hands with anything but the robot (with a force), their links and hands,
+        and the hands whose contact the robot would feel."""
+        from contactflow.embodiments.sensors.ground_truth import body_name
+
+        pts, links, hands = [], [], []
+        own = f"{self.robot}/"
+        for c in self.world.contacts():
+            a, b = body_name(c.bodies[0]), body_name(c.bodies[1])
+            if a.startswith(own) == b.startswith(own):
+                continue  # the robot with itself, or two other bodies
+            link = a if a.startswith(own) else b
+            if link not in self._hand:
+                continue
+            for p in c.points:
+                if np.linalg.norm(p.impulse) > 0:
+                    pts.append(np.asarray(p.position, dtype=np.float64))
+                    links.append(link.split("/", 1)[1])
+                    hands.append(self._hand[link])
+        return np.array(pts, dtype=np.float64).reshape(-1, 3), links, hands, self._felt() if pts else set()
+
+    def _publish(self, state: RobotState, points: np.ndarray, links: list[str], hands: list[str],
+                 forces: list[np.ndarray]) -> None:
+        assert self.io is not None
+        objs = {n: o for n, o in self.world.objects.items() if not o.spec.static}
+        q = self.sim.art.qpos()
+        self.io.publish("predicted", PredictedState(
+            robot=self.robot, tick=state.tick, t=state.t, names=list(state.names),
+            position=NDArray.of(np.ascontiguousarray(q[self._index])), joint_error=self.joint_error,
+            objects=list(objs), poses=NDArray.of(np.stack([o.pose() for o in objs.values()])) if objs else None,
+            contacts=NDArray.of(points) if len(points) else None, contact_links=links, contact_hands=hands,
+            arms=list(self._ft_arms),
+            force=[float(v) for f in forces for v in f],
+            force_error=[self.force_error.get(a, 0.0) for a in self._ft_arms]))
+
+    def _report(self, m: Mismatch) -> None:
+        assert self.io is not None
+        msg = PredictionMismatch(robot=self.robot, kind=m.kind, t=self.t, since=m.since, location=list(m.location),
+                                 part=m.part, value=m.value if np.isfinite(m.value) else -1.0, bound=m.bound,
+                                 detail=m.detail)
+        self.mismatches.append(msg)
+        self.io.publish("mismatch", msg)
+        self.io.emit(Event.PREDICTION_MISMATCH, f"{self.robot}: {m.kind}: {m.detail}"[:500],
+                     {"t": self.t, "since": m.since})
+        self.log.info("%s: t=%.3f s: %s: %s", self.robot, self.t, m.kind, m.detail)
+        if self._last is not None:
+            self._resync(self._last)  # §5.6: back to what the robot measures, then predict on from there

@@ -1,0 +1,247 @@
+"""Prediction against sensing (thesis §5.5-5.7): the pure comparison behind a robot's predictor.
+
+The predictor feeds, every world tick, what its simulation predicts (contact points of the
+robot's hands, arm joints, wrist loads); the robot's fusion feeds its condensed contacts each
+cycle and the world its measured joints and loads. :class:`MismatchDetector` says where they
+disagree, each a :class:`Mismatch`:
+
+- contacts are compared as presence per hand in time: a sensed contact on a hand at ``t`` is
+  expected when the predictor had a contact on that hand at some time in
+  ``[t - hold - window, t + window]`` (fusion keeps a contact ``hold`` s after its last sight);
+  a predicted contact that lasted ``sustain`` and that the robot's sensors would feel is
+  expected to be sensed on its hand within ``[t - absent, t + window]``. Fused contacts are placed on a hand, not on a point of it (a
+  wrench's contact lies somewhere on the hand's surface), so the hand is what is compared; a
+  sensed contact that names no hand counts where a predicted one lies within ``radius``. The
+  decision for time ``t`` waits until both streams reached ``t + window``, so the lag between
+  them does not matter.
+- arm joints and wrist loads: a difference beyond ``joint_bound`` / ``force_bound`` that lasts
+  ``sustain``.
+
+The same kind on the same hand or arm (or within ``radius``) is not reported again for ``quiet`` s: a
+surprise that lasts is reported again every ``quiet`` s.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from contactflow.embodiments.messages import MismatchKind
+
+
+@dataclass(frozen=True)
+class MismatchParams:
+    window: float = 0.1  # s, how far in time a counterpart may lie (the lag of fusion and of the reality gap)
+    radius: float = 0.08  # m, how far a counterpart of a sensed contact that names no hand may lie
+    hold: float = 0.3  # s fusion keeps a contact after its last sight (its tracker's hold)
+    absent: float = 0.3  # s a hand must feel nothing while a contact on it is predicted before it is missing (fusion drops a contact for a few cycles)
+    sustain: float = 0.1  # s a predicted contact or a joint or load difference must last to count
+    joint_bound: float = 0.1  # rad, arm joints (thesis Fig. 5.16: predicted joints within 0.1 rad)
+    force_bound: float = 5.0  # N, external wrist force (median over the window)
+    quiet: float = 1.0  # s, the same kind at the same place is not reported again sooner
+    horizon: float = 3.0  # s of history kept
+
+    def validate(self, where: str = "params") -> None:
+        for f in ("window", "radius", "joint_bound", "force_bound", "horizon"):
+            if not getattr(self, f) > 0:
+                raise ValueError(f"{where}.{f}: {getattr(self, f)!r} must be > 0")
+        for f in ("sustain", "quiet", "hold", "absent"):
+            if not getattr(self, f) >= 0:
+                raise ValueError(f"{where}.{f}: {getattr(self, f)!r} must be >= 0")
+        if self.horizon < 2 * self.window + max(self.sustain, self.absent) + self.hold:
+            raise ValueError(f"{where}.horizon: {self.horizon} s is shorter than 2 window + max(sustain, absent) + hold")
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    kind: MismatchKind
+    since: float  # s, when the difference began (the evidence's time)
+    location: tuple[float, ...] = ()  # m, world; () when it has no place
+    part: str = ""  # the hand or arm concerned
+    value: float = 0.0  # m (distance to the nearest counterpart, inf: none), rad or N
+    bound: float = 0.0
+    detail: str = ""
+
+
+def _near(points: np.ndarray, x: np.ndarray) -> float:
+    """Distance from ``x`` to the nearest of ``points`` (inf: none)."""
+    if len(points) == 0:
+        return float("inf")
+    return float(np.sqrt(((points - x) ** 2).sum(axis=1).min()))
+
+
+@dataclass
+class _Stream:
+    """Time-stamped point sets, oldest first."""
+
+    samples: deque = field(default_factory=deque)  # (t, (k, 3) points, hands, the hands whose contact can be felt)
+
+    @property
+    def t(self) -> float:
+        return self.samples[-1][0] if self.samples else -np.inf
+
+    def add(self, t: float, points: np.ndarray, hands: list[str], horizon: float, felt: set[str] | None = None) -> None:
+        if self.samples and t < self.samples[-1][0]:
+            return  # out of order: a late sample is older than what was decided on
+        self.samples.append((t, np.asarray(points, dtype=np.float64).reshape(-1, 3), hands,
+                             set(hands) if felt is None else felt))
+        while self.samples and self.samples[0][0] < t - horizon:
+            self.samples.popleft()
+
+    def within(self, a: float, b: float) -> tuple[np.ndarray, set[str]]:
+        """The points and the hands of the samples in ``[a, b]``."""
+        found = [(p, h) for t, p, h, _ in self.samples if a - 1e-9 <= t <= b + 1e-9 and len(p)]
+        pts = np.concatenate([p for p, _ in found]) if found else np.zeros((0, 3))
+        return pts, {x for _, h in found for x in h}
+
+    def at(self, t: float) -> tuple[float, np.ndarray, list[str], set[str]] | None:
+        """The newest sample at or before ``t``."""
+        best = None
+        for s in self.samples:
+            if s[0] > t + 1e-9:
+                break
+            best = s
+        return best
+
+
+class MismatchDetector:
+    """Predicted and sensed contacts, joints and loads in; the mismatches between them out."""
+
+    def __init__(self, params: MismatchParams | None = None) -> None:
+        self.params = params or MismatchParams()
+        self.params.validate()
+        self.predicted = _Stream()
+        self.sensed = _Stream()
+        self._decided = -np.inf  # sensed samples up to this time are decided
+        self._reported: list[tuple[MismatchKind, float, np.ndarray | None, str]] = []
+        self._over: dict[tuple[str, str], list] = {}  # (what, name) -> [over since, under since, last reported]
+        self._loads: dict[str, deque] = {}  # arm -> (t, predicted (3,), measured (3,)), oldest first
+        self._loads_decided: dict[str, float] = {}
+        self.counts: dict[MismatchKind, int] = {k: 0 for k in MismatchKind}
+
+    # -- inputs ----------------------------------------------------------------------------------
+    def predict(self, t: float, points: np.ndarray, hands: list[str], felt: set[str] | None = None) -> None:
+        """The predicted contact points after the tick at ``t``, the hand each lies on, and the hands whose
+        contact the robot's sensors can feel (default: all; a brush lighter than the sensors' floor is not)."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(hands) != len(pts) or "" in hands:
+            raise ValueError(f"predict: {len(pts)} points need as many hand names, got {hands!r}")
+        self.predicted.add(t, pts, list(hands), self.params.horizon, felt)
+
+    def sense(self, t: float, points: np.ndarray, hands: list[str]) -> None:
+        """The robot's fused contacts of the cycle at ``t`` (every cycle, also an empty one) and the hand
+        each lies on ("": unknown)."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(hands) != len(pts):
+            raise ValueError(f"sense: {len(pts)} points need as many hand names, got {hands!r}")
+        self.sensed.add(t, pts, list(hands), self.params.horizon)
+
+    def joints(self, t: float, error: float, joint: str = "") -> Mismatch | None:
+        """The largest arm joint difference at ``t`` (rad)."""
+        p = self.params
+        return self._bound(MismatchKind.JOINTS, t, "joints", joint, error, p.joint_bound,
+                           f"arm joint {joint} is {error:.3f} rad from the predicted")
+
+    def force(self, t: float, arm: str, predicted: np.ndarray, measured: np.ndarray) -> None:
+        """The predicted and measured external wrist forces of ``arm`` at ``t`` (N, world axes); compared in
+        :meth:`check` as their medians over ``[t - window, t + window]`` (an impact a few ticks off, or a
+        contact's chatter, is no surprise)."""
+        series = self._loads.setdefault(arm, deque())
+        series.append((t, np.asarray(predicted, dtype=np.float64), np.asarray(measured, dtype=np.float64)))
+        while series and series[0][0] < t - self.params.horizon:
+            series.popleft()
+
+    def _check_loads(self) -> list[Mismatch]:
+        p = self.params
+        out = []
+        for arm, series in self._loads.items():
+            done = self._loads_decided.get(arm, -np.inf)
+            last = series[-1][0]
+            for t, _, _ in list(series):
+                if t <= done or t > last - p.window:
+                    continue
+                done = t
+                near = [(f, g) for tau, f, g in series if t - p.window - 1e-9 <= tau <= t + p.window + 1e-9]
+                # medians over the window: a contact's chatter (tens of N from one tick to the next, in the world
+                # and in the prediction alike, out of phase) is not a difference in load
+                error = float(np.linalg.norm(np.median([f for f, _ in near], axis=0)
+                                             - np.median([g for _, g in near], axis=0)))
+                m = self._bound(MismatchKind.FORCE, t, "force", arm, error, p.force_bound,
+                                f"the wrist of {arm} feels {error:.2f} N other than predicted")
+                out += [m] if m is not None else []
+            self._loads_decided[arm] = done
+        return out
+
+    # -- decisions -------------------------------------------------------------------------------
+    def check(self) -> list[Mismatch]:
+        """The mismatches decidable now: of every sensed cycle and wrist load both streams passed by ``window``."""
+        p = self.params
+        out: list[Mismatch] = self._check_loads()
+        horizon = min(self.predicted.t, self.sensed.t) - p.window
+        for t, sensed, hands, _ in list(self.sensed.samples):
+            if t <= self._decided or t > horizon:
+                continue
+            self._decided = t
+            pred_pts, pred_hands = self.predicted.within(t - p.hold - p.window, t + p.window)
+            for x, hand in zip(sensed, hands, strict=True):
+                if hand in pred_hands:
+                    continue
+                d = _near(pred_pts, x)
+                if hand or d > p.radius:
+                    out += self._report(MismatchKind.UNEXPECTED_CONTACT, t, t, x, hand, d, p.radius,
+                                        f"a contact sensed at {_fmt(x)} on {hand or 'the robot'} where none "
+                                        f"was predicted")
+            now, before = self.predicted.at(t), self.predicted.at(t - p.sustain)
+            if now is None or before is None:
+                continue
+            sensed_pts, sensed_hands = self.sensed.within(t - p.absent, t + p.window)
+            for x, hand in zip(now[1], now[2], strict=True):
+                if hand not in now[3] or hand not in before[3] or hand in sensed_hands:
+                    continue  # too light or not sustained (a brush in passing is not expected to be felt), or sensed
+                d = _near(sensed_pts, x)
+                if d > p.radius:
+                    out += self._report(MismatchKind.MISSING_CONTACT, t, t, x, hand, d, p.radius,
+                                        f"a contact predicted at {_fmt(x)} on {hand} was not sensed")
+        return out
+
+    def _bound(self, kind: MismatchKind, t: float, what: str, name: str, value: float, bound: float,
+               detail: str) -> Mismatch | None:
+        """A difference over ``bound`` for ``sustain`` s starts an episode, under it for ``sustain`` s ends it (a
+        difference that hovers at the bound is one surprise, not many); an episode is reported when it starts
+        and again every ``quiet`` s while it lasts (a watcher that starts late still hears of it)."""
+        key = (what, name)
+        episode = self._over.get(key)
+        if not value > bound:
+            if episode is not None:
+                episode[1] = t if episode[1] is None else episode[1]
+                if t - episode[1] >= self.params.sustain:
+                    del self._over[key]
+            return None
+        if episode is None:
+            episode = self._over[key] = [t, None, -np.inf]  # since, under since, last reported
+        episode[1] = None
+        if t - episode[2] < self.params.quiet or t - episode[0] < self.params.sustain:
+            return None
+        episode[2] = t
+        found = self._report(kind, episode[0], t, None, name, value, bound, detail)
+        return found[0] if found else None
+
+    def _report(self, kind: MismatchKind, since: float, now: float, x: np.ndarray | None, part: str, value: float,
+                bound: float, detail: str) -> list[Mismatch]:
+        p = self.params
+        self._reported = [r for r in self._reported if now - r[1] < p.quiet]
+        for k, _, y, name in self._reported:
+            same_place = name == part if (part or x is None) else (
+                y is not None and float(np.linalg.norm(x - y)) <= p.radius)
+            if k is kind and same_place:
+                return []
+        self._reported.append((kind, now, None if x is None else np.array(x, dtype=float), part))
+        self.counts[kind] += 1
+        where = () if x is None else tuple(float(v) for v in x)
+        return [Mismatch(kind, since, where, part, value, bound, detail)]
+
+
+def _fmt(x: np.ndarray) -> str:
+    return "(" + ", ".join(f"{v:.3f}" for v in x) + ") m"

@@ -1,0 +1,96 @@
+"""Prediction against sensing: the mismatch detector's decisions on contacts, joints and wrist loads (no simulator)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contactflow.embodiments.messages import MismatchKind
+from contactflow.embodiments.prediction import MismatchDetector, MismatchParams
+
+HAND = "right_hand"
+AT = np.array([[0.5, -0.2, 0.85]])
+NONE = np.zeros((0, 3))
+
+
+def run(det: MismatchDetector, predicted, sensed, until: float, dt: float = 0.005, fused_dt: float = 0.05):
+    """Feed ``predicted(t)`` every tick and ``sensed(t)`` every fusion cycle up to ``until``; every mismatch."""
+    out = []
+    for k in range(int(round(until / dt)) + 1):
+        t = k * dt
+        pts, felt = predicted(t)
+        det.predict(t, pts, [HAND] * len(pts), {HAND} if felt and len(pts) else set())
+        if k % int(round(fused_dt / dt)) == 0:
+            s = sensed(t)
+            det.sense(t, s, [HAND] * len(s))
+        out += det.check()
+    return out
+
+
+def test_a_contact_predicted_and_sensed_within_the_window_is_no_mismatch():
+    # the real contact comes 60 ms after the predicted one, fusion sees it 50 ms later and keeps it 0.3 s after it ends
+    det = MismatchDetector()
+    found = run(det, lambda t: (AT if 1.0 <= t < 2.0 else NONE, True),
+                lambda t: AT + 0.03 if 1.11 <= t < 2.36 else NONE, 3.0)
+    assert found == []
+
+
+def test_a_sensed_contact_where_none_was_predicted_is_unexpected_and_reported_once():
+    det = MismatchDetector()
+    found = run(det, lambda t: (NONE, True), lambda t: AT if t >= 1.0 else NONE, 1.8)
+    assert [m.kind for m in found] == [MismatchKind.UNEXPECTED_CONTACT]  # quiet for 1 s after it
+    m = found[0]
+    assert m.since == pytest.approx(1.0) and m.part == HAND and m.location == pytest.approx(tuple(AT[0]))
+    # after the quiet time, a contact that persists is reported again
+    det2 = MismatchDetector(MismatchParams(quiet=0.5))
+    assert len(run(det2, lambda t: (NONE, True), lambda t: AT if t >= 1.0 else NONE, 1.8)) == 2
+
+
+def test_a_predicted_contact_the_hand_should_feel_but_does_not_is_missing_a_light_or_brief_one_is_not():
+    det = MismatchDetector()
+    found = run(det, lambda t: (AT if t >= 1.0 else NONE, True), lambda t: NONE, 2.0)
+    assert [m.kind for m in found] == [MismatchKind.MISSING_CONTACT]
+    assert found[0].since == pytest.approx(1.1, abs=0.06)  # sustained 0.1 s, decided at the next fused cycle
+    # too light for the robot's sensors (a squeeze the wrist does not feel, no pad touched)
+    assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, False), lambda t: NONE, 2.0) == []
+    # a brush in passing (50 ms)
+    assert run(MismatchDetector(), lambda t: (AT if 1.0 <= t < 1.05 else NONE, True), lambda t: NONE, 2.0) == []
+    # fusion dropping the contact for 0.2 s (< absent) is no mismatch either
+    assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, True),
+               lambda t: AT if t >= 1.05 and not 1.5 <= t < 1.7 else NONE, 2.5) == []
+
+
+def test_a_wrist_load_off_by_an_impact_a_few_ticks_early_is_no_mismatch_a_steady_offset_is_one():
+    det = MismatchDetector()
+    spike = lambda t, at: np.array([0.0, 0.0, 30.0 if at <= t < at + 0.05 else 0.0])  # noqa: E731
+    for k in range(400):
+        t = k * 0.005
+        det.force(t, "right", spike(t, 1.0), spike(t, 1.04))  # the real impact 40 ms later (< window)
+    assert det.check() == []
+    det = MismatchDetector()
+    found = []
+    for k in range(380):
+        t = k * 0.005
+        det.force(t, "right", np.zeros(3), np.array([0.0, 0.0, -6.0 if t >= 1.0 else 0.0]))  # 0.6 kg more
+        found += det.check()
+    assert [m.kind for m in found] == [MismatchKind.FORCE]  # reported again at 2.1 s
+    assert found[0].since == pytest.approx(1.0) and found[0].value == pytest.approx(6.0) and found[0].part == "right"
+
+
+def test_joints_off_beyond_the_bound_for_the_sustain_time_is_a_mismatch():
+    det = MismatchDetector()
+    assert det.joints(1.0, 0.3, "j2") is None  # not sustained yet
+    assert det.joints(1.05, 0.05, "j2") is None  # back under the bound: the episode does not end at once
+    assert det.joints(1.1, 0.3, "j2") is not None  # still the episode of 1.0, sustained 0.1 s
+    assert det.joints(1.2, 0.3, "j2") is None  # quiet for 1 s
+    again = det.joints(2.1, 0.3, "j2")  # the same episode, reported again after the quiet time
+    assert again is not None and again.since == pytest.approx(1.0)
+    for k in range(30):
+        det.joints(2.2 + 0.005 * k, 0.0, "j2")  # 0.15 s under: the episode ends
+    assert det.joints(3.5, 0.3, "j2") is None and det.joints(3.6, 0.3, "j2").since == pytest.approx(3.5)
+
+
+@pytest.mark.parametrize("field, value", [("window", 0.0), ("radius", -1.0), ("quiet", -1.0), ("horizon", 0.2)])
+def test_bad_detector_params_name_the_field(field, value):
+    with pytest.raises(ValueError, match=rf"params\.{field}"):
+        MismatchDetector(MismatchParams(**{field: value}))
