@@ -355,13 +355,14 @@ def stop_nodes(started: list[Any], watch: SiteWatch | None, processes: bool = Fa
 
 def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str, Any]], endpoint: str,
              processes: bool = False, timeout: float = 300.0, keep: Callable[[Any], None] | None = None,
-             services: tuple[Mapping[str, Any], ...] = ()) -> CellRun:
+             services: tuple[Mapping[str, Any], ...] = (), after: float = 0.0) -> CellRun:
     """Run a world node and control nodes until every control node's task ended.
 
     ``processes``: each node a process of its own (``contactflow node``); else all of them in
     this process, a zenoh session each. ``keep`` is called with the world module (in-process
     runs) before the nodes stop, to read what only the simulation knows. ``services`` are
-    nodes the control nodes read (a vision node), started before them.
+    nodes the control nodes read (a vision node), started before them. The nodes run on for ``after`` s
+    of wall time once the last task ended (what a predictor was still deciding gets said).
     """
     from contactflow.nodes.procs import wait_for
 
@@ -374,6 +375,7 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
             logs = "".join((folder / f"{c['node']}.log").read_text()[-2000:] for c in configs
                            if (folder / f"{c['node']}.log").exists())
             raise TimeoutError(f"tasks still running after {timeout:g} s: {watch.sequence()[-10:]} {logs}")
+        time.sleep(after)
         outcomes = {r: watch.outcome(n) for r, n in zip(robots, names, strict=True)}
         end = max(outcomes.values(), key=lambda e: e.hdr.t_sim)
         t0_sim, t0_wall = watch.first_tick

@@ -320,6 +320,7 @@ class PredictedState(Message, tag="predicted_state"):
     arms: list[str] = []  # the arms with a wrist F/T
     force: list[float] = []  # N, per arm 3 values: predicted external force at the wrist, world axes
     force_error: list[float] = []  # N, per arm: its difference from the measured external force
+    compute: float = 0.0  # s of wall time the predictor spent on its simulation and comparisons so far
 
 
 class MismatchKind(StrEnum):

@@ -8,8 +8,10 @@ disagree, each a :class:`Mismatch`:
 - contacts are compared as presence per hand in time: a sensed contact on a hand at ``t`` is
   expected when the predictor had a contact on that hand at some time in
   ``[t - hold - window, t + window]`` (fusion keeps a contact ``hold`` s after its last sight);
-  a predicted contact that lasted ``sustain`` and that the robot's sensors would feel is
-  expected to be sensed on its hand within ``[t - absent, t + window]``. Fused contacts are placed on a hand, not on a point of it (a
+  a predicted contact that pressed the hand's tactile pads (in the prediction) for ``sustain``
+  is expected to be felt on the robot, by its pads or its fusion, within ``[t - absent, t + window]``
+  (the prediction's pads and the robot's may differ when the grasp sits a few mm otherwise; fusion
+  keeps a contact ``hold`` s after it is gone, which delays a slip's report by as much). Fused contacts are placed on a hand, not on a point of it (a
   wrench's contact lies somewhere on the hand's surface), so the hand is what is compared; a
   sensed contact that names no hand counts where a predicted one lies within ``radius``. The
   decision for time ``t`` waits until both streams reached ``t + window``, so the lag between
@@ -30,13 +32,15 @@ import numpy as np
 
 from contactflow.embodiments.messages import MismatchKind
 
+MISSING_STEP = 0.02  # s between two decisions on the predicted contacts (at most one per fused cycle or so)
+
 
 @dataclass(frozen=True)
 class MismatchParams:
     window: float = 0.1  # s, how far in time a counterpart may lie (the lag of fusion and of the reality gap)
     radius: float = 0.08  # m, how far a counterpart of a sensed contact that names no hand may lie
     hold: float = 0.3  # s fusion keeps a contact after its last sight (its tracker's hold)
-    absent: float = 0.3  # s a hand must feel nothing while a contact on it is predicted before it is missing (fusion drops a contact for a few cycles)
+    absent: float = 0.15  # s a hand's pads must feel nothing while the prediction presses them before a contact is missing
     sustain: float = 0.1  # s a predicted contact or a joint or load difference must last to count
     joint_bound: float = 0.1  # rad, arm joints (thesis Fig. 5.16: predicted joints within 0.1 rad)
     force_bound: float = 5.0  # N, external wrist force (median over the window)
@@ -114,10 +118,12 @@ class MismatchDetector:
         self.params.validate()
         self.predicted = _Stream()
         self.sensed = _Stream()
+        self.touched = _Stream()
         self._decided = -np.inf  # sensed samples up to this time are decided
+        self._missing_at = -np.inf  # predicted samples up to this time are decided
         self._reported: list[tuple[MismatchKind, float, np.ndarray | None, str]] = []
         self._over: dict[tuple[str, str], list] = {}  # (what, name) -> [over since, under since, last reported]
-        self._loads: dict[str, deque] = {}  # arm -> (t, predicted (3,), measured (3,)), oldest first
+        self._loads: dict[str, deque] = {}  # arm -> (t, predicted (3,), measured (3,), steady), oldest first
         self._loads_decided: dict[str, float] = {}
         self.counts: dict[MismatchKind, int] = {k: 0 for k in MismatchKind}
 
@@ -129,6 +135,10 @@ class MismatchDetector:
         if len(hands) != len(pts) or "" in hands:
             raise ValueError(f"predict: {len(pts)} points need as many hand names, got {hands!r}")
         self.predicted.add(t, pts, list(hands), self.params.horizon, felt)
+
+    def touch(self, t: float, pressed: set[str]) -> None:
+        """The hands whose tactile pads the robot measures pressed at ``t`` (every reading, also when none is)."""
+        self.touched.add(t, np.zeros((len(pressed), 3)), sorted(pressed), self.params.horizon)
 
     def sense(self, t: float, points: np.ndarray, hands: list[str]) -> None:
         """The robot's fused contacts of the cycle at ``t`` (every cycle, also an empty one) and the hand
@@ -144,12 +154,13 @@ class MismatchDetector:
         return self._bound(MismatchKind.JOINTS, t, "joints", joint, error, p.joint_bound,
                            f"arm joint {joint} is {error:.3f} rad from the predicted")
 
-    def force(self, t: float, arm: str, predicted: np.ndarray, measured: np.ndarray) -> None:
+    def force(self, t: float, arm: str, predicted: np.ndarray, measured: np.ndarray, steady: bool = True) -> None:
         """The predicted and measured external wrist forces of ``arm`` at ``t`` (N, world axes); compared in
         :meth:`check` as their medians over ``[t - window, t + window]`` (an impact a few ticks off, or a
-        contact's chatter, is no surprise)."""
+        contact's chatter, is no surprise), where the predicted hand was ``steady`` all along that window
+        (free, or holding an object aloft; not pushing one over the table, nor setting it down)."""
         series = self._loads.setdefault(arm, deque())
-        series.append((t, np.asarray(predicted, dtype=np.float64), np.asarray(measured, dtype=np.float64)))
+        series.append((t, np.asarray(predicted, dtype=np.float64), np.asarray(measured, dtype=np.float64), steady))
         while series and series[0][0] < t - self.params.horizon:
             series.popleft()
 
@@ -159,15 +170,17 @@ class MismatchDetector:
         for arm, series in self._loads.items():
             done = self._loads_decided.get(arm, -np.inf)
             last = series[-1][0]
-            for t, _, _ in list(series):
+            for t, _, _, _ in list(series):
                 if t <= done or t > last - p.window:
                     continue
                 done = t
-                near = [(f, g) for tau, f, g in series if t - p.window - 1e-9 <= tau <= t + p.window + 1e-9]
+                near = [(f, g, ok) for tau, f, g, ok in series if t - p.window - 1e-9 <= tau <= t + p.window + 1e-9]
+                if not all(ok for _, _, ok in near):
+                    continue
                 # medians over the window: a contact's chatter (tens of N from one tick to the next, in the world
                 # and in the prediction alike, out of phase) is not a difference in load
-                error = float(np.linalg.norm(np.median([f for f, _ in near], axis=0)
-                                             - np.median([g for _, g in near], axis=0)))
+                error = float(np.linalg.norm(np.median([f for f, _, _ in near], axis=0)
+                                             - np.median([g for _, g, _ in near], axis=0)))
                 m = self._bound(MismatchKind.FORCE, t, "force", arm, error, p.force_bound,
                                 f"the wrist of {arm} feels {error:.2f} N other than predicted")
                 out += [m] if m is not None else []
@@ -176,7 +189,8 @@ class MismatchDetector:
 
     # -- decisions -------------------------------------------------------------------------------
     def check(self) -> list[Mismatch]:
-        """The mismatches decidable now: of every sensed cycle and wrist load both streams passed by ``window``."""
+        """The mismatches decidable now: of every sensed cycle, pad reading and wrist load that the predicted
+        stream passed by ``window`` (and the sensed streams, for a predicted contact)."""
         p = self.params
         out: list[Mismatch] = self._check_loads()
         horizon = min(self.predicted.t, self.sensed.t) - p.window
@@ -193,17 +207,21 @@ class MismatchDetector:
                     out += self._report(MismatchKind.UNEXPECTED_CONTACT, t, t, x, hand, d, p.radius,
                                         f"a contact sensed at {_fmt(x)} on {hand or 'the robot'} where none "
                                         f"was predicted")
-            now, before = self.predicted.at(t), self.predicted.at(t - p.sustain)
-            if now is None or before is None:
+        horizon = min(self.predicted.t, self.touched.t, self.sensed.t) - p.window
+        for t, points, hands, felt in list(self.predicted.samples):
+            if t < self._missing_at + MISSING_STEP or t > horizon:
                 continue
-            sensed_pts, sensed_hands = self.sensed.within(t - p.absent, t + p.window)
-            for x, hand in zip(now[1], now[2], strict=True):
-                if hand not in now[3] or hand not in before[3] or hand in sensed_hands:
-                    continue  # too light or not sustained (a brush in passing is not expected to be felt), or sensed
-                d = _near(sensed_pts, x)
-                if d > p.radius:
-                    out += self._report(MismatchKind.MISSING_CONTACT, t, t, x, hand, d, p.radius,
-                                        f"a contact predicted at {_fmt(x)} on {hand} was not sensed")
+            self._missing_at = t
+            before = self.predicted.at(t - p.sustain)
+            if before is None:
+                continue
+            _, pressed = self.touched.within(t - p.absent, t + p.window)
+            _, fused = self.sensed.within(t - p.absent, t + p.window)
+            # pressed a while in the prediction; on the robot neither its pads nor its fusion feel the hand touch
+            for hand in sorted((felt & before[3] & set(hands)) - pressed - fused):
+                x = points[hands.index(hand)]
+                out += self._report(MismatchKind.MISSING_CONTACT, t, t, x, hand, -1.0, p.absent,
+                                    f"a contact predicted at {_fmt(x)} on {hand} did not press its pads")
         return out
 
     def _bound(self, kind: MismatchKind, t: float, what: str, name: str, value: float, bound: float,

@@ -40,8 +40,10 @@ from contactflow.embodiments.messages import (
     RobotState,
 )
 from contactflow.embodiments.prediction import Mismatch, MismatchDetector, MismatchParams
+from contactflow.embodiments.primitives.base import TACTILE_CONTACT
 from contactflow.fusion.messages import ContactList
 from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.messages import EventMsg
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.wire import NDArray
@@ -57,6 +59,7 @@ class Predictor(Module):
     inputs = (
         Port("state", RobotState, "the robot's state after each world tick"),
         Port("sensed", ContactList, "the robot's fused contacts, every cycle"),
+        Port("perceived", EventMsg, "the robot's module events: object_detected places a believed object"),
     )
     outputs = (
         Port("predicted", PredictedState, "what the predictor holds after a world tick"),
@@ -71,15 +74,16 @@ class Predictor(Module):
         window: float = 0.1  # s, how far in time a sensed and a predicted contact may lie apart
         radius: float = 0.08  # m, how far in space, for a sensed contact that names no hand
         hold: float = 0.3  # s the robot's fusion keeps a contact after its last sight (its tracker's hold)
-        absent: float = 0.3  # s a hand that should feel a predicted contact must feel nothing before it is missing
+        absent: float = 0.15  # s the robot's pads must feel nothing while the prediction presses them before a contact is missing
         sustain: float = 0.1  # s a predicted contact or a joint or load difference lasts before it counts
         joint_bound: float = 0.1  # rad, arm joints (thesis Fig. 5.16)
         force_bound: float = 5.0  # N, external wrist force (undisturbed pick and place: medians differ up to 4.3 N as the can touches down)
-        min_force: float = 1.5  # N, the contact cues' wrist floor: a predicted contact is expected to be felt when the hand's pads would feel it or its wrist this much
         quiet: float = 1.0  # s before the same kind at the same place is reported again
-        resync: float = 1.0  # s between resynchronisations to the measured joints (0: only on a mismatch)
+        resync: float = 1.0  # s between checks that resynchronise to the measured joints (0: only on a mismatch)
+        resync_tol: float = 0.02  # rad: arm joints this close to the measured are left alone (a teleported finger would crush a held object)
         publish_hz: float = 20.0  # Hz of simulated time, predicted states on predict/<robot>/state
         command_wait: float = 0.5  # s of wall time a state waits for a command it says was applied
+        reach: float = 0.1  # m, a detected object this close to a believed one (top centre, in the plane) is that one
 
     def __init__(self, name: str, params: Params | None = None) -> None:
         super().__init__(name, params)
@@ -96,6 +100,9 @@ class Predictor(Module):
         self.missed = 0  # commands a state said were applied that never came
         self.ignored = 0  # commands the predictor could not apply (refused by the world too)
         self.refused = 0  # states of other joints than the robot's first state
+        self.compute = 0.0  # s of wall time spent predicting ticks
+        self.resynced_objects = 0  # believed objects moved to where perception saw them
+        self.resyncs = 0  # times the arms were put back at the measured joints
         self._pending: deque = deque()
         self._seen: dict[str, int] = {}  # part (arm or hand) -> highest command seq received
         self._lock = threading.Lock()
@@ -110,7 +117,8 @@ class Predictor(Module):
     @classmethod
     def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
         """The state the world publishes of the robot the module is hosted for, and the robot's fused contacts."""
-        return {"state": ks.robot(robot, "state"), "sensed": ks.fused(robot, "contacts")}
+        return {"state": ks.robot(robot, "state"), "sensed": ks.fused(robot, "contacts"),
+                "perceived": ks.events(robot, "*", "*")}
 
     @classmethod
     def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
@@ -120,8 +128,9 @@ class Predictor(Module):
         super().setup(io)
         p = self.params
         self._mismatch_params().validate(f"{self.name}.params")
-        if p.publish_hz <= 0 or p.resync < 0 or p.command_wait < 0 or p.min_force < 0:
-            raise ValueError(f"{self.name}.params: publish_hz must be > 0, resync, command_wait and min_force >= 0")
+        if p.publish_hz <= 0 or p.resync < 0 or p.command_wait < 0 or p.reach <= 0 or p.resync_tol < 0:
+            raise ValueError(f"{self.name}.params: publish_hz and reach must be > 0, resync, resync_tol and "
+                             f"command_wait >= 0")
         if p.belief:
             from contactflow.embodiments.scene_file import load_scene
 
@@ -174,12 +183,44 @@ class Predictor(Module):
             elif not self._commands_in(state):
                 break
             else:
+                began = time.perf_counter()
                 self._predict(state)
+                self.compute += time.perf_counter() - began
             self._states.popleft()
         if self.detector is not None:
             for m in self.detector.check():
                 self._report(m)
+        for e in self.io.take("perceived"):
+            if e.event is Event.OBJECT_DETECTED and self.sim is not None:
+                self._perceived(e)
         return Status.RUNNING
+
+    def _perceived(self, e: EventMsg) -> None:
+        """§5.6, resynchronisation from perception: a detected object's top centre moves the nearest believed
+        object there in the plane (it stands where it stood), unless the predicted robot touches it."""
+        v = e.values
+        if not {"tx", "ty", "top"} <= set(v):
+            return
+        at = np.array([v["tx"], v["ty"]])
+        from contactflow.embodiments.sensors.ground_truth import body_name
+
+        own = f"{self.robot}/"
+        touched = {body_name(b) for c in self.world.contacts() for b in c.bodies
+                   if any(body_name(o).startswith(own) for o in c.bodies)}
+        best, gap = None, self.params.reach
+        for obj in self.world.objects.values():
+            if obj.spec.static or obj.name in touched:
+                continue
+            d = float(np.linalg.norm(obj.pose()[:2, 3] - at))
+            if d <= gap:
+                best, gap = obj, d
+        if best is None:
+            return
+        T = best.pose()
+        T[:2, 3] = at
+        best.set_pose(T)
+        self.resynced_objects += 1
+        self.log.info("%s: %s moved %.1f mm to where %s detected it", self.robot, best.name, 1000 * gap, e.module)
 
     def status_detail(self) -> str:
         if self.sim is None:
@@ -205,11 +246,12 @@ class Predictor(Module):
         self._index = sim.art.indices(tuple(self._names))
         self._arm_idx = {a.name: sim.art.indices(a.joints) for a in sim.spec.arms}
         self._ft_arms = [a.name for a in sim.spec.arms if a.ft]
+        self._arm_hand = {a.name: a.hand for a in sim.spec.arms}
         self._hand = self._hand_links(sim)
         self._hand_names = set(self._hand.values())
         from contactflow.fusion.station import robot_cues
 
-        self._cues = robot_cues(sim, self.params.min_force)
+        self._cues = robot_cues(sim, 0.0)
         self._resync(state, commanded=True)
         self.detector = MismatchDetector(self._mismatch_params())
         self.tick, self.t, self._last = state.tick, state.t, state
@@ -250,20 +292,26 @@ class Predictor(Module):
         return out
 
     def _resync(self, state: RobotState, commanded: bool = False) -> None:
-        """Put the predictor's robot at the measured joints (and, at the start, its arms at their commanded ones)."""
+        """Put the predictor's robot at the measured joints, its arms only and only when they are ``resync_tol``
+        away (and, at the start, every joint, the arms at their commanded targets)."""
         art = self.sim.art
         q, qd = art.qpos(), art.qvel()
-        q[self._index] = state.position.numpy()
-        qd[self._index] = state.velocity.numpy()
-        if commanded:
-            art.set_state(q)
-            self.sim.mixer.hold(q)
-            for a in state.arms:
-                self.sim.arm(a.name).stream(a.q_cmd.numpy(), np.zeros(len(a.q_cmd.numpy())))
-        else:
+        measured, velocity = state.position.numpy(), state.velocity.numpy()
+        self._resynced_at = state.t
+        if not commanded:  # on a mismatch, or periodically
+            arms = np.isin(self._index, np.concatenate(list(self._arm_idx.values())))
+            if float(np.abs(q[self._index[arms]] - measured[arms]).max(initial=0.0)) <= self.params.resync_tol:
+                return
+            q[self._index[arms]], qd[self._index[arms]] = measured[arms], velocity[arms]
             art.articulation.set_qpos(q)
             art.articulation.set_qvel(qd)
-        self._resynced_at = state.t
+            self.resyncs += 1
+            return
+        q[self._index] = measured
+        art.set_state(q)
+        self.sim.mixer.hold(q)
+        for a in state.arms:
+            self.sim.arm(a.name).stream(a.q_cmd.numpy(), np.zeros(len(a.q_cmd.numpy())))
 
     # -- one world tick -------------------------------------------------------------------------
     def _commands_in(self, state: RobotState) -> bool:
@@ -321,6 +369,8 @@ class Predictor(Module):
                 worst, joint = float(err.max()), state.names[int(np.flatnonzero(sel)[int(err.argmax())])]
         self.joint_error = worst
         found = det.joints(t, worst, joint)
+        points, links, hands, felt, steady = self._contacts()
+        det.touch(t, {s.hand for s in state.tactile if float(np.max(s.pressure.numpy(), initial=0.0)) > TACTILE_CONTACT})
         sensed = {w.arm: np.asarray(w.external_force, dtype=np.float64) for w in state.wrenches}
         forces = []
         for arm in self._ft_arms:
@@ -328,8 +378,7 @@ class Predictor(Module):
             forces.append(f)
             if arm in sensed:
                 self.force_error[arm] = float(np.linalg.norm(f - sensed[arm]))
-                det.force(t, arm, f, sensed[arm])
-        points, links, hands, felt = self._contacts()
+                det.force(t, arm, f, sensed[arm], self._arm_hand[arm] in steady)
         det.predict(t, points, hands, felt)
         if found is not None:
             self._report(found)
@@ -340,39 +389,45 @@ class Predictor(Module):
             self._publish(state, points, links, hands, forces)
 
     def _felt(self) -> set[str]:
-        """The hands whose contact the robot's cues would feel, by the predictor's own sensors: a taxel
-        pressed, or the wrist's external force above the cue's floor (a grasp's squeeze alone does not
-        reach the wrist: its forces cancel inside the hand)."""
-        from contactflow.embodiments.primitives.base import TACTILE_CONTACT
+        """The hands whose predicted contact presses a pad of the predictor's own tactile sensors: a contact the
+        robot's pads are expected to feel (what the wrist alone would feel is the load comparison's part)."""
+        return {cue.hand for cue in self._cues
+                if any(float(np.max(v)) > TACTILE_CONTACT for v in self.sim.tactile(cue.hand).values())}
 
-        felt = set()
-        for cue in self._cues:
-            pads = self.sim.tactile(cue.hand)
-            if any(float(np.max(v)) > TACTILE_CONTACT for v in pads.values()) or (
-                    cue.ft_link and float(np.linalg.norm(self.sim.ft(cue.arm).external[:3])) >= cue.min_force):
-                felt.add(cue.hand)
-        return felt
-
-    def _contacts(self) -> tuple[np.ndarray, list[str], list[str], set[str]]:
-        """Contact points of the robot's hands with anything but the robot (with a force), their links and hands,
-        and the hands whose contact the robot would feel."""
+    def _contacts(self) -> tuple[np.ndarray, list[str], list[str], set[str], set[str]]:
+        """Contact points of the robot's hands with anything but the robot (with a force), their links and hands;
+        the hands whose contact the robot would feel; and the *steady* hands: touching nothing, or only objects
+        that touch nothing but the robot (held aloft). A hand pushing an object over the table, or setting it
+        down, is not steady: there the load follows friction and timing the belief does not know."""
         from contactflow.embodiments.sensors.ground_truth import body_name
 
         pts, links, hands = [], [], []
         own = f"{self.robot}/"
+        touching: dict[str, set[str]] = {}  # hand -> the bodies it touches
+        others: dict[str, set[str]] = {}  # body -> the bodies other than the robot it touches
         for c in self.world.contacts():
             a, b = body_name(c.bodies[0]), body_name(c.bodies[1])
+            if not any(np.linalg.norm(p.impulse) > 0 for p in c.points):
+                continue
             if a.startswith(own) == b.startswith(own):
+                if not a.startswith(own):
+                    others.setdefault(a, set()).add(b)
+                    others.setdefault(b, set()).add(a)
                 continue  # the robot with itself, or two other bodies
-            link = a if a.startswith(own) else b
+            link, other = (a, b) if a.startswith(own) else (b, a)
             if link not in self._hand:
                 continue
+            touching.setdefault(self._hand[link], set()).add(other)
             for p in c.points:
                 if np.linalg.norm(p.impulse) > 0:
                     pts.append(np.asarray(p.position, dtype=np.float64))
                     links.append(link.split("/", 1)[1])
                     hands.append(self._hand[link])
-        return np.array(pts, dtype=np.float64).reshape(-1, 3), links, hands, self._felt() if pts else set()
+        static = {n for n, o in self.world.objects.items() if o.spec.static}
+        steady = {h for h in self._hand_names
+                  if not any(o in static or others.get(o) for o in touching.get(h, ()))}
+        return (np.array(pts, dtype=np.float64).reshape(-1, 3), links, hands, self._felt() if pts else set(),
+                steady)
 
     def _publish(self, state: RobotState, points: np.ndarray, links: list[str], hands: list[str],
                  forces: list[np.ndarray]) -> None:
@@ -386,7 +441,7 @@ class Predictor(Module):
             contacts=NDArray.of(points) if len(points) else None, contact_links=links, contact_hands=hands,
             arms=list(self._ft_arms),
             force=[float(v) for f in forces for v in f],
-            force_error=[self.force_error.get(a, 0.0) for a in self._ft_arms]))
+            force_error=[self.force_error.get(a, 0.0) for a in self._ft_arms], compute=self.compute))
 
     def _report(self, m: Mismatch) -> None:
         assert self.io is not None

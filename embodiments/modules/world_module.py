@@ -120,6 +120,22 @@ def apply_hand(sim: Any, msg: HandCommand) -> None:
     hand.set_fingers(_joint_values(sim, hand.joints, v, f"hand {msg.hand}"), msg.effort)
 
 
+def _push(text: str, where: str, objects: dict) -> tuple[str, float, float, list[float]]:
+    """``object@t0-t1:fx,fy,fz`` as (object, t0, t1, force); a ValueError naming ``where`` otherwise."""
+    try:
+        name, rest = text.split("@", 1)
+        span, force = rest.split(":", 1)
+        t0, t1 = (float(v) for v in span.split("-", 1))
+        f = [float(v) for v in force.split(",")]
+    except ValueError:
+        raise ValueError(f"{where}: {text!r} is not object@t0-t1:fx,fy,fz") from None
+    if name not in objects or objects[name].spec.static:
+        raise ValueError(f"{where}: {name!r} is no movable object of the scene ({sorted(objects)})")
+    if len(f) != 3 or not np.all(np.isfinite(f)) or not 0.0 <= t0 < t1:
+        raise ValueError(f"{where}: {text!r} needs 0 <= t0 < t1 and three finite force components")
+    return name, t0, t1, f
+
+
 @dataclass
 class _Robot:
     sim: Any  # SimRobot
@@ -169,6 +185,7 @@ class WorldModule(Module):
         wait_for: tuple[str, ...] = ()  # lockstep nodes tick 1 waits for (a seeded run starts at a known tick)
         republish: float = 0.2  # s of wall time between repeats of the current tick while waiting (late joiners)
         start_timeout: float = 60.0  # s of wall time tick 1 waits for the nodes of wait_for to come up
+        pushes: tuple[str, ...] = ()  # forces on objects from an agent no robot knows of (tests, benchmarks): "object@t0-t1:fx,fy,fz" (s of simulated time, N, world)
 
     def __init__(self, name: str, params: Params | None = None, world: Any = None, sims: tuple = ()) -> None:
         """``world`` and its ``sims`` (SimRobots): a world built by the caller, co-located with its controllers
@@ -255,6 +272,10 @@ class WorldModule(Module):
                                           transport.publisher(ks.robot(rname, "camera")),
                                           transport.publisher(ks.robot(rname, "depth")),
                                           transport.publisher(ks.robot(rname, "joints")))
+        for k, text in enumerate(p.pushes):
+            name, t0, t1, force = _push(text, f"{where}.pushes[{k}]", world.objects)
+            world.add_hook(lambda w, obj=world.objects[name], a=t0, b=t1, f=force:
+                           obj.body.add_force_torque(f, [0.0, 0.0, 0.0]) if a <= w.time < b else None)
         if self._given is None:
             world.step(max(1, int(round(p.settle / world.params.timestep))))
         self._every = max(1, int(round(1.0 / (p.control_rate * world.params.timestep))))

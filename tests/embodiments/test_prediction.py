@@ -13,13 +13,16 @@ AT = np.array([[0.5, -0.2, 0.85]])
 NONE = np.zeros((0, 3))
 
 
-def run(det: MismatchDetector, predicted, sensed, until: float, dt: float = 0.005, fused_dt: float = 0.05):
-    """Feed ``predicted(t)`` every tick and ``sensed(t)`` every fusion cycle up to ``until``; every mismatch."""
+def run(det: MismatchDetector, predicted, sensed, until: float, dt: float = 0.005, fused_dt: float = 0.05,
+        pressed=lambda t: False):
+    """Feed ``predicted(t)`` and ``pressed(t)`` (the robot's pads) every tick and ``sensed(t)`` every fusion cycle
+    up to ``until``; every mismatch."""
     out = []
     for k in range(int(round(until / dt)) + 1):
         t = k * dt
         pts, felt = predicted(t)
         det.predict(t, pts, [HAND] * len(pts), {HAND} if felt and len(pts) else set())
+        det.touch(t, {HAND} if pressed(t) else set())
         if k % int(round(fused_dt / dt)) == 0:
             s = sensed(t)
             det.sense(t, s, [HAND] * len(s))
@@ -31,7 +34,7 @@ def test_a_contact_predicted_and_sensed_within_the_window_is_no_mismatch():
     # the real contact comes 60 ms after the predicted one, fusion sees it 50 ms later and keeps it 0.3 s after it ends
     det = MismatchDetector()
     found = run(det, lambda t: (AT if 1.0 <= t < 2.0 else NONE, True),
-                lambda t: AT + 0.03 if 1.11 <= t < 2.36 else NONE, 3.0)
+                lambda t: AT + 0.03 if 1.11 <= t < 2.36 else NONE, 3.0, pressed=lambda t: 1.06 <= t < 2.05)
     assert found == []
 
 
@@ -46,18 +49,24 @@ def test_a_sensed_contact_where_none_was_predicted_is_unexpected_and_reported_on
     assert len(run(det2, lambda t: (NONE, True), lambda t: AT if t >= 1.0 else NONE, 1.8)) == 2
 
 
-def test_a_predicted_contact_the_hand_should_feel_but_does_not_is_missing_a_light_or_brief_one_is_not():
+def test_a_predicted_contact_that_presses_the_pads_and_does_not_on_the_robot_is_missing_a_light_or_brief_one_is_not():
     det = MismatchDetector()
-    found = run(det, lambda t: (AT if t >= 1.0 else NONE, True), lambda t: NONE, 2.0)
+    # the can leaves the hand at 1.5 s; fusion holds the contact 0.3 s more
+    found = run(det, lambda t: (AT if t >= 1.0 else NONE, True), lambda t: AT if 1.0 <= t < 1.8 else NONE, 2.5,
+                pressed=lambda t: 1.0 <= t < 1.5)
     assert [m.kind for m in found] == [MismatchKind.MISSING_CONTACT]
-    assert found[0].since == pytest.approx(1.1, abs=0.06)  # sustained 0.1 s, decided at the next fused cycle
-    # too light for the robot's sensors (a squeeze the wrist does not feel, no pad touched)
+    assert found[0].since == pytest.approx(1.8 + 0.15, abs=0.055)  # absent 0.15 s after the last fused cycle
+    assert found[0].part == HAND and found[0].location == pytest.approx(tuple(AT[0]))
+    # pads pressed as predicted: nothing missing
+    assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, True), lambda t: AT if t >= 1.0 else NONE,
+               2.0, pressed=lambda t: t >= 1.03) == []
+    # a contact the prediction's pads do not feel (the palm, a phalanx) is not expected on the pads
     assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, False), lambda t: NONE, 2.0) == []
     # a brush in passing (50 ms)
     assert run(MismatchDetector(), lambda t: (AT if 1.0 <= t < 1.05 else NONE, True), lambda t: NONE, 2.0) == []
-    # fusion dropping the contact for 0.2 s (< absent) is no mismatch either
-    assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, True),
-               lambda t: AT if t >= 1.05 and not 1.5 <= t < 1.7 else NONE, 2.5) == []
+    # the pads released for 0.1 s (< absent) is no mismatch either
+    assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, True), lambda t: AT if t >= 1.0 else NONE,
+               2.5, pressed=lambda t: t >= 1.0 and not 1.5 <= t < 1.6) == []
 
 
 def test_a_wrist_load_off_by_an_impact_a_few_ticks_early_is_no_mismatch_a_steady_offset_is_one():
