@@ -7,6 +7,7 @@ from enum import StrEnum
 import msgspec
 import numpy as np
 
+from contactflow.nodes.messages import ParamValue
 from contactflow.nodes.wire import Message, NDArray
 
 
@@ -330,6 +331,7 @@ class MismatchKind(StrEnum):
     MISSING_CONTACT = "missing_contact"  # a predicted contact that was not sensed (never came, or lost)
     JOINTS = "joints"  # the measured arm joints left the predicted ones (an arm held back, pushed)
     FORCE = "force"  # the measured wrist load differs from the predicted (a heavier object, a push)
+    OBJECT = "object"  # perception saw an object away from where the prediction holds it
 
 
 class PredictionMismatch(Message, tag="prediction_mismatch"):
@@ -344,3 +346,39 @@ class PredictionMismatch(Message, tag="prediction_mismatch"):
     value: float = 0.0  # the size of the difference: m for contacts (distance to the nearest counterpart, -1: none), rad, N
     bound: float = 0.0  # the bound it crossed, same unit
     detail: str = ""  # human-readable what
+
+
+class LookAheadRequest(Message, tag="look_ahead_request"):
+    """Ask a robot's predictor what a primitive would do from the predicted state now (on ``predict/<robot>/ask``)."""
+
+    robot: str
+    request: int  # the asker's number, echoed in the answer
+    primitive: str  # a primitive type (``transport``, ``place``, ...)
+    params: dict[str, ParamValue] = {}  # its parameters, as a RUN control message gives them
+    horizon: float = 20.0  # s of simulated time the primitive may run before the answer is timeout
+
+
+class LookAheadEvent(msgspec.Struct, kw_only=True):
+    """An event the primitive raised in the look-ahead."""
+
+    t: float  # s of simulated time from the start of the look-ahead
+    event: str  # the event
+    detail: str = ""  # the event's detail
+
+
+class LookAheadReply(Message, tag="look_ahead_reply"):
+    """What the primitive did in the predictor's look-ahead (on ``predict/<robot>/ahead``), answering ``request``."""
+
+    max_bytes = 4 << 20
+    robot: str
+    request: int  # the request it answers
+    primitive: str  # the primitive type asked about
+    outcome: str  # success | failure | error | timeout of the primitive; "" when the look-ahead could not run
+    duration: float  # s of simulated time the primitive ran
+    wall: float  # s of wall time the look-ahead took (build and run)
+    events: list[LookAheadEvent] = []  # every event the primitive raised, in order
+    objects: list[str] = []  # the believed movable objects
+    moved: list[float] = []  # m, how far each object's centre moved
+    tilted: list[float] = []  # rad, how far each object's up axis turned from where it was (> 0.5: it fell over)
+    touched: list[str] = []  # the objects the robot touched during the look-ahead
+    error: str = ""  # why the look-ahead could not run (unknown primitive, bad parameter, busy)

@@ -17,7 +17,8 @@ disagree, each a :class:`Mismatch`:
   decision for time ``t`` waits until both streams reached ``t + window``, so the lag between
   them does not matter.
 - arm joints and wrist loads: a difference beyond ``joint_bound`` / ``force_bound`` that lasts
-  ``sustain``.
+  ``sustain``;
+- objects: perception seeing one more than ``object_bound`` from where the prediction holds it.
 
 The same kind on the same hand or arm (or within ``radius``) is not reported again for ``quiet`` s: a
 surprise that lasts is reported again every ``quiet`` s.
@@ -44,11 +45,12 @@ class MismatchParams:
     sustain: float = 0.1  # s a predicted contact or a joint or load difference must last to count
     joint_bound: float = 0.1  # rad, arm joints (thesis Fig. 5.16: predicted joints within 0.1 rad)
     force_bound: float = 5.0  # N, external wrist force (median over the window)
+    object_bound: float = 0.025  # m, a perceived object's distance from its prediction (thesis Fig. 5.16: within 2.5 cm)
     quiet: float = 1.0  # s, the same kind at the same place is not reported again sooner
     horizon: float = 3.0  # s of history kept
 
     def validate(self, where: str = "params") -> None:
-        for f in ("window", "radius", "joint_bound", "force_bound", "horizon"):
+        for f in ("window", "radius", "joint_bound", "force_bound", "object_bound", "horizon"):
             if not getattr(self, f) > 0:
                 raise ValueError(f"{where}.{f}: {getattr(self, f)!r} must be > 0")
         for f in ("sustain", "quiet", "hold", "absent"):
@@ -153,6 +155,15 @@ class MismatchDetector:
         p = self.params
         return self._bound(MismatchKind.JOINTS, t, "joints", joint, error, p.joint_bound,
                            f"arm joint {joint} is {error:.3f} rad from the predicted")
+
+    def object(self, t: float, name: str, seen: np.ndarray, gap: float) -> Mismatch | None:
+        """Perception saw object ``name`` at ``seen`` (world), ``gap`` m from where the prediction holds it."""
+        p = self.params
+        if not gap > p.object_bound:
+            return None
+        found = self._report(MismatchKind.OBJECT, t, t, np.asarray(seen, dtype=np.float64), name, gap, p.object_bound,
+                             f"{name} was seen at {_fmt(np.asarray(seen))}, {100 * gap:.1f} cm from its prediction")
+        return found[0] if found else None
 
     def force(self, t: float, arm: str, predicted: np.ndarray, measured: np.ndarray, steady: bool = True) -> None:
         """The predicted and measured external wrist forces of ``arm`` at ``t`` (N, world axes); compared in

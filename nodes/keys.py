@@ -13,7 +13,8 @@ Layout (``docs/protocol.md`` documents it with examples)::
     cf/<site>/broker/progress/<task_id>                    abstract progress stream
     cf/<site>/broker/robots/<robot>/{caps,translate,run}   per-robot broker queryables
     cf/<site>/eval/<robot>/<stream>                        ground truth, for evaluation only
-    cf/<site>/predict/<robot>/{state,mismatch}             a robot's predictor (thesis ch. 5): predicted state, mismatches
+    cf/<site>/predict/<robot>/{state,mismatch,ask,ahead}   a robot's predictor (thesis ch. 5): predicted state, mismatches,
+                                                           look-ahead questions and answers
     cf/<site>/robot/<robot>/{state,joints,command,camera,depth,info}
                                                            a world's robot: state per tick, commands in, camera
                                                            frames on request, depth stream, description (queryable)
@@ -48,8 +49,9 @@ CLAIM_MODES = ("excl", "mix")
 BENCH_SIGNALS = ("ready", "done")
 ROBOT_STREAMS = ("state", "joints", "command", "camera", "depth", "info")
 """A world's robot: its state each tick, the commands it takes, camera frames, its description."""
-PREDICT_STREAMS = ("state", "mismatch")
-"""A robot's predictor: what its simulation predicts each tick, and where prediction and sensing disagree."""
+PREDICT_STREAMS = ("state", "mismatch", "ask", "ahead")
+"""A robot's predictor: what its simulation predicts each tick, where prediction and sensing disagree, and
+look-ahead questions (``ask``) and their answers (``ahead``)."""
 
 
 class KeyExprError(ValueError):

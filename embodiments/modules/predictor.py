@@ -14,7 +14,10 @@ and compares:
 through :class:`~contactflow.embodiments.prediction.MismatchDetector`. Each mismatch goes out
 on ``predict/<robot>/mismatch`` and as a ``prediction_mismatch`` event, and the predictor
 resynchronises its robot to the measured joints (also every ``resync`` s). What it predicts
-goes out on ``predict/<robot>/state`` at ``publish_hz``. Nothing here reads ``eval/``.
+goes out on ``predict/<robot>/state`` at ``publish_hz``. A look-ahead question on
+``predict/<robot>/ask`` (a primitive and its parameters) is answered on ``predict/<robot>/ahead``
+with what the primitive did in a copy of the predicted world (§5.5,
+:mod:`~contactflow.embodiments.lookahead`). Nothing here reads ``eval/``.
 """
 
 from __future__ import annotations
@@ -34,6 +37,9 @@ from contactflow.embodiments.messages import (
     CameraRequest,
     HandCommand,
     HeadCommand,
+    LookAheadEvent,
+    LookAheadReply,
+    LookAheadRequest,
     PredictedState,
     PredictionMismatch,
     RobotInfo,
@@ -50,6 +56,7 @@ from contactflow.nodes.wire import NDArray
 
 _commands = msgspec.msgpack.Decoder(ArmCommand | HandCommand | HeadCommand | CameraRequest)
 MAX_PENDING = 4096  # commands kept while waiting for the states that apply them
+MAX_HORIZON = 120.0  # s of simulated time a look-ahead may run
 
 
 class Predictor(Module):
@@ -60,10 +67,12 @@ class Predictor(Module):
         Port("state", RobotState, "the robot's state after each world tick"),
         Port("sensed", ContactList, "the robot's fused contacts, every cycle"),
         Port("perceived", EventMsg, "the robot's module events: object_detected places a believed object"),
+        Port("ask", LookAheadRequest, "look-ahead questions: a primitive to run from the predicted state"),
     )
     outputs = (
         Port("predicted", PredictedState, "what the predictor holds after a world tick"),
         Port("mismatch", PredictionMismatch, "where prediction and sensing disagree"),
+        Port("ahead", LookAheadReply, "look-ahead answers"),
     )
     events = (Event.PREDICTION_MISMATCH,)
 
@@ -77,6 +86,7 @@ class Predictor(Module):
         absent: float = 0.15  # s the robot's pads must feel nothing while the prediction presses them before a contact is missing
         sustain: float = 0.1  # s a predicted contact or a joint or load difference lasts before it counts
         joint_bound: float = 0.1  # rad, arm joints (thesis Fig. 5.16)
+        object_bound: float = 0.025  # m, a detected object this far from its prediction is a mismatch (Fig. 5.16: 2.5 cm)
         force_bound: float = 5.0  # N, external wrist force (undisturbed pick and place: medians differ up to 4.3 N as the can touches down)
         quiet: float = 1.0  # s before the same kind at the same place is reported again
         resync: float = 1.0  # s between checks that resynchronise to the measured joints (0: only on a mismatch)
@@ -103,6 +113,8 @@ class Predictor(Module):
         self.compute = 0.0  # s of wall time spent predicting ticks
         self.resynced_objects = 0  # believed objects moved to where perception saw them
         self.resyncs = 0  # times the arms were put back at the measured joints
+        self._asked: threading.Thread | None = None  # the look-ahead under way
+        self._answers: deque[LookAheadReply] = deque()  # look-ahead answers to publish (appended by its thread)
         self._pending: deque = deque()
         self._seen: dict[str, int] = {}  # part (arm or hand) -> highest command seq received
         self._lock = threading.Lock()
@@ -118,11 +130,12 @@ class Predictor(Module):
     def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
         """The state the world publishes of the robot the module is hosted for, and the robot's fused contacts."""
         return {"state": ks.robot(robot, "state"), "sensed": ks.fused(robot, "contacts"),
-                "perceived": ks.events(robot, "*", "*")}
+                "perceived": ks.events(robot, "*", "*"), "ask": ks.predict(robot, "ask")}
 
     @classmethod
     def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: Any) -> dict[str, str]:
-        return {"predicted": ks.predict(robot, "state"), "mismatch": ks.predict(robot, "mismatch")}
+        return {"predicted": ks.predict(robot, "state"), "mismatch": ks.predict(robot, "mismatch"),
+                "ahead": ks.predict(robot, "ahead")}
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
@@ -141,7 +154,8 @@ class Predictor(Module):
     def _mismatch_params(self) -> MismatchParams:
         p = self.params
         return MismatchParams(window=p.window, radius=p.radius, hold=p.hold, absent=p.absent, sustain=p.sustain,
-                              joint_bound=p.joint_bound, force_bound=p.force_bound, quiet=p.quiet)
+                              joint_bound=p.joint_bound, force_bound=p.force_bound, object_bound=p.object_bound,
+                              quiet=p.quiet)
 
     def stop(self) -> None:
         for h in self._handles:
@@ -193,11 +207,56 @@ class Predictor(Module):
         for e in self.io.take("perceived"):
             if e.event is Event.OBJECT_DETECTED and self.sim is not None:
                 self._perceived(e)
+        for req in self.io.take("ask"):
+            if req.robot == self.robot:
+                self._ask(req)
+        while self._answers:
+            self.io.publish("ahead", self._answers.popleft())
         return Status.RUNNING
+
+    # -- look-ahead (§5.5) ----------------------------------------------------------------------
+    def _ask(self, req: LookAheadRequest) -> None:
+        """Start a look-ahead from the predicted state on a thread of its own (it takes seconds: the node's
+        ticks go on meanwhile); one at a time."""
+        from contactflow.embodiments.lookahead import Snapshot
+
+        def refuse(why: str) -> None:
+            self._answers.append(LookAheadReply(robot=self.robot, request=req.request, primitive=req.primitive,
+                                                outcome="", duration=0.0, wall=0.0, error=why))
+
+        if self.sim is None:
+            return refuse("the predictor has no state of the robot yet")
+        if self._asked is not None and self._asked.is_alive():
+            return refuse("busy with another look-ahead")
+        if not (np.isfinite(req.horizon) and 0.0 < req.horizon <= MAX_HORIZON):
+            return refuse(f"horizon {req.horizon!r} s is not in (0, {MAX_HORIZON:g}]")
+        sim = self.sim
+        snap = Snapshot(self.robot, sim.spec.name, sim.art.base.copy(), self._rate, sim.art.qpos(),
+                        {a: np.asarray(sim.arm(a).q_cmd, dtype=np.float64).copy() for a in sim.arms},
+                        tuple((o.spec, o.pose()) for o in self.world.objects.values()))
+        self._asked = threading.Thread(target=self._look, args=(snap, req), name=f"{self.name}-ahead", daemon=True)
+        self._asked.start()
+
+    def _look(self, snap, req: LookAheadRequest) -> None:  # type: ignore[no-untyped-def]
+        from contactflow.embodiments.lookahead import look_ahead
+
+        try:
+            out = look_ahead(snap, req.primitive, req.params, req.horizon)
+        except Exception as exc:  # a bad primitive or parameter, or a world that failed to build: said, not raised
+            self._answers.append(LookAheadReply(robot=self.robot, request=req.request, primitive=req.primitive,
+                                                outcome="", duration=0.0, wall=0.0,
+                                                error=f"{type(exc).__name__}: {exc}"[:500]))
+            return
+        self._answers.append(LookAheadReply(
+            robot=self.robot, request=req.request, primitive=req.primitive, outcome=out.outcome,
+            duration=out.duration, wall=out.wall,
+            events=[LookAheadEvent(t=t, event=e, detail=d[:300]) for t, e, d in out.events],
+            objects=list(out.objects), moved=list(out.moved), tilted=list(out.tilted), touched=list(out.touched)))
 
     def _perceived(self, e: EventMsg) -> None:
         """§5.6, resynchronisation from perception: a detected object's top centre moves the nearest believed
-        object there in the plane (it stands where it stood), unless the predicted robot touches it."""
+        object there in the plane (it stands where it stood), unless the predicted robot touches it; more than
+        ``object_bound`` away it is a mismatch too."""
         v = e.values
         if not {"tx", "ty", "top"} <= set(v):
             return
@@ -216,6 +275,10 @@ class Predictor(Module):
                 best, gap = obj, d
         if best is None:
             return
+        assert self.detector is not None
+        found = self.detector.object(self.t, best.name, np.array([*at, v["top"]]), gap)
+        if found is not None:
+            self._report(found)
         T = best.pose()
         T[:2, 3] = at
         best.set_pose(T)
@@ -242,6 +305,7 @@ class Predictor(Module):
                                   base=np.asarray(info.base, dtype=np.float64).reshape(4, 4),
                                   params=SimRobotParams(control_rate=info.control_rate, seed=info.seed + 7919))
         self._every = max(1, int(round(1.0 / (info.control_rate * world.params.timestep))))
+        self._rate = info.control_rate
         self._names = list(state.names)
         self._index = sim.art.indices(tuple(self._names))
         self._arm_idx = {a.name: sim.art.indices(a.joints) for a in sim.spec.arms}

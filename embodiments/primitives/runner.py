@@ -235,22 +235,28 @@ def finished_ok(res: RunResult) -> bool:
 
 
 def run_primitive(runner: LocalPrimitiveRunner, type: str, params: Mapping[str, Any], max_time: float = 30.0,
-                  dt: float = 0.005, instance: str | None = None) -> list[RunnerEvent]:
-    """Run one primitive to its outcome in lockstep with the world; returns every event it raised."""
+                  dt: float = 0.005, instance: str | None = None, times: list[float] | None = None) -> list[RunnerEvent]:
+    """Run one primitive to its outcome in lockstep with the world; returns every event it raised (and appends
+    to ``times`` the simulated s from the start at which each came)."""
     inst = instance or f"{type}#{len(runner.started) + 1}"
     runner.start(inst, type, params)
     robot = runner.robot
-    t_end = robot.time + max_time
+    t0 = robot.time
+    t_end = t0 + max_time
     events: list[RunnerEvent] = []
     while True:
         runner.advance()
         robot.step(dt)
         new = [e for e in runner.poll() if e.instance == inst]
         events += new
+        if times is not None:
+            times += [robot.time - t0] * len(new)
         if any(e.event in (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.TIMEOUT) for e in new):
             break
         if robot.time >= t_end:
             events.append(RunnerEvent(inst, Event.TIMEOUT, {}, f"{type} still running after {max_time:g} s"))
+            if times is not None:
+                times.append(robot.time - t0)
             break
     runner.stop(inst)
     return events

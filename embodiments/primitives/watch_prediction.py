@@ -25,7 +25,7 @@ class WatchPrediction(Primitive):
 
     @dataclass(frozen=True)
     class Params(Primitive.Params):
-        kinds: tuple[str, ...] = ()  # the mismatch kinds to react to (unexpected_contact, missing_contact, joints, force); (): any
+        kinds: tuple[str, ...] = ()  # the mismatch kinds to react to (unexpected_contact, missing_contact, joints, force, object); (): any
         finish: bool = False  # end with SUCCESS after the event
 
         def validate(self) -> None:

@@ -103,3 +103,11 @@ def test_joints_off_beyond_the_bound_for_the_sustain_time_is_a_mismatch():
 def test_bad_detector_params_name_the_field(field, value):
     with pytest.raises(ValueError, match=rf"params\.{field}"):
         MismatchDetector(MismatchParams(**{field: value}))
+
+
+def test_an_object_seen_farther_than_the_bound_from_its_prediction_is_a_mismatch():
+    det = MismatchDetector()
+    assert det.object(0.5, "cyl", np.array([0.55, -0.3, 0.87]), 0.012) is None  # within 2.5 cm: the reality gap
+    m = det.object(3.0, "cyl", np.array([0.60, -0.3, 0.87]), 0.05)
+    assert m is not None and m.kind is MismatchKind.OBJECT and m.part == "cyl" and m.value == 0.05
+    assert "5.0 cm" in m.detail and m.location == pytest.approx((0.60, -0.3, 0.87))

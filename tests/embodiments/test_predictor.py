@@ -7,44 +7,16 @@ import threading
 import numpy as np
 import pytest
 
+from contactflow.embodiments.bench_prediction import PredictorWatch
 from contactflow.embodiments.layout import CELLS, control_node, run_cell, table_cell, world_node
-from contactflow.embodiments.messages import PredictedState, PredictionMismatch
 from contactflow.embodiments.tasks import TASKS_DIR
-from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import free_port
 from contactflow.nodes.status import Event
-from contactflow.nodes.transport import ZenohSettings, ZenohTransport
-from contactflow.nodes.wire import decode
 
 ROBOT = "tombatossals"
 BELIEF = CELLS / "pick_place.yaml"  # what the robot believes: the can of 0.2 kg where the cell file puts it
 
 pytestmark = pytest.mark.heavy
-
-
-class Listener:
-    """A tool session on the predictor's streams (``predict/<robot>/...``), joined once the world is up."""
-
-    def __init__(self, site: str, endpoint: str) -> None:
-        self.states: list[PredictedState] = []
-        self.mismatches: list[PredictionMismatch] = []
-        self._lock = threading.Lock()
-        self.ks = KeySpace(site)
-        self.endpoint = endpoint
-        self.t = None
-
-    def __call__(self, _world) -> None:
-        """``run_cell``'s keep hook: nothing to read from the world (the listener already heard everything)."""
-
-    def open(self) -> None:
-        self.t = ZenohTransport(ZenohSettings(connect=(self.endpoint,))).open()
-        self.t.subscribe(self.ks.predict(ROBOT, "state"), lambda k, p: self._add(self.states, decode(p, PredictedState, k)))
-        self.t.subscribe(self.ks.predict(ROBOT, "mismatch"),
-                         lambda k, p: self._add(self.mismatches, decode(p, PredictionMismatch, k)))
-
-    def _add(self, where: list, msg) -> None:
-        with self._lock:
-            where.append(msg)
 
 
 def run(tmp_path, site: str, world_scene, task_file=None, task: str = ""):
@@ -58,15 +30,14 @@ def run(tmp_path, site: str, world_scene, task_file=None, task: str = ""):
         control = control_node(site, ROBOT, ROBOT, task_file, task, {}, connect=(endpoint,), autostart=True,
                                contacts=True, predictor=predictor)
     world = world_node(site, world_scene, listen=endpoint, wait_for=(control["node"],), ground_truth_hz=20.0)
-    listener = Listener(site, endpoint)
-    opener = threading.Timer(0.5, listener.open)  # the world listens once its node started
+    watch = PredictorWatch(site, endpoint)
+    opener = threading.Timer(0.5, watch.open)  # the world listens once its node started
     opener.start()
     try:
-        return run_cell(tmp_path, world, [control], endpoint), listener
+        return run_cell(tmp_path, world, [control], endpoint), watch
     finally:
         opener.cancel()
-        if listener.t is not None:
-            listener.t.close()
+        watch.close()
 
 
 def test_the_predictor_follows_an_undisturbed_pick_and_place_and_reports_no_mismatch(tmp_path):
@@ -115,3 +86,59 @@ def test_an_object_heavier_than_believed_is_a_surprise_on_which_the_careful_pick
     assert "force" in msg.detail and "since" in msg.values
     can = cell.poses[-1].poses.numpy()[cell.poses[-1].names.index("cyl")][:3, 3]
     assert can[2] == pytest.approx(0.81, abs=0.01)  # back on the table, standing
+
+
+def test_the_predictor_looks_ahead_a_transport_from_the_predicted_state_and_says_what_it_touched(tmp_path):
+    """§5.5: asked on predict/<robot>/ask, the predictor runs the primitive in a copy of its world and answers on
+    .../ahead: a transport down onto the can touches it; one that stops above it touches nothing; a bad question
+    gets an answer naming what is wrong."""
+    import time
+
+    from contactflow.embodiments.layout import start_nodes, stop_nodes
+    from contactflow.embodiments.messages import LookAheadReply, LookAheadRequest
+    from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+    from contactflow.nodes.keys import KeySpace
+    from contactflow.nodes.procs import wait_for
+    from contactflow.nodes.transport import ZenohSettings, ZenohTransport
+    from contactflow.nodes.wire import decode, encode
+
+    endpoint, site = f"tcp/127.0.0.1:{free_port()}", "pr3"
+    control = control_node(site, ROBOT, ROBOT, TASKS_DIR / "careful.yaml", "careful_pick", {}, connect=(endpoint,),
+                           predictor={"belief": str(BELIEF)})
+    world = world_node(site, BELIEF, listen=endpoint, wait_for=(control["node"],))
+    started, watch = start_nodes(tmp_path, [world, control], site, endpoint)
+    ks = KeySpace(site)
+    t = ZenohTransport(ZenohSettings(connect=(endpoint,))).open()
+    answers: dict[int, LookAheadReply] = {}
+    t.subscribe(ks.predict(ROBOT, "ahead"), lambda k, p: answers.update({(m := decode(p, LookAheadReply, k)).request: m}))
+    ask = t.publisher(ks.predict(ROBOT, "ask"))
+
+    def look(request: int, primitive: str, **params) -> LookAheadReply:
+        msg = LookAheadRequest(robot=ROBOT, request=request, primitive=primitive, params=params, horizon=15.0)
+        end = time.monotonic() + 120
+        while request not in answers and time.monotonic() < end:
+            ask(encode(msg))  # again until the predictor has a state to start from
+            wait_for(lambda: request in answers, 3.0)
+            if request in answers and answers[request].error.startswith("the predictor has no state"):
+                del answers[request]
+        return answers[request]
+
+    def pose(z: float) -> list[float]:
+        p = pose6(top_grasp_pose((0.55, -0.3, z)))
+        return [p[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
+
+    try:
+        down = look(1, "transport", arm="right", target=pose(0.84))
+        assert down.error == "" and down.touched == ["cyl"] and down.objects == ["cyl"], down
+        assert down.events and down.events[-1].event == down.outcome and down.duration > 1.0
+        above = look(2, "transport", arm="right", target=pose(1.02))
+        assert above.error == "" and above.outcome == "success" and above.touched == [], above
+        assert above.moved[0] < 0.002 and above.tilted[0] < 0.01
+        assert above.duration / above.wall > 1.0  # faster than real time, building the world included
+        bad = look(3, "transport", arm="right", target=pose(1.02), wings=2.0)
+        assert bad.outcome == "error" and "wings" in bad.events[-1].detail, bad
+        unknown = look(4, "fly", arm="right")
+        assert unknown.outcome == "" and "fly" in unknown.error, unknown
+    finally:
+        t.close()
+        stop_nodes(started, watch)
