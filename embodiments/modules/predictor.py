@@ -45,6 +45,12 @@ from contactflow.embodiments.messages import (
     RobotInfo,
     RobotState,
 )
+from contactflow.embodiments.modules.world_module import (
+    CommandError,
+    apply_arm,
+    apply_hand,
+    apply_head,
+)
 from contactflow.embodiments.prediction import Mismatch, MismatchDetector, MismatchParams
 from contactflow.embodiments.primitives.base import TACTILE_CONTACT
 from contactflow.fusion.messages import ContactList
@@ -57,6 +63,7 @@ from contactflow.nodes.wire import NDArray
 _commands = msgspec.msgpack.Decoder(ArmCommand | HandCommand | HeadCommand | CameraRequest)
 MAX_PENDING = 4096  # commands kept while waiting for the states that apply them
 MAX_HORIZON = 120.0  # s of simulated time a look-ahead may run
+MAX_BACKLOG = 2000  # world ticks (10 s at 200 Hz) kept while the predictor is behind
 
 
 class Predictor(Module):
@@ -87,7 +94,7 @@ class Predictor(Module):
         sustain: float = 0.1  # s a predicted contact or a joint or load difference lasts before it counts
         joint_bound: float = 0.1  # rad, arm joints (thesis Fig. 5.16)
         object_bound: float = 0.025  # m, a detected object this far from its prediction is a mismatch (Fig. 5.16: 2.5 cm)
-        force_bound: float = 5.0  # N, external wrist force (undisturbed pick and place: medians differ up to 4.3 N as the can touches down)
+        force_bound: float = 5.0  # N, external wrist force where the hand is steady (free, or holding aloft): an object 0.5 kg heavier than believed
         quiet: float = 1.0  # s before the same kind at the same place is reported again
         resync: float = 1.0  # s between checks that resynchronise to the measured joints (0: only on a mismatch)
         resync_tol: float = 0.02  # rad: arm joints this close to the measured are left alone (a teleported finger would crush a held object)
@@ -110,6 +117,7 @@ class Predictor(Module):
         self.missed = 0  # commands a state said were applied that never came
         self.ignored = 0  # commands the predictor could not apply (refused by the world too)
         self.refused = 0  # states of other joints than the robot's first state
+        self.skipped = 0  # states dropped while the predictor was behind the world
         self.compute = 0.0  # s of wall time spent predicting ticks
         self.resynced_objects = 0  # believed objects moved to where perception saw them
         self.resyncs = 0  # times the arms were put back at the measured joints
@@ -180,6 +188,9 @@ class Predictor(Module):
     def step(self) -> Status:
         assert self.io is not None
         self._states.extend(self.io.take("state"))
+        while len(self._states) > MAX_BACKLOG:  # behind the world: the oldest ticks are predicted in one go
+            self._states.popleft()
+            self.skipped += 1
         for msg in self.io.take("sensed"):
             if self.detector is not None:
                 mine = [c for c in msg.contacts if c.robot in ("", self.robot)]
@@ -399,8 +410,6 @@ class Predictor(Module):
         return True
 
     def _predict(self, state: RobotState) -> None:
-        from contactflow.embodiments.modules.world_module import CommandError, apply_arm, apply_hand
-
         applied = {a.name: a.applied for a in state.arms} | {h.name: h.applied for h in state.hands}
         with self._lock:
             due = [c for c in self._pending if c[1] <= applied.get(c[0], 0) or c[0] == "head"]
@@ -411,8 +420,8 @@ class Predictor(Module):
                     apply_arm(self.sim, msg)
                 elif isinstance(msg, HandCommand):
                     apply_hand(self.sim, msg)
-                elif self.sim.head is not None:
-                    self.sim.head.move_joints(np.asarray(msg.values, dtype=np.float64))
+                else:
+                    apply_head(self.sim, msg)
             except (CommandError, ValueError, KeyError):
                 self.ignored += 1
         self.world.step(self._every * max(1, state.tick - self.tick))

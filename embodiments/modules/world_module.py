@@ -136,6 +136,13 @@ def _push(text: str, where: str, objects: dict) -> tuple[str, float, float, list
     return name, t0, t1, f
 
 
+def apply_head(sim: Any, msg: HeadCommand) -> None:
+    """Validate a head command and move the head of ``sim``; CommandError if refused."""
+    if sim.head is None:
+        raise CommandError(f"robot {sim.name} has no head")
+    sim.head.move_joints(_finite(np.asarray(msg.values, dtype=np.float64), "head"))
+
+
 @dataclass
 class _Robot:
     sim: Any  # SimRobot
@@ -640,10 +647,7 @@ class WorldModule(Module):
         r.hand_seq[msg.hand] = max(r.hand_seq.get(msg.hand, 0), msg.seq)
 
     def _head(self, r: _Robot, msg: HeadCommand) -> None:
-        head = r.sim.head
-        if head is None:
-            raise CommandError(f"robot {r.sim.name} has no head")
-        head.move_joints(_finite(np.asarray(msg.values, dtype=np.float64), "head"))
+        apply_head(r.sim, msg)
 
     def _stream_depth(self, r: _Robot) -> None:
         camera = r.sim.spec.cameras[0].name

@@ -139,6 +139,11 @@ def test_the_predictor_looks_ahead_a_transport_from_the_predicted_state_and_says
         assert bad.outcome == "error" and "wings" in bad.events[-1].detail, bad
         unknown = look(4, "fly", arm="right")
         assert unknown.outcome == "" and "fly" in unknown.error, unknown
+        # garbage on the command port and an endless horizon: refused, and the predictor goes on
+        t.publisher(ks.robot(ROBOT, "command"))(b"\x93\x01\x02")
+        ask(encode(LookAheadRequest(robot=ROBOT, request=5, primitive="transport", horizon=1e6)))
+        assert wait_for(lambda: 5 in answers, 10) and "horizon" in answers[5].error
+        assert look(6, "transport", arm="right", target=pose(1.02)).outcome == "success"
     finally:
         t.close()
         stop_nodes(started, watch)
