@@ -97,7 +97,7 @@ class Predictor(Module):
         force_bound: float = 5.0  # N, external wrist force where the hand is steady (free, or holding aloft): an object 0.5 kg heavier than believed
         quiet: float = 1.0  # s before the same kind at the same place is reported again
         resync: float = 1.0  # s between checks that resynchronise to the measured joints (0: only on a mismatch)
-        resync_tol: float = 0.02  # rad: arm joints this close to the measured are left alone (a teleported finger would crush a held object)
+        resync_tol: float = 0.02  # rad: arm joints this close to the measured are left alone
         publish_hz: float = 20.0  # Hz of simulated time, predicted states on predict/<robot>/state
         command_wait: float = 0.5  # s of wall time a state waits for a command it says was applied
         reach: float = 0.1  # m, a detected object this close to a believed one (top centre, in the plane) is that one
@@ -121,6 +121,7 @@ class Predictor(Module):
         self.compute = 0.0  # s of wall time spent predicting ticks
         self.resynced_objects = 0  # believed objects moved to where perception saw them
         self.resyncs = 0  # times the arms were put back at the measured joints
+        self._touching = False  # the predicted hands touch something (no resynchronisation then)
         self._asked: threading.Thread | None = None  # the look-ahead under way
         self._answers: deque[LookAheadReply] = deque()  # look-ahead answers to publish (appended by its thread)
         self._pending: deque = deque()
@@ -367,13 +368,15 @@ class Predictor(Module):
         return out
 
     def _resync(self, state: RobotState, commanded: bool = False) -> None:
-        """Put the predictor's robot at the measured joints, its arms only and only when they are ``resync_tol``
-        away (and, at the start, every joint, the arms at their commanded targets)."""
+        """Put the predictor's robot at the measured joints: its arms only, only when they are ``resync_tol`` away
+        and the predicted hands touch nothing (at the start: every joint, the arms at their commanded targets)."""
         art = self.sim.art
         q, qd = art.qpos(), art.qvel()
         measured, velocity = state.position.numpy(), state.velocity.numpy()
         self._resynced_at = state.t
         if not commanded:  # on a mismatch, or periodically
+            if self._touching:
+                return  # a hand teleported into what it touches would launch it: resynchronise once free
             arms = np.isin(self._index, np.concatenate(list(self._arm_idx.values())))
             if float(np.abs(q[self._index[arms]] - measured[arms]).max(initial=0.0)) <= self.params.resync_tol:
                 return
@@ -453,6 +456,7 @@ class Predictor(Module):
                 self.force_error[arm] = float(np.linalg.norm(f - sensed[arm]))
                 det.force(t, arm, f, sensed[arm], self._arm_hand[arm] in steady)
         det.predict(t, points, hands, felt)
+        self._touching = len(points) > 0
         if found is not None:
             self._report(found)
         if self.params.resync > 0 and t - self._resynced_at >= self.params.resync:
