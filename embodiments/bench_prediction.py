@@ -38,6 +38,7 @@ CAN = "cyl"
 CRATE = "crate"
 PULL = (14.0, 14.6, 40.0)  # s, s, N: the slip's pull on the can, straight down, mid-carry
 CRATE_LINE = "  - {name: crate, kind: box, size: [0.06, 0.06, 0.1], xyz: [0.55, -0.2, 0.80], mass: 1.0, friction: 0.8}\n"
+OBJECT_GOAL = 0.025  # m, thesis Fig. 5.16: the predicted object within 2.5 cm of the real one
 AFTER = 2.0  # s of wall time a run goes on after its task ended: a surprise that ended the task is still told
 
 
@@ -181,6 +182,8 @@ def summarize(runs: list[dict]) -> list[dict]:
             "latency_max": float(np.max(lat)) if lat else None,
             "joint_error_max": max((max(r["joint_error"], default=0.0) for r in mine), default=0.0),
             "object_error_max": max((max(r["object_error"], default=0.0) for r in mine), default=0.0),
+            "object_error_median_of_max": float(np.median([max(r["object_error"], default=0.0) for r in mine])),
+            "object_within": sum(max(r["object_error"], default=0.0) < OBJECT_GOAL for r in mine),
             "task_success": sum(r["outcome"] == "success" for r in mine),
             "predictor_rtf": float(np.median([r["predictor_rtf"] for r in mine])),
         })
@@ -208,20 +211,22 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     rows = summarize(results)
     summary = {"benchmark": "prediction", "robot": ROBOT, "runs_per_case": n, "rows": rows,
                "goals": {"detection_rate": 0.9, "false_alarm_rate": 0.05, "latency_s": 0.2, "joint_error_rad": 0.1,
-                         "object_error_m": 0.025, "predictor_rtf": 10.0},
+                         "object_error_m": OBJECT_GOAL, "predictor_rtf": 10.0},
                "wall_time": time.perf_counter() - t0, "runs": results}
     (out_dir / "prediction.json").write_text(json.dumps(summary, indent=1))
     md = ["| case | runs | with a mismatch | first mismatch kinds | latency median / max (s) | joint error max (rad) | "
-          "can error max (cm) | task success | predictor RTF (own compute) |", "|---|---|---|---|---|---|---|---|---|"]
+          "can within 2.5 cm all along | can error, median of run maxima (cm) | task success | predictor RTF (own compute) |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
     table = Table(title=f"The predictor against the world ({ROBOT}'s pick and place, {n} seeded runs per case)")
     for col in ("case", "runs", "with a mismatch", "first kinds", "latency med/max (s)", "joint err (rad)",
-                "can err (cm)", "task success", "predictor RTF"):
+                "can < 2.5 cm", "can err (cm)", "task success", "predictor RTF"):
         table.add_column(col)
     for r in rows:
         lat = "-" if r["latency_median"] is None else f"{r['latency_median']:.2f} / {r['latency_max']:.2f}"
         kinds = ", ".join(f"{k} {v}" for k, v in sorted(r["first_kinds"].items())) or "-"
         cells = [r["case"], str(r["runs"]), f"{r['flagged']} ({100 * r['rate']:.0f} %)", kinds, lat,
-                 f"{r['joint_error_max']:.3f}", f"{100 * r['object_error_max']:.1f}", f"{r['task_success']}/{r['runs']}",
+                 f"{r['joint_error_max']:.3f}", f"{r['object_within']}/{r['runs']}",
+                 f"{100 * r['object_error_median_of_max']:.1f}", f"{r['task_success']}/{r['runs']}",
                  f"{r['predictor_rtf']:.1f}"]
         table.add_row(*cells)
         md.append("| " + " | ".join(cells) + " |")
@@ -246,15 +251,16 @@ def _plot(runs: list[dict], path: pathlib.Path) -> None:
             continue
         c = colors[r["case"]]
         axes[0].plot(r["times"], r["joint_error"], color=c, lw=0.7, alpha=0.6)
-        axes[1].plot(r["times"], 100 * np.asarray(r["object_error"]), color=c, lw=0.7, alpha=0.6)
+        axes[1].plot(r["times"], np.maximum(100 * np.asarray(r["object_error"]), 0.01), color=c, lw=0.7, alpha=0.6)
         for m in r["mismatches"]:
             axes[2].scatter(m["t"], CASES.index(r["case"]) + 0.3 * (hash(m["kind"]) % 3 - 1) / 3, color=c, s=8)
         if r["event_t"] is not None:
             axes[2].scatter(r["event_t"], CASES.index(r["case"]), marker="|", color="k", s=60)
     axes[0].axhline(0.1, color="k", ls="--", lw=0.8)
     axes[0].set(title="predicted vs measured arm joints", xlabel="t (s)", ylabel="max error (rad)")
-    axes[1].axhline(2.5, color="k", ls="--", lw=0.8)
-    axes[1].set(title="predicted vs true can position", xlabel="t (s)", ylabel="error (cm)")
+    axes[1].axhline(100 * OBJECT_GOAL, color="k", ls="--", lw=0.8)
+    axes[1].set_yscale("log")
+    axes[1].set(title="predicted vs true can position", xlabel="t (s)", ylabel="error (cm, log)")
     axes[2].set(title="mismatches (dots) and physical events (|)", xlabel="t (s)", yticks=range(len(CASES)),
                 yticklabels=CASES)
     handles = [plt.Line2D([], [], color=colors[c], label=c) for c in CASES]

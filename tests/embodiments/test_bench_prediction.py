@@ -52,7 +52,7 @@ def test_the_summary_counts_detections_false_alarms_and_latencies_per_case(tmp_p
     assert rows["heavy"]["flagged"] == 1 and rows["heavy"]["first_kinds"] == {"force": 1}
     assert rows["heavy"]["latency_median"] == pytest.approx(0.2)
     assert rows["slip"]["latency_max"] == pytest.approx(0.2) and rows["slip"]["task_success"] == 0
-    assert rows["slip"]["object_error_max"] == pytest.approx(0.012)
+    assert rows["slip"]["object_error_max"] == pytest.approx(0.012) and rows["slip"]["object_within"] == 1
     bp._plot(runs, tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 10_000
     json.dumps(rows)  # the JSON summary takes them as they are
