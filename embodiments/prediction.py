@@ -181,11 +181,12 @@ class MismatchDetector:
         for arm, series in self._loads.items():
             done = self._loads_decided.get(arm, -np.inf)
             last = series[-1][0]
-            for t, _, _, _ in list(series):
+            recent = [x for x in series if x[0] >= done - p.window - 1e-9]  # one pass; each window scans only these
+            for t, _, _, _ in recent:
                 if t <= done or t > last - p.window:
                     continue
                 done = t
-                near = [(f, g, ok) for tau, f, g, ok in series if t - p.window - 1e-9 <= tau <= t + p.window + 1e-9]
+                near = [(f, g, ok) for tau, f, g, ok in recent if t - p.window - 1e-9 <= tau <= t + p.window + 1e-9]
                 if not all(ok for _, _, ok in near):
                     continue
                 # medians over the window: a contact's chatter (tens of N from one tick to the next, in the world

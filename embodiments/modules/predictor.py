@@ -320,7 +320,9 @@ class Predictor(Module):
         self._rate = info.control_rate
         self._names = list(state.names)
         self._index = sim.art.indices(tuple(self._names))
-        self._arm_idx = {a.name: sim.art.indices(a.joints) for a in sim.spec.arms}
+        # each arm's joints among the state's, and all arms' (looked up every tick)
+        self._arm_sel = [np.isin(self._index, sim.art.indices(a.joints)) for a in sim.spec.arms]
+        self._arms_sel = np.logical_or.reduce(self._arm_sel) if self._arm_sel else np.zeros(len(self._index), bool)
         self._ft_arms = [a.name for a in sim.spec.arms if a.ft]
         self._arm_hand = {a.name: a.hand for a in sim.spec.arms}
         self._hand = self._hand_links(sim)
@@ -377,7 +379,7 @@ class Predictor(Module):
         if not commanded:  # on a mismatch, or periodically
             if self._touching:
                 return  # a hand teleported into what it touches would launch it: resynchronise once free
-            arms = np.isin(self._index, np.concatenate(list(self._arm_idx.values())))
+            arms = self._arms_sel
             if float(np.abs(q[self._index[arms]] - measured[arms]).max(initial=0.0)) <= self.params.resync_tol:
                 return
             q[self._index[arms]], qd[self._index[arms]] = measured[arms], velocity[arms]
@@ -438,8 +440,7 @@ class Predictor(Module):
         q = self.sim.art.qpos()
         measured = state.position.numpy()
         worst, joint = 0.0, ""
-        for idx in self._arm_idx.values():
-            sel = np.isin(self._index, idx)
+        for sel in self._arm_sel:
             err = np.abs(q[self._index[sel]] - measured[sel])
             if err.size and float(err.max()) > worst:
                 worst, joint = float(err.max()), state.names[int(np.flatnonzero(sel)[int(err.argmax())])]
