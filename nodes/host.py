@@ -59,6 +59,10 @@ QUEUE_DEPTH = 256  # messages kept per input port between two steps
 MAX_SOURCES = 1024  # sources tracked per input port; bounds memory against hostile senders
 MAX_SEQ_JUMP = 1 << 24  # a sequence number this far ahead is a new numbering (a forged or reset source), not loss
 MARK_WAIT = 5.0  # s of wall time a lockstep node waits for the messages a tick's marks name before it steps
+MAX_MARK_LEAD = 64
+"""Messages of one stream a mark may name beyond the last one heard: a tick leaves a few in flight, so a
+mark further ahead is forged (or predates the node) and is not waited for, else one hostile ack would
+hold every node subscribed to the stream for MARK_WAIT."""
 
 
 @dataclass
@@ -283,6 +287,7 @@ class ModuleHost:
         self._marks: dict[tuple[str, str], int] = {}  # (key, source) -> last seq published this tick (lockstep)
         self._delivery = threading.Condition()
         self.mark_timeouts = 0  # ticks stepped without every message their marks named
+        self.marks_refused = 0  # marks too far ahead of their stream to be waited for (MAX_MARK_LEAD)
         self.tick_no = -1  # the world tick a lockstep node steps (-1: not in lockstep)
         self._ticked = False  # the node stepped its modules once
         self.dead = threading.Event()  # the loop died (the node is down, its process should exit non-zero)
@@ -705,6 +710,7 @@ class ModuleHost:
         with self._lock:
             wanted = [(hm, port, m) for hm in self.modules.values() for port, key in hm.in_keys.items()
                       for m in marks if _marked(key, m.key)]
+        wanted = self._plausible(tick, wanted)
         if not wanted:
             return
         end = time.monotonic() + MARK_WAIT
@@ -722,6 +728,20 @@ class ModuleHost:
             hm, port, m = missing[0]
             self.log.warning("tick %d stepped without %d marked message(s), e.g. %s seq %d for %s.%s",
                              tick, len(missing), m.source, m.seq, hm.addr, port)
+
+    def _plausible(self, tick: int, wanted: list[tuple[HostedModule, str, Mark]]) -> list[tuple[HostedModule, str, Mark]]:
+        """The marks worth waiting for: those within MAX_MARK_LEAD of what their port heard (others counted)."""
+        kept, refused = [], []
+        for w in wanted:
+            hm, port, m = w
+            (kept if m.seq <= hm.io.heard(port, m.source) + MAX_MARK_LEAD else refused).append(w)
+        if refused:
+            self.marks_refused += 1
+            if self.marks_refused <= 10:
+                hm, port, m = refused[0]
+                self.log.warning("tick %d: mark %s seq %d for %s.%s is over %d ahead of the stream: not waited for",
+                                 tick, m.source, m.seq, hm.addr, port, MAX_MARK_LEAD)
+        return kept
 
     def start(self, host_name: str | None = None) -> None:
         """Announce the node, autostart modules and run the loop on a thread."""

@@ -12,18 +12,24 @@ import pytest
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line("markers", "heavy: one of the suite's longest tests, started early so no worker ends alone on it")
+    config.addinivalue_line("markers", "heavy(seconds): one of the suite's longest tests (its file runs about ``seconds`` "
+                                       "on two workers), started early, longest file first, so no worker ends alone on it")
     config.addinivalue_line(
         "markers", "exclusive: runs while no other test runs (its assertions compare wall-clock-sensitive runs, "
                    "e.g. a lockstep run repeated across process layouts, which CPU contention can reorder)")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The heavy tests first and the exclusive ones last (a worker's test file goes with them): the short
-    tests between let the two workers end together, and an exclusive test waits for the other worker's
-    current test, short at the end (behind the demo it would wait two minutes)."""
-    items.sort(key=lambda item: (item.get_closest_marker("heavy") is None)
-               + 2 * (item.get_closest_marker("exclusive") is not None))
+    """The heavy tests first, longest first, and the exclusive ones last (a worker's test file goes with
+    them; ``--no-loadscope-reorder`` keeps xdist from ordering the files by their number of tests instead):
+    the short tests between let the two workers end together, and an exclusive test waits for the other
+    worker's current test, short at the end (behind the demo it would wait two minutes)."""
+    def key(item: pytest.Item) -> tuple[int, float]:
+        heavy = item.get_closest_marker("heavy")
+        return ((heavy is None) + 2 * (item.get_closest_marker("exclusive") is not None),
+                -float(heavy.kwargs.get("seconds", 0.0)) if heavy else 0.0)
+
+    items.sort(key=key)
 
 
 @contextmanager

@@ -29,7 +29,7 @@ def _outside_client(endpoint: str, site: str, heard: list):
     return session
 
 
-@pytest.mark.heavy
+@pytest.mark.heavy(seconds=150)
 def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tmp_path):
     site, endpoint = "demotest", f"tcp/127.0.0.1:{free_port()}"
     heard: list = []

@@ -9,7 +9,7 @@ import pytest
 from contactflow.embodiments.bench_sim import run
 
 
-@pytest.mark.heavy
+@pytest.mark.heavy(seconds=60)
 def test_quick_bench_writes_its_summary(tmp_path):
     summary = run(tmp_path, quick=True)
     saved = json.loads((tmp_path / "sim.json").read_text())

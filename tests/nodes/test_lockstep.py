@@ -155,3 +155,36 @@ def test_without_the_marks_a_late_message_reaches_a_later_tick():
     finally:
         host.shutdown()
     assert any(values != [pytest.approx(now - DT)] for now, values in consumer.seen[1:])
+
+
+def test_a_forged_mark_far_ahead_of_its_stream_does_not_hold_the_node():
+    """One hostile ack naming seq 2**63-1 of a real stream: the node steps on at once and counts it, not after MARK_WAIT."""
+    t = LocalTransport()
+    ks = KeySpace("ls")
+    producer, consumer = Producer("src"), Consumer("dst")
+    cfg_p = ModuleConfig("src", "producer", Producer, Producer.Params(), "site")
+    cfg_c = ModuleConfig("dst", "consumer", Consumer, Consumer.Params(), "site", inputs={"inp": parse_source("src.out")})
+    host = ModuleHost(node("n1", (cfg_p, cfg_c)), t)
+    host.add(cfg_p, producer)
+    host.add(cfg_c, consumer)
+    acks: list[LockstepAck] = []
+    sub = t.subscribe(ks.lockstep("*"), lambda key, payload: acks.append(decode(payload, LockstepAck, key)))
+    clock = t.publisher(ks.clock())
+    host.start()
+    try:
+        for k in range(20):
+            marks = [m for a in acks[-1:] for m in a.marks]
+            if k == 10:  # the real mark of the producer's stream, its number made hostile
+                marks = [Mark(key=m.key, source=m.source, seq=2**63 - 1) for m in marks]
+                assert marks
+            t0 = time.monotonic()
+            clock(encode(stamp(Clock(t=k * DT, tick=k, marks=marks), "world/clock", k + 1, k * DT)))
+            deadline = time.monotonic() + 10.0
+            while not (acks and acks[-1].tick >= k) and time.monotonic() < deadline:
+                time.sleep(0.001)
+            assert acks[-1].tick == k and time.monotonic() - t0 < 1.0, (k, time.monotonic() - t0)
+    finally:
+        host.shutdown()
+        sub.close()
+    assert host.marks_refused == 1 and host.mark_timeouts == 0
+    assert len(consumer.seen) == 20
