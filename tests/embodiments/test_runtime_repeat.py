@@ -1,5 +1,5 @@
-"""Runs on the runtime that must repeat exactly whatever the process layout or the wall clock: each runs alone
-(``exclusive``) when the suite runs on several workers, as CPU contention can reorder a lockstep run's messages."""
+"""Runs on the runtime that must repeat exactly whatever the process layout or the wall clock: lockstep, the
+marks and the idle pause make them repeat beside the suite's other worker as they do alone."""
 
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ from contactflow.nodes.procs import free_port
 from contactflow.nodes.status import Event
 
 ROBOT = "tombatossals"
+pytestmark = pytest.mark.heavy(seconds=100)
 
 
 def can_position(wm) -> np.ndarray:
     return wm.robots[ROBOT].sim.ground_truth().object_poses["cyl"][:3, 3].copy()
 
 
-@pytest.mark.exclusive
 def test_pick_and_place_runs_over_the_key_space_and_repeats_exactly_in_one_process_and_in_two(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     kept = {}
@@ -41,7 +41,6 @@ def test_pick_and_place_runs_over_the_key_space_and_repeats_exactly_in_one_proce
     assert two.events == one.events
 
 
-@pytest.mark.exclusive
 def test_world_control_and_vision_pick_and_place_what_the_vision_node_segmented_and_repeat_in_three_processes(tmp_path):
     from contactflow.embodiments.layout import (
         CELLS,
@@ -125,7 +124,6 @@ def _idle_world_run(tmp_path, site: str, delay: float) -> dict:
             n.stop()
 
 
-@pytest.mark.exclusive
 def test_an_idle_world_pauses_and_a_primitive_run_at_any_wall_clock_moment_repeats_to_the_tick(tmp_path):
     early = _idle_world_run(tmp_path, "rti1", 0.1)
     late = _idle_world_run(tmp_path, "rti2", 1.5)
