@@ -26,6 +26,7 @@ surprise that lasts is reported again every ``quiet`` s.
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -80,36 +81,41 @@ def _near(points: np.ndarray, x: np.ndarray) -> float:
 
 @dataclass
 class _Stream:
-    """Time-stamped point sets, oldest first."""
+    """Time-stamped point sets, oldest first; looked up by bisection on their times (a cycle's decisions
+    read a few of the horizon's hundreds of samples)."""
 
-    samples: deque = field(default_factory=deque)  # (t, (k, 3) points, hands, the hands whose contact can be felt)
+    times: list[float] = field(default_factory=list)
+    samples: list = field(default_factory=list)  # (t, (k, 3) points, hands, the hands whose contact can be felt)
 
     @property
     def t(self) -> float:
-        return self.samples[-1][0] if self.samples else -np.inf
+        return self.times[-1] if self.times else -np.inf
 
     def add(self, t: float, points: np.ndarray, hands: list[str], horizon: float, felt: set[str] | None = None) -> None:
-        if self.samples and t < self.samples[-1][0]:
+        if self.times and t < self.times[-1]:
             return  # out of order: a late sample is older than what was decided on
+        self.times.append(t)
         self.samples.append((t, np.asarray(points, dtype=np.float64).reshape(-1, 3), hands,
                              set(hands) if felt is None else felt))
-        while self.samples and self.samples[0][0] < t - horizon:
-            self.samples.popleft()
+        old = bisect_left(self.times, t - horizon)
+        if old:
+            del self.times[:old], self.samples[:old]
+
+    def after(self, t: float) -> list:
+        """The samples later than ``t``."""
+        return self.samples[bisect_right(self.times, t):]
 
     def within(self, a: float, b: float) -> tuple[np.ndarray, set[str]]:
         """The points and the hands of the samples in ``[a, b]``."""
-        found = [(p, h) for t, p, h, _ in self.samples if a - 1e-9 <= t <= b + 1e-9 and len(p)]
+        found = [(p, h) for _, p, h, _ in self.samples[bisect_left(self.times, a - 1e-9):bisect_right(self.times, b + 1e-9)]
+                 if len(p)]
         pts = np.concatenate([p for p, _ in found]) if found else np.zeros((0, 3))
         return pts, {x for _, h in found for x in h}
 
     def at(self, t: float) -> tuple[float, np.ndarray, list[str], set[str]] | None:
         """The newest sample at or before ``t``."""
-        best = None
-        for s in self.samples:
-            if s[0] > t + 1e-9:
-                break
-            best = s
-        return best
+        i = bisect_right(self.times, t + 1e-9)
+        return self.samples[i - 1] if i else None
 
 
 class MismatchDetector:
@@ -206,9 +212,11 @@ class MismatchDetector:
         p = self.params
         out: list[Mismatch] = self._check_loads()
         horizon = min(self.predicted.t, self.sensed.t) - p.window
-        for t, sensed, hands, _ in list(self.sensed.samples):
-            if t <= self._decided or t > horizon:
-                continue
+        for t, sensed, hands, _ in self.sensed.after(self._decided):
+            if t > horizon:
+                break
+            if t <= self._decided:
+                continue  # a sample of the same time as one decided
             self._decided = t
             pred_pts, pred_hands = self.predicted.within(t - p.hold - p.window, t + p.window)
             for x, hand in zip(sensed, hands, strict=True):
@@ -220,8 +228,10 @@ class MismatchDetector:
                                         f"a contact sensed at {_fmt(x)} on {hand or 'the robot'} where none "
                                         f"was predicted")
         horizon = min(self.predicted.t, self.touched.t, self.sensed.t) - p.window
-        for t, points, hands, felt in list(self.predicted.samples):
-            if t < self._missing_at + MISSING_STEP or t > horizon:
+        for t, points, hands, felt in self.predicted.after(self._missing_at):
+            if t > horizon:
+                break
+            if t < self._missing_at + MISSING_STEP:
                 continue
             self._missing_at = t
             before = self.predicted.at(t - p.sustain)
