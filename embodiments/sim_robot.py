@@ -301,7 +301,7 @@ class SimRobot(RobotFacade):
             sensor = self._tactile[hand]
         except KeyError:
             raise KeyError(f"robot {self.name}: no hand {hand!r}") from None
-        return sensor.sample(self.time, self.world.contacts(), self.world.params.timestep)
+        return sensor.sample(self.time, self.world.contacts_of(sensor.bodies), self.world.params.timestep)
 
     def _camera(self, name: str) -> DepthCamera:
         if name not in self._cameras:
@@ -418,11 +418,9 @@ class SimRobot(RobotFacade):
                 self._sync_kin()
             f.read(self.time)
             stamps[f"F/T {arm}"] = f.stamp
-        contacts = None
         for hand, tac in self._tactile.items():
             if tac.pads:
-                contacts = self.world.contacts() if contacts is None else contacts
-                tac.sample(self.time, contacts, self.world.params.timestep)
+                tac.sample(self.time, self.world.contacts_of(tac.bodies), self.world.params.timestep)
                 stamps[f"tactile {hand}"] = tac.stamp
         return stamps
 

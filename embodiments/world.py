@@ -13,6 +13,7 @@ physics step, as a real arm controller does. Stepping is deterministic in lockst
 from __future__ import annotations
 
 import time
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -450,6 +451,8 @@ class World:
         self._hooks: list = []
         self._contacts: list = []
         self._contacts_step = -1
+        self._by_body: dict[int, list[int]] = {}  # id of a body -> indices of the last step's contacts it has
+        self._by_body_step = -1
         self._t0_wall: float | None = None
 
     # -- building ------------------------------------------------------------------------
@@ -525,6 +528,7 @@ class World:
         obj = self.objects.pop(name)
         # the step's cached contacts would point into the removed body (reading them crashed the process)
         self._contacts = [c for c in self.contacts() if not any(b is obj.body for b in c.bodies)]
+        self._by_body_step = -1
         self.scene.remove_entity(obj.entity)
 
     # -- running -------------------------------------------------------------------------
@@ -566,3 +570,16 @@ class World:
             self._contacts = self.scene.get_contacts()
             self._contacts_step = self.steps
         return self._contacts
+
+    def contacts_of(self, bodies: Collection[int]) -> list:
+        """The last step's contacts that involve any of ``bodies`` (``id`` of their physx components), in the
+        step's order: each hand's sensors read their few contacts, not every contact of the cell."""
+        contacts = self.contacts()
+        if self._by_body_step != self.steps:
+            by: dict[int, list[int]] = {}
+            for i, c in enumerate(contacts):
+                for b in c.bodies:
+                    by.setdefault(id(b), []).append(i)
+            self._by_body, self._by_body_step = by, self.steps
+        found = {i for b in bodies for i in self._by_body.get(b, ())}
+        return [contacts[i] for i in sorted(found)]

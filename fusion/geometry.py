@@ -11,7 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from contactflow.fusion.hypotheses import voxel_centers, voxel_keys
+from contactflow.fusion import kernels
+from contactflow.fusion.hypotheses import unique_keys, voxel_centers
 
 DistanceFn = Callable[[np.ndarray], np.ndarray]
 """Signed distance (n,) of world points (n, 3) to the robot surface: < 0 inside."""
@@ -88,37 +89,10 @@ def interior_points(caps: np.ndarray, step: float, depth: float) -> np.ndarray:
     """Grid points (cell ``step``) deeper than ``depth`` inside the bi-spheres, gridding each
     part's own bounding box so a long arm costs no more than its volume."""
     caps = check_capsules(caps)
-    out = []
-    budget = _Budget(step)
-    for cap in caps:
-        r = max(cap[3], cap[7])
-        if r <= depth:
-            continue
-        lo = np.minimum(cap[0:3], cap[4:7]) - r
-        hi = np.maximum(cap[0:3], cap[4:7]) + r
-        # Snap to the global grid so that cells of neighbouring parts coincide.
-        lo = np.floor(lo / step) * step
-        budget.spend(lo, hi)
-        pts = grid_points(lo, hi, step)
-        out.append(pts[capsule_distance(pts, cap[None]) < -depth])
-    return _distinct_cells(out, step)
+    return _shape(caps, step, 0.0, depth, surface=False)
 
 
 MAX_CELLS = 4_000_000  # grid cells one shape may take (a robot's two hands at 5 mm take about 0.1 M)
-
-
-class _Budget:
-    """Counts the grid cells a shape's parts take and refuses past ``MAX_CELLS``: bi-spheres of a
-    corrupted model (metres wide) would grid for minutes."""
-
-    def __init__(self, step: float) -> None:
-        self.step, self.cells = step, 0
-
-    def spend(self, lo: np.ndarray, hi: np.ndarray) -> None:
-        self.cells += int(np.prod(np.maximum(np.ceil((hi - lo) / self.step), 0)))
-        if self.cells > MAX_CELLS:
-            raise ValueError(f"bi-spheres spanning {np.round(hi - lo, 2).tolist()} m take over {MAX_CELLS:,} cells "
-                             f"of {self.step:g} m: not a robot's parts")
 
 
 def capsule_surface(caps: np.ndarray, step: float, band: float | None = None) -> np.ndarray:
@@ -126,27 +100,28 @@ def capsule_surface(caps: np.ndarray, step: float, band: float | None = None) ->
     bi-spheres (default half a cell diagonal), gridding each part's own bounding box."""
     caps = check_capsules(caps)
     band = step * np.sqrt(3) / 2 if band is None else band
-    out = []
-    budget = _Budget(step)
-    for cap in caps:
-        r = max(cap[3], cap[7]) + band
-        lo = np.floor((np.minimum(cap[0:3], cap[4:7]) - r) / step) * step
-        hi = np.maximum(cap[0:3], cap[4:7]) + r
-        budget.spend(lo, hi)
-        pts = grid_points(lo, hi, step)
-        # near this part's own surface first (one part, cheap); of those, the ones on the union's surface (a
-        # point near the union's surface but not this part's lies near another part's, whose own grid has it)
-        pts = pts[np.abs(capsule_distance(pts, cap[None])) <= band]
-        out.append(pts[np.abs(capsule_distance(pts, caps)) <= band])
-    return _distinct_cells(out, step)
+    return _shape(caps, step, band, 0.0, surface=True)
 
 
-def _distinct_cells(parts: list[np.ndarray], step: float) -> np.ndarray:
-    """The distinct cell centres of one global grid (cell ``step``) among ``parts``, sorted: by integer
-    cell keys, as parts gridded from different corners differ in the last bits of the same centre."""
-    if not parts:
+def _shape(caps: np.ndarray, step: float, band: float, depth: float, surface: bool) -> np.ndarray:
+    """The distinct cell centres of a surface or an interior (:func:`kernels.shape_cells`), each part's box
+    snapped to the global grid so that cells of neighbouring parts coincide; over ``MAX_CELLS`` cells in
+    all is refused (bi-spheres of a corrupted model, metres wide, would grid for minutes)."""
+    if caps.shape[0] == 0:
         return np.zeros((0, 3))
-    return voxel_centers(np.unique(voxel_keys(np.concatenate(parts), step)), step)
+    r = caps[:, [3, 7]].max(axis=1)[:, None] + band
+    lo = np.minimum(caps[:, 0:3], caps[:, 4:7]) - r
+    hi = np.maximum(caps[:, 0:3], caps[:, 4:7]) + r
+    first = np.floor(lo / step)
+    parts = caps[:, [3, 7]].max(axis=1) > depth if not surface else np.ones(len(caps), dtype=bool)
+    cells = np.maximum(np.ceil(hi / step - 0.5) - first, 0).prod(axis=1)[parts].sum()
+    if cells > MAX_CELLS:
+        raise ValueError(f"bi-spheres spanning {np.round(hi.max(axis=0) - lo.min(axis=0), 2).tolist()} m take over "
+                         f"{MAX_CELLS:,} cells of {step:g} m: not a robot's parts")
+    if np.abs(first).max() >= kernels.KEY_OFFSET - 1 or np.abs(hi / step).max() >= kernels.KEY_OFFSET - 1:
+        raise ValueError(f"bi-spheres out of the voxel grid's range (±{kernels.KEY_OFFSET * step:g} m)")
+    keys = kernels.shape_cells(caps, first.astype(np.int64), hi, float(step), float(band), float(depth), surface)
+    return voxel_centers(unique_keys(keys), step)
 
 
 class PoseMemo:

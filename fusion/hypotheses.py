@@ -54,6 +54,22 @@ def voxel_keys(points: np.ndarray, voxel_size: float) -> np.ndarray:
     return pack_keys(voxel_coords(points, voxel_size))
 
 
+def unique_keys(keys: np.ndarray, return_inverse: bool = False):  # type: ignore[no-untyped-def]
+    """``np.unique`` of int64 voxel keys (sorted; with the inverse on request) by one sort: numpy 2.4's
+    hash-based unique takes three times as long on them (15k keys: 1.9 -> 0.6 ms), at every cycle of
+    the shape generators."""
+    keys = np.asarray(keys, dtype=np.int64).ravel()
+    order = np.argsort(keys, kind="stable") if return_inverse else None
+    s = keys[order] if order is not None else np.sort(keys)
+    first = np.ones(s.size, dtype=bool)
+    first[1:] = s[1:] != s[:-1]
+    if order is None:
+        return s[first]
+    inv = np.empty(keys.size, dtype=np.intp)
+    inv[order] = np.cumsum(first) - 1
+    return s[first], inv
+
+
 def voxel_centers(keys: np.ndarray, voxel_size: float) -> np.ndarray:
     return (unpack_keys(keys).astype(np.float64) + 0.5) * voxel_size
 
@@ -157,7 +173,7 @@ def voxelize(h: Hypotheses, voxel_size: float = VOXEL_SIZE, reduce: str = "max")
         raise ValueError(f"voxelize: reduce={reduce!r} is not 'max' or 'sum'")
     if len(h) == 0:
         return h
-    keys, inv = np.unique(voxel_keys(h.location, voxel_size), return_inverse=True)
+    keys, inv = unique_keys(voxel_keys(h.location, voxel_size), return_inverse=True)
     m = keys.shape[0]
     if reduce == "sum":
         lik = np.minimum(np.bincount(inv, weights=h.likelihood, minlength=m), 1.0)

@@ -572,12 +572,12 @@ class WorldModule(Module):
         for a in sim.spec.arms:
             if a.ft:
                 w = sim.ft(a.name)
-                wrenches.append(WrenchSample(arm=a.name, force=[float(v) for v in w.force],
-                                             torque=[float(v) for v in w.torque], frame=w.frame,
-                                             rotation=[float(v) for v in np.asarray(w.R_world_sensor).ravel()],
+                wrenches.append(WrenchSample(arm=a.name, force=np.asarray(w.force, dtype=np.float64).tolist(),
+                                             torque=np.asarray(w.torque, dtype=np.float64).tolist(), frame=w.frame,
+                                             rotation=np.asarray(w.R_world_sensor, dtype=np.float64).ravel().tolist(),
                                              estimated=w.estimated,
-                                             external_force=[float(v) for v in w.external[:3]],
-                                             external_torque=[float(v) for v in w.external[3:]]))
+                                             external_force=np.asarray(w.external[:3], dtype=np.float64).tolist(),
+                                             external_torque=np.asarray(w.external[3:], dtype=np.float64).tolist()))
         tactile = []
         for h in sim.spec.hands:
             if h.pads:

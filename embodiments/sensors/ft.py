@@ -48,7 +48,7 @@ class WrenchReading:
 
 def _rotate(R: np.ndarray, wrench: np.ndarray) -> np.ndarray:
     """A wrench's force and torque rotated by ``R`` (same origin)."""
-    return np.concatenate([R @ wrench[:3], R @ wrench[3:]])
+    return (wrench.reshape(2, 3) @ R.T).ravel()
 
 
 class WristFT:
@@ -58,6 +58,8 @@ class WristFT:
         self.art, self.spec = art, spec
         self.link = art.links[spec.link]
         self.rng = np.random.default_rng(seed)
+        self._noise = np.repeat([spec.force_noise, spec.torque_noise], 3)  # N, N m: standard deviations
+        self._bias = np.asarray(spec.bias, dtype=np.float64)
         self.tare_value = np.zeros(6)
         self._last: WrenchReading | None = None
         self.kin, self.arm_joints = kin, arm_joints
@@ -112,8 +114,7 @@ class WristFT:
             return self._last
         raw = self._raw()
         s = self.spec
-        noise = np.concatenate([self.rng.normal(0, s.force_noise, 3), self.rng.normal(0, s.torque_noise, 3)])
-        noise += np.asarray(s.bias, dtype=np.float64)
+        noise = self.rng.normal(0.0, self._noise) + self._bias  # the same draws as force then torque
         w = raw - self.tare_value + noise
         R = self._pose()[:3, :3]
         self._last = WrenchReading(t, w[:3], w[3:], s.link, R, s.estimated, raw - self._load(R) + noise)
@@ -133,6 +134,7 @@ class HandLoad:
         R_base = kin.base[:3, :3]
         self.model.gravity.linear = R_base.T @ np.asarray(art.world.params.gravity, dtype=np.float64)
         self.data = self.model.createData()
+        self._q, self._v, self._acc = (np.zeros(self.model.nq) for _ in range(3))  # filled at each wrench()
         self._kidx = kin.q_index(art.joint_names)
         hand_joints = {lk.get_joint().get_name() for lk in link_subtree(art.links[sensor_link])}
         fid = self.model.getFrameId(sensor_link)
@@ -152,7 +154,7 @@ class HandLoad:
     def wrench(self) -> np.ndarray:
         """The load on the sensor, in its link's frame."""
         a = self.art.articulation
-        q, v, acc = (np.zeros(self.model.nq) for _ in range(3))
+        q, v, acc = self._q, self._v, self._acc
         q[self._kidx], v[self._kidx], acc[self._kidx] = a.get_qpos(), a.get_qvel(), a.get_qacc()
         d = self.data
         pin.rnea(self.model, d, q, v, acc)

@@ -112,7 +112,7 @@ class TactileSensor:
         self.art, self.hand = art, hand
         self.pads = hand.pads
         self._link_of = {p.name: art.links[p.link] for p in self.pads}
-        self._bodies = {id(art.links[p.link]) for p in self.pads}
+        self.bodies = {id(art.links[p.link]) for p in self.pads}  # what World.contacts_of selects on
         self.lost = False
         self._last: tuple[float, dict[str, np.ndarray]] | None = None
 
@@ -136,7 +136,7 @@ class TactileSensor:
         for c in contacts:
             b0, b1 = c.bodies
             k0, k1 = id(b0), id(b1)
-            key = k0 if k0 in self._bodies else (k1 if k1 in self._bodies else None)
+            key = k0 if k0 in self.bodies else (k1 if k1 in self.bodies else None)
             if key is None or not c.points:
                 continue
             P = np.array([p.position for p in c.points], dtype=np.float64)

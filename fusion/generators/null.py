@@ -20,6 +20,7 @@ from contactflow.fusion.hypotheses import (
     VOXEL_SIZE,
     Hypotheses,
     HypothesisType,
+    unique_keys,
     voxel_centers,
     voxel_keys,
 )
@@ -46,7 +47,7 @@ class NullGenerator:
         self.when = np.zeros(0)
         vs = self.params.voxel_size
         boxes = [grid_points(lo, hi, vs) for lo, hi in free_boxes]
-        self.free = np.unique(voxel_keys(np.concatenate(boxes), vs)) if boxes else np.zeros(0, dtype=np.int64)
+        self.free = unique_keys(voxel_keys(np.concatenate(boxes), vs)) if boxes else np.zeros(0, dtype=np.int64)
         self._last: tuple[np.ndarray, float, float, Hypotheses] | None = None  # points, since, computed at, cloud
 
     def update(self, inside: np.ndarray | None, stamp: float) -> Hypotheses:
@@ -66,7 +67,7 @@ class NullGenerator:
     def _update(self, inside: np.ndarray | None, stamp: float) -> Hypotheses:
         p = self.params
         if p.memory <= 0:  # only where the robot is now: nothing to merge with what it swept
-            self.keys = np.unique(voxel_keys(inside, p.voxel_size)) if inside is not None else self.keys[:0]
+            self.keys = unique_keys(voxel_keys(inside, p.voxel_size)) if inside is not None else self.keys[:0]
             self.when = np.full(self.keys.size, stamp)
         elif inside is not None:
             inside = np.asarray(inside, dtype=float).reshape(-1, 3)
@@ -79,7 +80,7 @@ class NullGenerator:
             self.keys, self.when = keys[first], when[first]
         fresh = self.when >= stamp - p.memory
         self.keys, self.when = self.keys[fresh], self.when[fresh]
-        keys = np.union1d(self.keys, self.free)
+        keys = unique_keys(np.concatenate([self.keys, self.free])) if self.free.size else self.keys  # both sorted, unique
         if keys.size == 0:
             return Hypotheses.empty(stamp)
         return Hypotheses.make(voxel_centers(keys, p.voxel_size), 1.0, HypothesisType.NULL, stamp=stamp, where="null")

@@ -10,11 +10,22 @@ from contactflow.fusion.hypotheses import (
     HypothesisType,
     VoxelIndex,
     pack_keys,
+    unique_keys,
     unpack_keys,
     voxel_centers,
     voxel_keys,
     voxelize,
 )
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 5000])
+def test_unique_keys_is_numpys_unique_with_its_inverse(n):
+    rng = np.random.default_rng(n)
+    keys = voxel_keys(rng.uniform(-0.2, 0.2, (n, 3)), 0.02)  # a coarse grid: many repeated keys
+    want, want_inv = np.unique(keys, return_inverse=True)
+    got, inv = unique_keys(keys, return_inverse=True)
+    assert np.array_equal(got, want) and np.array_equal(unique_keys(keys), want)
+    assert np.array_equal(inv, want_inv) and np.array_equal(got[inv], keys)
 
 
 def test_keys_roundtrip_negative_and_positive():
