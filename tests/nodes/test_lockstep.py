@@ -109,6 +109,17 @@ def run_world(t: LocalTransport, ks: KeySpace, nodes: list[str], ticks: int, pas
         sub.close()
 
 
+def one_node(t: LocalTransport) -> tuple[ModuleHost, Consumer]:
+    """The producer and the consumer on one lockstep node."""
+    producer, consumer = Producer("src"), Consumer("dst")
+    cfg_p = ModuleConfig("src", "producer", Producer, Producer.Params(), "site")
+    cfg_c = ModuleConfig("dst", "consumer", Consumer, Consumer.Params(), "site", inputs={"inp": parse_source("src.out")})
+    host = ModuleHost(node("n1", (cfg_p, cfg_c)), t)
+    host.add(cfg_p, producer)
+    host.add(cfg_c, consumer)
+    return host, consumer
+
+
 @pytest.mark.parametrize("layout", ["one node", "two nodes"])
 def test_a_lockstep_module_gets_what_another_sent_during_the_tick_before_however_late_it_travels(layout):
     t = SlowDataTransport()
@@ -142,12 +153,7 @@ def test_without_the_marks_a_late_message_reaches_a_later_tick():
     """The same run with a world that passes no marks on: the layout's delays decide the tick a message is seen."""
     t = SlowDataTransport()
     ks = KeySpace("ls")
-    producer, consumer = Producer("src"), Consumer("dst")
-    cfg_p = ModuleConfig("src", "producer", Producer, Producer.Params(), "site")
-    cfg_c = ModuleConfig("dst", "consumer", Consumer, Consumer.Params(), "site", inputs={"inp": parse_source("src.out")})
-    host = ModuleHost(node("n1", (cfg_p, cfg_c)), t)
-    host.add(cfg_p, producer)
-    host.add(cfg_c, consumer)
+    host, consumer = one_node(t)
     host.start()
     try:
         run_world(t, ks, ["n1"], 40, pass_marks=False)
@@ -161,12 +167,7 @@ def test_a_forged_mark_far_ahead_of_its_stream_does_not_hold_the_node():
     """One hostile ack naming seq 2**63-1 of a real stream: the node steps on at once and counts it, not after MARK_WAIT."""
     t = LocalTransport()
     ks = KeySpace("ls")
-    producer, consumer = Producer("src"), Consumer("dst")
-    cfg_p = ModuleConfig("src", "producer", Producer, Producer.Params(), "site")
-    cfg_c = ModuleConfig("dst", "consumer", Consumer, Consumer.Params(), "site", inputs={"inp": parse_source("src.out")})
-    host = ModuleHost(node("n1", (cfg_p, cfg_c)), t)
-    host.add(cfg_p, producer)
-    host.add(cfg_c, consumer)
+    host, consumer = one_node(t)
     acks: list[LockstepAck] = []
     sub = t.subscribe(ks.lockstep("*"), lambda key, payload: acks.append(decode(payload, LockstepAck, key)))
     clock = t.publisher(ks.clock())
