@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Any, ClassVar
 
 import numpy as np
@@ -83,9 +84,19 @@ def capsules_of(msg: Message | None, port: str, module: str, prefixes: tuple[str
     return caps[_links_of(msg, prefixes, where)] if prefixes else caps
 
 
+@functools.lru_cache(maxsize=64)
+def _prefix_mask(links: tuple[str, ...], prefixes: tuple[str, ...]) -> np.ndarray:
+    """Which of ``links`` start with one of ``prefixes`` (read-only): a robot's model names the same links in
+    every message, and matching its hundred names to the prefixes at 20 Hz per generator cost more than the
+    shapes of a resting robot."""
+    keep = np.array([any(link.startswith(p) for p in prefixes) for link in links], dtype=bool)
+    keep.setflags(write=False)
+    return keep
+
+
 def _links_of(msg: RobotModel, prefixes: tuple[str, ...], where: str) -> np.ndarray:
     """The mask of the links whose names start with one of ``prefixes``; none is an error."""
-    keep = np.array([any(link.startswith(p) for p in prefixes) for link in msg.links], dtype=bool)
+    keep = _prefix_mask(tuple(msg.links), tuple(prefixes))
     if not keep.any():
         raise ValueError(f"{where}: no link starts with {list(prefixes)} (links: {msg.links})")
     return keep
