@@ -23,17 +23,22 @@ KEY_OFFSET = 1 << (KEY_BITS - 1)
 REGULAR, NULL = 0, 2  # HypothesisType values the fused pass tests
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _pack(i: int, j: int, k: int) -> int:
+    """The packed key of voxel (i, j, k) (each within ±KEY_OFFSET)."""
+    return ((((i + KEY_OFFSET) << KEY_BITS) | (j + KEY_OFFSET)) << KEY_BITS) | (k + KEY_OFFSET)
+
+
 @njit(cache=True, nogil=True)
 def point_keys(points: np.ndarray, voxel_size: float, out: np.ndarray) -> bool:
     """Packed voxel key of each point into ``out``; False when a point lies out of range."""
+    c = np.empty(3, dtype=np.int64)
     for i in range(points.shape[0]):
-        key = 0
         for a in range(3):
-            c = np.int64(np.floor(points[i, a] / voxel_size))
-            if c >= KEY_OFFSET or c <= -KEY_OFFSET:
+            c[a] = np.int64(np.floor(points[i, a] / voxel_size))
+            if c[a] >= KEY_OFFSET or c[a] <= -KEY_OFFSET:
                 return False
-            key = (key << KEY_BITS) | (c + KEY_OFFSET)
-        out[i] = key
+        out[i] = _pack(c[0], c[1], c[2])
     return True
 
 
@@ -235,7 +240,7 @@ def shape_cells(caps: np.ndarray, first: np.ndarray, hi: np.ndarray, step: float
                                     keep = False
                                     break
                     if keep:
-                        out[k] = (((i + KEY_OFFSET) << KEY_BITS | (j + KEY_OFFSET)) << KEY_BITS) | (kk + KEY_OFFSET)
+                        out[k] = _pack(i, j, kk)
                         k += 1
                     kk += 1
                 j += 1

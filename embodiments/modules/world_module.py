@@ -572,12 +572,10 @@ class WorldModule(Module):
         for a in sim.spec.arms:
             if a.ft:
                 w = sim.ft(a.name)
-                wrenches.append(WrenchSample(arm=a.name, force=np.asarray(w.force, dtype=np.float64).tolist(),
-                                             torque=np.asarray(w.torque, dtype=np.float64).tolist(), frame=w.frame,
-                                             rotation=np.asarray(w.R_world_sensor, dtype=np.float64).ravel().tolist(),
-                                             estimated=w.estimated,
-                                             external_force=np.asarray(w.external[:3], dtype=np.float64).tolist(),
-                                             external_torque=np.asarray(w.external[3:], dtype=np.float64).tolist()))
+                wrenches.append(WrenchSample(arm=a.name, force=w.force.tolist(), torque=w.torque.tolist(),
+                                             frame=w.frame, rotation=w.R_world_sensor.ravel().tolist(),
+                                             estimated=w.estimated, external_force=w.external[:3].tolist(),
+                                             external_torque=w.external[3:].tolist()))
         tactile = []
         for h in sim.spec.hands:
             if h.pads:
