@@ -14,6 +14,7 @@ class AbstractEvent(StrEnum):
     TIMEOUT = "timeout"  # timeout for specified time
     HARDWARE_FAILURE = "hardware_failure"  # hardware failure detected
     ERROR = "error"  # generic error
+    PREDICTION_MISMATCH = "prediction_mismatch"  # the robot's prediction and its sensing disagree (thesis §5.7; not in Table 7.2)
 
     @property
     def needs_grasp_sensing(self) -> bool:

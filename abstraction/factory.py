@@ -394,6 +394,11 @@ class Factory:
             # measured by the engine on the robot's clock: the same on every platform
             return EventChoice((frozenset({Trigger(Event.TIMEOUT)}),),
                                timeout=ev.after if ev.after is not None else self.default_timeout)
+        if e is AbstractEvent.PREDICTION_MISMATCH:
+            # the same on every robot: its predictor (a ``predictor`` module beside it) tells it; a robot run
+            # without one never takes the transition
+            helper = self.helper(e.value, "watch_prediction", f"state {state.name!r}: detector {e.value!r}")
+            return EventChoice((frozenset({Trigger(Event.PREDICTION_MISMATCH, e.value)}),), (helper,))
         return self.grasp_event(e, state, atd)
 
     def grasp_event(self, e: AbstractEvent, state: AtdState, atd: Atd) -> EventChoice:

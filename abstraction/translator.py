@@ -43,6 +43,7 @@ _CONCRETE_TO_ABSTRACT = {
     Event.HARDWARE_FAILURE: AbstractEvent.HARDWARE_FAILURE,
     Event.ERROR: AbstractEvent.ERROR,
     Event.FAILURE: AbstractEvent.ERROR,
+    Event.PREDICTION_MISMATCH: AbstractEvent.PREDICTION_MISMATCH,
 }
 
 

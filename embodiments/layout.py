@@ -460,10 +460,11 @@ def _pose(xyz: tuple[float, float, float]) -> list[float]:
 
 
 def table_cell(site: str, endpoint: str, melfa: bool = False,
-               predictor: Mapping[str, Any] | None = None) -> tuple[dict, list[dict]]:
-    """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3), its grasp
-    watched on its fused contacts while it carries the can (and by its predictor, with ``predictor``: its params);
-    with ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube.
+               predictor: Mapping[str, Any] | None = None, task: str = "pick_and_place") -> tuple[dict, list[dict]]:
+    """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3, ``task`` of
+    ``thesis.yaml``: ``careful_pick_and_place`` corrects what its predictor reports), its grasp watched on its
+    fused contacts while it carries the can (and by its predictor, with ``predictor``: its params); with
+    ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube.
 
     Returns the world node (listening on ``endpoint``, waiting for the control nodes before
     tick 1, so a run repeats exactly) and the control nodes (connecting to it, tasks autostarted).
@@ -471,7 +472,7 @@ def table_cell(site: str, endpoint: str, melfa: bool = False,
     from contactflow.embodiments.tasks import TASKS_DIR
 
     # the full stack of a control node: its contact fusion too, which watches the grasp while the can is carried
-    controls = [control_node(site, "tombatossals", "tombatossals", TASKS_DIR / "thesis.yaml", "pick_and_place",
+    controls = [control_node(site, "tombatossals", "tombatossals", TASKS_DIR / "thesis.yaml", task,
                              {"target": _pose(PLACE_TARGET), "sensor": "fused"}, connect=(endpoint,), autostart=True,
                              contacts=True, predictor=predictor)]
     if melfa:

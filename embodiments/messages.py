@@ -346,6 +346,7 @@ class PredictionMismatch(Message, tag="prediction_mismatch"):
     value: float = 0.0  # the size of the difference: m for contacts (distance to the nearest counterpart, -1: none), rad, N
     bound: float = 0.0  # the bound it crossed, same unit
     detail: str = ""  # human-readable what
+    update: str = ""  # the model update it taught the predictor (a held object's mass), "": none
 
 
 class LookAheadRequest(Message, tag="look_ahead_request"):

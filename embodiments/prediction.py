@@ -70,6 +70,7 @@ class Mismatch:
     value: float = 0.0  # m (distance to the nearest counterpart, inf: none), rad or N
     bound: float = 0.0
     detail: str = ""
+    delta: tuple[float, ...] = ()  # N, a load's difference: measured minus predicted (world axes)
 
 
 def _near(points: np.ndarray, x: np.ndarray) -> float:
@@ -197,10 +198,11 @@ class MismatchDetector:
                     continue
                 # medians over the window: a contact's chatter (tens of N from one tick to the next, in the world
                 # and in the prediction alike, out of phase) is not a difference in load
-                error = float(np.linalg.norm(np.median([f for f, _, _ in near], axis=0)
-                                             - np.median([g for _, g, _ in near], axis=0)))
+                delta = np.median([g for _, g, _ in near], axis=0) - np.median([f for f, _, _ in near], axis=0)
+                error = float(np.linalg.norm(delta))
                 m = self._bound(MismatchKind.FORCE, t, "force", arm, error, p.force_bound,
-                                f"the wrist of {arm} feels {error:.2f} N other than predicted")
+                                f"the wrist of {arm} feels {error:.2f} N other than predicted",
+                                tuple(float(v) for v in delta))
                 out += [m] if m is not None else []
             self._loads_decided[arm] = done
         return out
@@ -247,7 +249,7 @@ class MismatchDetector:
         return out
 
     def _bound(self, kind: MismatchKind, t: float, what: str, name: str, value: float, bound: float,
-               detail: str) -> Mismatch | None:
+               detail: str, delta: tuple[float, ...] = ()) -> Mismatch | None:
         """A difference over ``bound`` for ``sustain`` s starts an episode, under it for ``sustain`` s ends it (a
         difference that hovers at the bound is one surprise, not many); an episode is reported when it starts
         and again every ``quiet`` s while it lasts (a watcher that starts late still hears of it)."""
@@ -265,11 +267,11 @@ class MismatchDetector:
         if t - episode[2] < self.params.quiet or t - episode[0] < self.params.sustain:
             return None
         episode[2] = t
-        found = self._report(kind, episode[0], t, None, name, value, bound, detail)
+        found = self._report(kind, episode[0], t, None, name, value, bound, detail, delta)
         return found[0] if found else None
 
     def _report(self, kind: MismatchKind, since: float, now: float, x: np.ndarray | None, part: str, value: float,
-                bound: float, detail: str) -> list[Mismatch]:
+                bound: float, detail: str, delta: tuple[float, ...] = ()) -> list[Mismatch]:
         p = self.params
         self._reported = [r for r in self._reported if now - r[1] < p.quiet]
         for k, _, y, name in self._reported:
@@ -280,7 +282,19 @@ class MismatchDetector:
         self._reported.append((kind, now, None if x is None else np.array(x, dtype=float), part))
         self.counts[kind] += 1
         where = () if x is None else tuple(float(v) for v in x)
-        return [Mismatch(kind, since, where, part, value, bound, detail)]
+        return [Mismatch(kind, since, where, part, value, bound, detail, delta)]
+
+
+def held_mass(mass: float, delta: np.ndarray, payload: float, vertical: float = 0.8, gravity: float = 9.81) -> float | None:
+    """The mass (kg) of an object held aloft, believed ``mass``, that explains a wrist load ``delta`` (N, measured
+    minus predicted, world axes, z up) as weight: ``None`` when it is no weight (less than ``vertical`` of it along
+    gravity: a push, a snag) or the mass it asks for is none or beyond the arm's ``payload`` (a pull, not a load)."""
+    d = np.asarray(delta, dtype=np.float64).reshape(3)
+    norm = float(np.linalg.norm(d))
+    if norm == 0.0 or abs(d[2]) < vertical * norm:
+        return None
+    learned = mass - float(d[2]) / gravity
+    return learned if 0.0 < learned <= payload else None
 
 
 def _fmt(x: np.ndarray) -> str:

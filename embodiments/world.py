@@ -157,6 +157,20 @@ class SimObject:
             self.body.set_linear_velocity([0.0, 0.0, 0.0])
             self.body.set_angular_velocity([0.0, 0.0, 0.0])
 
+    def mass(self) -> float:
+        """kg; 0 for a static object."""
+        return float(self.body.get_mass()) if isinstance(self.body, sapien.physx.PhysxRigidDynamicComponent) else 0.0
+
+    def set_mass(self, kg: float) -> None:
+        """Make a dynamic object ``kg`` heavy, its inertia scaled alike (the same shape, denser or lighter)."""
+        if not isinstance(self.body, sapien.physx.PhysxRigidDynamicComponent):
+            raise WorldError(f"object {self.name!r} is static: it has no mass to set")
+        if not kg > 0:
+            raise WorldError(f"object {self.name!r}: a mass must be > 0 kg, got {kg!r}")
+        scale = kg / float(self.body.get_mass())
+        self.body.set_inertia(np.asarray(self.body.get_inertia(), dtype=np.float64) * scale)
+        self.body.set_mass(kg)
+
 
 class SimArticulation:
     """A robot loaded in the world: joints by name, drives, gravity compensation, link poses."""

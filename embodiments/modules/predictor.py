@@ -26,7 +26,7 @@ import logging
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import msgspec
@@ -40,6 +40,7 @@ from contactflow.embodiments.messages import (
     LookAheadEvent,
     LookAheadReply,
     LookAheadRequest,
+    MismatchKind,
     PredictedState,
     PredictionMismatch,
     RobotInfo,
@@ -51,7 +52,7 @@ from contactflow.embodiments.modules.world_module import (
     apply_hand,
     apply_head,
 )
-from contactflow.embodiments.prediction import Mismatch, MismatchDetector, MismatchParams
+from contactflow.embodiments.prediction import Mismatch, MismatchDetector, MismatchParams, held_mass
 from contactflow.embodiments.primitives.base import TACTILE_CONTACT
 from contactflow.fusion.messages import ContactList
 from contactflow.nodes.keys import KeySpace
@@ -122,7 +123,10 @@ class Predictor(Module):
         self.resynced_objects = 0  # believed objects moved to where perception saw them
         self.resyncs = 0  # times the arms were put back at the measured joints
         self._touching = False  # the predicted hands touch something (no resynchronisation then)
+        self._held: dict[str, str] = {}  # hand -> the one object it holds aloft in the prediction
+        self.learned: dict[str, float] = {}  # object -> the mass (kg) a load mismatch taught (§5.7 model update)
         self._asked: threading.Thread | None = None  # the look-ahead under way
+        self._asked_request = -1  # its request number
         self._answers: deque[LookAheadReply] = deque()  # look-ahead answers to publish (appended by its thread)
         self._pending: deque = deque()
         self._seen: dict[str, int] = {}  # part (arm or hand) -> highest command seq received
@@ -229,7 +233,7 @@ class Predictor(Module):
     # -- look-ahead (§5.5) ----------------------------------------------------------------------
     def _ask(self, req: LookAheadRequest) -> None:
         """Start a look-ahead from the predicted state on a thread of its own (it takes seconds: the node's
-        ticks go on meanwhile); one at a time."""
+        ticks go on meanwhile); one at a time, and a request asked again while it runs is answered once."""
         from contactflow.embodiments.lookahead import Snapshot
 
         def refuse(why: str) -> None:
@@ -239,13 +243,17 @@ class Predictor(Module):
         if self.sim is None:
             return refuse("the predictor has no state of the robot yet")
         if self._asked is not None and self._asked.is_alive():
+            if req.request == self._asked_request:
+                return None  # asked again while it runs: the one answer comes when it is done
             return refuse("busy with another look-ahead")
         if not (np.isfinite(req.horizon) and 0.0 < req.horizon <= MAX_HORIZON):
             return refuse(f"horizon {req.horizon!r} s is not in (0, {MAX_HORIZON:g}]")
         sim = self.sim
         snap = Snapshot(self.robot, sim.spec.name, sim.art.base.copy(), self._rate, sim.art.qpos(),
                         {a: np.asarray(sim.arm(a).q_cmd, dtype=np.float64).copy() for a in sim.arms},
-                        tuple((o.spec, o.pose()) for o in self.world.objects.values()))
+                        tuple((o.spec if o.spec.static else replace(o.spec, mass=o.mass()), o.pose())
+                              for o in self.world.objects.values()))  # what a load taught of a mass too
+        self._asked_request = req.request
         self._asked = threading.Thread(target=self._look, args=(snap, req), name=f"{self.name}-ahead", daemon=True)
         self._asked.start()
 
@@ -327,6 +335,7 @@ class Predictor(Module):
         self._arm_hand = {a.name: a.hand for a in sim.spec.arms}
         self._hand = self._hand_links(sim)
         self._hand_names = set(self._hand.values())
+        self._payload = sim.spec.capabilities.payload if sim.spec.capabilities is not None else 0.0
         from contactflow.fusion.station import robot_cues
 
         self._cues = robot_cues(sim, 0.0)
@@ -504,6 +513,7 @@ class Predictor(Module):
         static = {n for n, o in self.world.objects.items() if o.spec.static}
         steady = {h for h in self._hand_names
                   if not any(o in static or others.get(o) for o in touching.get(h, ()))}
+        self._held = {h: next(iter(touching[h])) for h in steady if len(touching.get(h, ())) == 1}
         return (np.array(pts, dtype=np.float64).reshape(-1, 3), links, hands, self._felt() if pts else set(),
                 steady)
 
@@ -521,15 +531,32 @@ class Predictor(Module):
             force=[float(v) for f in forces for v in f],
             force_error=[self.force_error.get(a, 0.0) for a in self._ft_arms], compute=self.compute))
 
+    def _learn(self, m: Mismatch) -> str:
+        """§5.7, the model follows the robot: a load that differs where a hand holds one object aloft is that
+        object's weight, and its believed mass becomes what the wrist measures. Returns what changed ("": nothing;
+        a difference that is no weight, a push or a pull beyond the arm's payload, teaches nothing)."""
+        name = self._held.get(self._arm_hand.get(m.part, ""))
+        obj = self.world.objects.get(name) if name else None
+        if obj is None or obj.spec.static:
+            return ""
+        before = obj.mass()
+        mass = held_mass(before, np.asarray(m.delta), self._payload)
+        if mass is None:
+            return ""
+        obj.set_mass(mass)
+        self.learned[obj.name] = mass
+        return f"{obj.name} weighs {mass:.3f} kg, not {before:.3f} kg"
+
     def _report(self, m: Mismatch) -> None:
         assert self.io is not None
+        update = self._learn(m) if m.kind is MismatchKind.FORCE and m.delta else ""
         msg = PredictionMismatch(robot=self.robot, kind=m.kind, t=self.t, since=m.since, location=list(m.location),
                                  part=m.part, value=m.value if np.isfinite(m.value) else -1.0, bound=m.bound,
-                                 detail=m.detail)
+                                 detail=m.detail, update=update)
         self.mismatches.append(msg)
         self.io.publish("mismatch", msg)
         self.io.emit(Event.PREDICTION_MISMATCH, f"{self.robot}: {m.kind}: {m.detail}"[:500],
                      {"t": self.t, "since": m.since})
-        self.log.info("%s: t=%.3f s: %s: %s", self.robot, self.t, m.kind, m.detail)
+        self.log.info("%s: t=%.3f s: %s: %s%s", self.robot, self.t, m.kind, m.detail, f"; {update}" if update else "")
         if self._last is not None:
             self._resync(self._last)  # §5.6: back to what the robot measures, then predict on from there

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contactflow.embodiments.messages import MismatchKind
-from contactflow.embodiments.prediction import MismatchDetector, MismatchParams
+from contactflow.embodiments.prediction import MismatchDetector, MismatchParams, held_mass
 
 HAND = "right_hand"
 AT = np.array([[0.5, -0.2, 0.85]])
@@ -84,6 +84,16 @@ def test_a_wrist_load_off_by_an_impact_a_few_ticks_early_is_no_mismatch_a_steady
         found += det.check()
     assert [m.kind for m in found] == [MismatchKind.FORCE]  # reported again at 2.1 s
     assert found[0].since == pytest.approx(1.0) and found[0].value == pytest.approx(6.0) and found[0].part == "right"
+    assert found[0].delta == pytest.approx((0.0, 0.0, -6.0))  # measured minus predicted: what the model can learn
+
+
+def test_a_held_object_weighs_what_a_vertical_load_difference_says_a_push_or_a_pull_beyond_payload_teaches_nothing():
+    assert held_mass(0.2, np.array([0.0, 0.0, -5.886]), payload=2.0) == pytest.approx(0.8)  # 0.6 kg heavier
+    assert held_mass(0.8, np.array([0.3, -0.2, 5.886]), payload=2.0) == pytest.approx(0.2)  # lighter, a little tilt
+    assert held_mass(0.2, np.array([6.0, 0.0, -1.0]), payload=2.0) is None  # sideways: a snag, not a weight
+    assert held_mass(0.2, np.array([0.0, 0.0, -40.0]), payload=2.0) is None  # 4.3 kg: a pull, beyond the payload
+    assert held_mass(0.2, np.array([0.0, 0.0, 3.0]), payload=2.0) is None  # it would weigh nothing: held up
+    assert held_mass(0.2, np.zeros(3), payload=2.0) is None
 
 
 def test_joints_off_beyond_the_bound_for_the_sustain_time_is_a_mismatch():

@@ -70,6 +70,24 @@ def test_the_external_wrench_reads_the_load_whatever_was_tared_and_none_once_it_
     assert quiet(gone.external)
 
 
+def test_a_held_object_made_heavier_weighs_more_on_the_wrist_and_a_static_one_has_no_mass_to_set() -> None:
+    # what the predictor does when a load mismatch teaches it an object's mass (thesis §5.7, model update)
+    robot = melfa_around_plate(MASS)
+    lift_the_plate(robot)
+    plate = robot.world.objects["obj"]
+    inertia = np.asarray(plate.body.get_inertia(), dtype=float)
+    plate.set_mass(3 * MASS)
+    robot.step(0.3)
+    assert plate.mass() == pytest.approx(3 * MASS) and plate.pose()[2, 3] > 0.85  # still held
+    assert np.asarray(plate.body.get_inertia()) == pytest.approx(3 * inertia)
+    assert robot.ft("arm").external[2] == pytest.approx(-3 * MASS * 9.81, rel=0.05)
+    table = next(o for o in robot.world.objects.values() if o.spec.static)
+    with pytest.raises(WorldError, match="is static"):
+        table.set_mass(1.0)
+    with pytest.raises(WorldError, match="must be > 0"):
+        plate.set_mass(0.0)
+
+
 def test_the_external_wrench_of_an_empty_hand_stays_zero_as_the_wrist_turns() -> None:
     # the hand's weight pulls about the sensor differently in every pose: a tare holds for one
     robot = make_robot("tombatossals")
