@@ -4,12 +4,14 @@ It starts, as local processes on loopback, eight nodes: per robot (Tombatossals,
 Baxter) a world node simulating the robot's cell (the §7.3 table, a box in front of a
 target) and a control node in lockstep with it (the robot's agent, its primitive modules,
 contact fusion; Tombatossals' also hosts the broker), plus Tombatossals' 2D and 3D vision
-nodes fed by its world's Kinect stream. The demo then dispatches ATD 1 (push the box away)
+nodes fed by its world's Kinect stream, and Tombatossals' predictor (thesis ch. 5) on its control
+node. The demo then dispatches ATD 1 (push the box away)
 and ATD 2 (pick the target behind it) with ``--on all``: each agent runs its translation
 on the task engine, which runs the node's primitive modules, which drive the world's robot
-over the key space. It shows the abstract progress and the fused contact events live and
-writes a report folder: ``summary.json``, ``timeline.png``, ``contacts.png`` and the
-camera frames the vision nodes received.
+over the key space. It shows the abstract progress, the fused contact events and the
+prediction mismatches live and writes a report folder: ``summary.json``, ``timeline.png``,
+``contacts.png`` and the camera frames the vision nodes received. An ATD's
+``prediction_mismatch`` transitions (corrections, thesis §5.7) taken are reported per task.
 
 Each world publishes its object poses on the evaluation keys (ground truth); the demo
 checks with them what each task physically did (the pushed box moved towards its target,
@@ -23,7 +25,7 @@ import json
 import math
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +36,7 @@ from contactflow.abstraction.agent import EXAMPLES
 from contactflow.abstraction.atd import Atd, parse_atd
 from contactflow.abstraction.cli import progress_table
 from contactflow.abstraction.client import TaskFollow, close, dispatch
+from contactflow.abstraction.events import AbstractEvent
 from contactflow.abstraction.frames import TaskFrame, to_world
 from contactflow.abstraction.messages import AbstractProgressMsg
 from contactflow.abstraction.primitives import AbstractPrimitive
@@ -41,12 +44,12 @@ from contactflow.abstraction.profiles import PROFILES
 from contactflow.deploy.launcher import render, tool_endpoints
 from contactflow.deploy.manifest import DEFAULT_MANIFEST, Manifest, load_manifest
 from contactflow.deploy.recorder import Recorder
-from contactflow.embodiments.messages import DepthImage, ObjectPoses
+from contactflow.embodiments.messages import DepthImage, ObjectPoses, PredictionMismatch
 from contactflow.fusion.messages import ContactEventMsg
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.procs import free_port_block, spawn_node, stop_process, wait_for
 from contactflow.nodes.transport import ZenohSettings, ZenohTransport
-from contactflow.nodes.wire import WireError, decode
+from contactflow.nodes.wire import M, WireError, decode
 
 ATDS = ("push_away.xml", "pick_place_behind.xml")
 ROBOTS = ("tombatossals", "melfa", "baxter")
@@ -58,12 +61,29 @@ PLACE_HEIGHT = 0.02  # m, how far its centre may end above or below the place lo
 Positions = Mapping[str, Sequence[float]]  # object name -> world position (m)
 
 
+def nominal(atd: Atd) -> set[str]:
+    """The states a run reaches when nothing surprises it: from the start, over the transitions that need no
+    prediction mismatch (a correction's branch, where an object may be set back where it was, is not one)."""
+    seen, todo = {atd.start}, [atd.start]
+    while todo:
+        here = todo.pop()
+        for t in atd.transitions:
+            if (t.origin == here and t.destination not in seen
+                    and all(e.event is not AbstractEvent.PREDICTION_MISMATCH for e in t.events)):
+                seen.add(t.destination)
+                todo.append(t.destination)
+    return seen
+
+
 def physical_checks(atd: Atd, frame: TaskFrame, before: Positions, after: Positions) -> list[dict]:
-    """What the ATD's push and place states should have done to their objects, checked on ground truth."""
+    """What the ATD's push and place states (of its nominal run) should have done to their objects, checked on
+    ground truth."""
     world = to_world(atd, frame)
     out = []
+    planned = nominal(atd)
     for state in world.states:
-        if state.type not in (AbstractPrimitive.PUSH, AbstractPrimitive.PLACE) or state.goal is None:
+        if (state.type not in (AbstractPrimitive.PUSH, AbstractPrimitive.PLACE) or state.goal is None
+                or state.name not in planned):
             continue
         obj = world.object_of(state)
         if obj is None:
@@ -111,6 +131,7 @@ class Record:
     objects: list[int] = field(default_factory=list)
     frames: list[DepthImage] = field(default_factory=list)
     truth: dict[str, list[dict[str, list[float]]]] = field(default_factory=dict)  # robot -> object positions
+    mismatches: list[dict] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
@@ -134,6 +155,10 @@ def _plots(out: Path, rec: Record, tasks: list[dict]) -> None:
         for p in rec.progress:
             if p["robot"] == r and p["final"]:
                 ax.plot(p["t"], rows[r], "s", color=colours.get(p["outcome"], "k"), ms=9)
+    for mm in rec.mismatches:
+        if mm["robot"] in rows:
+            ax.plot(mm["t"], rows[mm["robot"]] + 0.3, "X", color="tab:red", ms=8)
+            ax.text(mm["t"], rows[mm["robot"]] + 0.38, f"mismatch: {mm['kind']}", fontsize=6, color="tab:red")
     for c in rec.contacts:
         if c["robot"] in rows:
             ax.plot(c["t"], rows[c["robot"]] - 0.3, "v" if c["event"] == "contact_made" else "^",
@@ -143,7 +168,8 @@ def _plots(out: Path, rec: Record, tasks: list[dict]) -> None:
         ax.text(t["t_dispatch"], len(ROBOTS) - 0.4, t["atd"], fontsize=8)
     ax.set_yticks(list(rows.values()), list(rows))
     ax.set_xlabel("s since the demo started")
-    ax.set_title("Abstract states per robot (bars), outcomes (squares), contact made/broken (triangles)")
+    ax.set_title("Abstract states per robot (bars), outcomes (squares), contact made/broken (triangles), "
+                 "prediction mismatches (X)", fontsize=9)
     fig.tight_layout()
     fig.savefig(out / "timeline.png", dpi=120)
     plt.close(fig)
@@ -177,6 +203,17 @@ def _plots(out: Path, rec: Record, tasks: list[dict]) -> None:
         plt.close(fig)
 
 
+def _decoded(type_: type[M], fn: Callable[[str, M], None]) -> Callable[[str, bytes], None]:
+    """A subscriber that hands ``fn`` each payload decoded as ``type_``; one that is not one is skipped."""
+    def on(key: str, payload: bytes) -> None:
+        try:
+            msg = decode(payload, type_, key)
+        except WireError:
+            return
+        fn(key, msg)
+    return on
+
+
 def run(out: Path, quick: bool = False, console: Console | None = None, site: str | None = None,
         connect: tuple[str, ...] = (), listen: tuple[str, ...] = (), record: bool = False) -> int:
     """Run the demo into ``out``; 0 only when both ATDs succeeded on every robot as checked on ground truth.
@@ -187,6 +224,8 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
     listens on ``listen`` (default: loopback only), so outside clients can attach there.
     ``record``: the whole key space goes into ``out/demo.mcap`` (``contactflow record``).
     """
+    from contactflow.recognition.messages import SegmentedObjects  # open3d: only once the demo runs
+
     console = console or Console()
     out = out.resolve()  # the generated node configurations name their zenoh files by absolute path
     out.mkdir(parents=True, exist_ok=True)
@@ -203,11 +242,7 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
                   + (f" and connects to {', '.join(connect)}" if connect else ""))
     console.print(f"attach: contactflow ls --site {site} --connect {launches[0].endpoint}")
 
-    def on_contact(key: str, payload: bytes) -> None:
-        try:
-            c = decode(payload, ContactEventMsg, key)
-        except WireError:
-            return
+    def on_contact(key: str, c: ContactEventMsg) -> None:
         with rec.lock:
             rec.contacts.append({"t": round(time.time() - rec.t0, 3), "robot": c.robot, "link": c.link,
                                  "event": str(c.event), "location": [round(v, 4) for v in c.location],
@@ -215,29 +250,15 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
         console.print(f"  [magenta]contact[/] {c.robot}/{c.link}: {c.event} at "
                       f"({', '.join(f'{v:.3f}' for v in c.location)})")
 
-    def on_objects(key: str, payload: bytes) -> None:
-        from contactflow.recognition.messages import SegmentedObjects
-
-        try:
-            msg = decode(payload, SegmentedObjects, key)
-        except WireError:
-            return
+    def on_objects(key: str, msg: SegmentedObjects) -> None:
         with rec.lock:
             rec.objects.append(len(msg.objects))
 
-    def on_depth(key: str, payload: bytes) -> None:
-        try:
-            msg = decode(payload, DepthImage, key)
-        except WireError:
-            return
+    def on_depth(key: str, msg: DepthImage) -> None:
         with rec.lock:
             rec.frames = rec.frames[-2:] + [msg]
 
-    def on_truth(key: str, payload: bytes) -> None:
-        try:
-            msg = decode(payload, ObjectPoses, key)
-        except WireError:
-            return
+    def on_truth(key: str, msg: ObjectPoses) -> None:
         poses = msg.poses.numpy()
         if poses.shape != (len(msg.names), 4, 4):
             return
@@ -245,6 +266,14 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
         with rec.lock:
             rec.truth.setdefault(robot, []).append({n: [float(v) for v in poses[i, :3, 3]]
                                                     for i, n in enumerate(msg.names)})
+
+    def on_mismatch(key: str, mm: PredictionMismatch) -> None:
+        with rec.lock:
+            rec.mismatches.append({"t": round(time.time() - rec.t0, 3), "t_sim": mm.t, "robot": mm.robot,
+                                   "kind": str(mm.kind), "part": mm.part, "value": mm.value, "detail": mm.detail,
+                                   "update": mm.update})
+        console.print(f"  [bold red]prediction mismatch[/] {mm.robot} at t={mm.t:.2f} s: {mm.detail}"
+                      + (f"; its model learns: {mm.update}" if mm.update else ""))
 
     def truth_count(robot: str) -> int:
         with rec.lock:
@@ -257,10 +286,11 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
                                  "concrete": m.concrete, "final": m.final, "outcome": m.outcome,
                                  "task": m.task_id, "detail": m.detail[:200]})
 
-    subs = [tool.subscribe(ks.fused("*", "events"), on_contact),
-            tool.subscribe(ks.output("tombatossals", "*", "objects", "objects"), on_objects),
-            tool.subscribe(ks.robot("tombatossals", "depth"), on_depth),
-            tool.subscribe(ks.evaluation("*", "object_poses"), on_truth)]
+    subs = [tool.subscribe(ks.fused("*", "events"), _decoded(ContactEventMsg, on_contact)),
+            tool.subscribe(ks.output("tombatossals", "*", "objects", "objects"), _decoded(SegmentedObjects, on_objects)),
+            tool.subscribe(ks.robot("tombatossals", "depth"), _decoded(DepthImage, on_depth)),
+            tool.subscribe(ks.evaluation("*", "object_poses"), _decoded(ObjectPoses, on_truth)),
+            tool.subscribe(ks.predict("*", "mismatch"), _decoded(PredictionMismatch, on_mismatch))]
     recorder = Recorder(tool, [f"{ks.prefix}/**"], out / "demo.mcap", site).start() if record else None
     tasks: list[dict] = []
     code = 1
@@ -318,8 +348,12 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
             ok = (follow.final is not None and sorted(follow.reply.robots) == sorted(ROBOTS)
                   and all(outcomes.get(r) == "success" for r in ROBOTS)
                   and all(c["ok"] for checks in physical.values() for c in checks))
+            corrections = [{"robot": m.robot, "transition": m.transition, "t_sim": m.hdr.t_sim, "detail": m.detail}
+                           for m in follow.progress
+                           if m.kind == "edge" and m.event == AbstractEvent.PREDICTION_MISMATCH.value]
             tasks.append({"atd": name, "t_dispatch": t_dispatch, "dispatched": True, "robots": follow.reply.robots,
-                          "outcomes": outcomes, "finished": follow.final is not None, "physical": physical, "ok": ok})
+                          "outcomes": outcomes, "finished": follow.final is not None, "physical": physical,
+                          "corrections": corrections, "ok": ok})
         code = 0 if len(tasks) == len(ATDS) and all(t.get("ok") for t in tasks) else 1
     finally:
         for s in subs:
@@ -331,7 +365,7 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
     with rec.lock:
         _plots(out, rec, tasks)
         summary = {"site": site, "ok": code == 0, "duration_s": round(time.time() - rec.t0, 1), "nodes": sorted(nodes),
-                   "tasks": tasks, "contact_events": len(rec.contacts),
+                   "tasks": tasks, "mismatches": rec.mismatches, "contact_events": len(rec.contacts),
                    "contacts_by_robot": {r: sum(c["robot"] == r for c in rec.contacts) for r in ROBOTS},
                    "vision_objects_seen": rec.objects[-10:], "camera_frames": len(rec.frames),
                    "progress": rec.progress, "contacts": rec.contacts,
@@ -342,6 +376,9 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
         colour = "green" if t.get("ok") else "red"
         console.print(f"[{colour}]{t['atd']}[/]: "
                       + ", ".join(f"{r}: {o}" for r, o in sorted(t.get("outcomes", {}).items())))
+        for c in t.get("corrections", ()):
+            console.print(f"  {c['robot']} corrected on its predictor's mismatch: {c['transition']} "
+                          f"(t={c['t_sim']:.2f} s)")
         for r, checks in sorted(t.get("physical", {}).items()):
             for c in checks:
                 console.print(f"  {r} {c['state']} ({c['object']}): {'ok' if c['ok'] else 'FAILED'}, {c['why']}")

@@ -209,6 +209,53 @@ def test_cyclic_atd_retries_after_grasp_lost(robot):
     assert len(retry) == 1 and retry[0].event is AbstractEvent.GRASP_LOST
 
 
+CORRECTED = """<statemachine name="corrected" start="grasp_object">
+  <object name="can"><location>0.0 0.6 0.06</location><mass>0.15</mass><size>0.05 0.05 0.12</size></object>
+  <state name="grasp_object" type="grasp"/>
+  <state name="set_back" type="place"><target>0.0 0.6 0.06</target></state>
+  <state name="reopen" type="release"/>
+  <state name="lift_object" type="transport"><path><position>0.0 0.6 0.25</position></path></state>
+  <state name="lifted" type="success"/>
+  <state name="failed" type="failure"/>
+  <transition origin="grasp_object" destination="lift_object"><success/></transition>
+  <transition origin="grasp_object" destination="failed"><error/></transition>
+  <transition origin="grasp_object" destination="set_back"><prediction_mismatch/></transition>
+  <transition origin="set_back" destination="reopen"><success/></transition>
+  <transition origin="reopen" destination="grasp_object"><success/></transition>
+  <transition origin="lift_object" destination="lifted"><success/></transition>
+</statemachine>"""
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_a_prediction_mismatch_transition_watches_the_robot_s_predictor_and_takes_the_correction(robot):
+    """§5.7: every factory maps prediction_mismatch to a watch_prediction helper of its state; the first grasp's
+    surprise takes the correction (set back, reopen, grasp again), reported in the ATD's terms."""
+    tr = translate(parse_atd(CORRECTED, "corrected.xml"), factory_for(PROFILES[robot]))
+    helpers = {h.name: h for h in tr.estd.nodes["grasp_object"].helpers}
+    assert helpers["prediction_mismatch"].type == "watch_prediction"
+    clock = FakeClock()
+    runner = FakeRunner(clock)
+    grasps = {"n": 0}
+
+    def rule(instance, type_, params):
+        if type_ == "watch_prediction":
+            grasps["n"] += 1
+            return [Step(0.1, Event.PREDICTION_MISMATCH)] if grasps["n"] == 1 else []
+        if type_ in ("wait_event", "hold"):
+            return []
+        return [Step(0.2 if "grasp_object" not in instance else 0.3, Event.SUCCESS)]
+
+    runner.rule(rule)
+    reports = []
+    eng = TaskEngine(runner, clock, on_progress=lambda p: reports.append(tr.abstract(p)))
+    res = run_until_done(eng, clock, eng.launch(tr.estd))
+    assert res.status is Status.SUCCESS and res.label == "lifted", reports
+    edges = [(r.transition, r.event) for r in reports if r.kind is ProgressKind.EDGE]
+    assert edges[0] == ("grasp_object->set_back", AbstractEvent.PREDICTION_MISMATCH), edges
+    assert [t for t, _ in edges[1:]] == ["set_back->reopen", "reopen->grasp_object", "grasp_object->lift_object",
+                                        "lift_object->lifted"]
+
+
 def test_timeout_transition_of_the_atd_fires():
     atd = load_atd(path("grasp_retry.xml"))
     tr = translate(atd, factory_for(MELFA))

@@ -7,7 +7,7 @@ import pytest
 import zenoh
 from rich.console import Console
 
-from contactflow.abstraction.atd import load_atd
+from contactflow.abstraction.atd import load_atd, parse_atd
 from contactflow.abstraction.frames import WORKCELL
 from contactflow.deploy import demo
 from contactflow.deploy.recording import Recording
@@ -79,6 +79,8 @@ def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tm
     assert all(c["object"] == "target" and c["distance_after"] <= demo.PLACE_TOLERANCE for c in place)
     entered = {(p["robot"], p["state"]) for p in summary["progress"] if p["kind"] == "entered"}
     assert {r for r, s in entered if s == "let_go"} == set(ROBOTS)
+    # tombatossals' predictor followed both tasks in a cell that is as it believes: no mismatch, no correction
+    assert summary["mismatches"] == [] and all(t["corrections"] == [] for t in summary["tasks"])
     # every fused contact event names the hypothesis clouds it came from
     assert summary["contacts"]
     for c in summary["contacts"]:
@@ -104,3 +106,22 @@ def test_physical_checks_fail_when_the_objects_did_not_go_where_the_atd_says():
     assert not fallen["ok"]
     (missing,) = demo.physical_checks(place, WORKCELL, before, {})
     assert not missing["ok"] and "no ground truth" in missing["why"]
+
+
+def test_a_correction_branch_taken_on_a_prediction_mismatch_is_not_checked_as_the_task_s_place():
+    """An ATD whose correction sets the target back where it stood (§5.7): the place checked is the nominal run's."""
+    text = (demo.EXAMPLES / "pick_place_behind.xml").read_text()
+    text = text.replace('<state name="placed" type="success"/>',
+                        '<state name="set_back" type="place"><target>0.0 0.62 0.06</target></state>\n'
+                        '  <state name="reopen" type="release"><hand_opening>0.06</hand_opening></state>\n'
+                        '  <state name="placed" type="success"/>')
+    text = text.replace('<transition origin="let_go" destination="placed"><success/></transition>',
+                        '<transition origin="let_go" destination="placed"><success/></transition>\n'
+                        '  <transition origin="grasp_object" destination="set_back"><prediction_mismatch/></transition>\n'
+                        '  <transition origin="set_back" destination="reopen"><success/></transition>\n'
+                        '  <transition origin="reopen" destination="preshape_hand"><success/></transition>')
+    atd = parse_atd(text, "corrected.xml")
+    assert {"set_back", "reopen"} <= {s.name for s in atd.states}
+    assert demo.nominal(atd) >= {"grasp_object", "put_down", "placed"} and not demo.nominal(atd) & {"set_back", "reopen"}
+    (check,) = demo.physical_checks(atd, WORKCELL, {"target": [0.62, 0.0, 0.81]}, {"target": [0.56, 0.16, 0.81]})
+    assert check["state"] == "put_down" and check["ok"]

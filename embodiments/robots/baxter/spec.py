@@ -56,7 +56,7 @@ SPEC = RobotSpec(
     head_joints=("head_pan",),
     head_home=(0.0,),
     capabilities=Capabilities(
-        primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "detect_objects", "place_location",
+        primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "watch_prediction", "detect_objects", "place_location",
                               "close_until_force", "close_until_stall", "naive_grasp", "place", "slide", "push", "pull",
                               "touch", "explore"}),
         workspace_min=(0.4, -0.9, 0.75),

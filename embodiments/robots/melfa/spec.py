@@ -31,7 +31,7 @@ SPEC = RobotSpec(
     hands=(panda_gripper("gripper", ""),),
     fts=(FTSpec(name="wrist_ft", link="panda_hand"),),
     capabilities=Capabilities(
-        primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "detect_objects",
+        primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "watch_prediction", "detect_objects",
                               "place_location", "close_until_force", "robust_grasp"}),
         workspace_min=(0.2, -0.5, 0.75),
         workspace_max=(0.75, 0.5, 1.3),

@@ -66,7 +66,7 @@ SPEC = RobotSpec(
     head_joints=("head_pan", "head_tilt"),
     head_home=(0.0, 0.7),
     capabilities=Capabilities(
-        primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "detect_objects", "place_location",
+        primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "watch_prediction", "detect_objects", "place_location",
                               "robust_grasp", "naive_grasp", "place", "slide", "explore", "unscrew", "push", "pull",
                               "touch"}),
         workspace_min=(0.2, -0.8, 0.75),
