@@ -143,22 +143,22 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
 
     With ``autostart`` the task starts with the node, at the first tick it steps (a world
     that waits for the node makes that tick 0); else on a RUN control message. ``inputs``
-    wires the primitive modules by type, as a manifest's ``primitive_inputs``: port ->
-    ``[robot/]module.port`` or a key expression.
+    wires the primitive modules (and the predictor, type ``predictor``) by type, as a manifest's
+    ``primitive_inputs``: port -> ``[robot/]module.port`` or a key expression.
     """
     from contactflow.nodes.taskfile import load_tasks
 
     tasks, main = load_tasks(str(task_file))
     name = task or main
     modules = primitive_modules(robot, embodiment, primitive_types(tasks, name), pool)
-    for m in modules:
-        if m["type"] in (inputs or {}):
-            m["inputs"] = dict(inputs[m["type"]])
     if contacts:
         modules += contact_modules(robot, embodiment)
     if predictor is not None:
         modules.append({"name": "predictor", "type": "predictor", "robot": robot, "autostart": True,
                         "params": {k: _plain(v) for k, v in predictor.items()}})
+    for m in modules:
+        if m["type"] in (inputs or {}):
+            m["inputs"] = dict(inputs[m["type"]])
     modules.append({"name": "task", "type": "task", "robot": robot, "autostart": autostart,
                     "params": {"task_file": str(task_file), "task": name, "robot": robot,
                                "plan": yaml.safe_dump(_plain(dict(plan or {})), default_flow_style=True).strip(),

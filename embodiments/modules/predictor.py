@@ -60,6 +60,7 @@ from contactflow.nodes.messages import EventMsg
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.wire import NDArray
+from contactflow.recognition.messages import SegmentedObjects
 
 _commands = msgspec.msgpack.Decoder(ArmCommand | HandCommand | HeadCommand | CameraRequest)
 MAX_PENDING = 4096  # commands kept while waiting for the states that apply them
@@ -76,6 +77,8 @@ class Predictor(Module):
         Port("sensed", ContactList, "the robot's fused contacts, every cycle"),
         Port("perceived", EventMsg, "the robot's module events: object_detected places a believed object"),
         Port("ask", LookAheadRequest, "look-ahead questions: a primitive to run from the predicted state"),
+        Port("seen", SegmentedObjects, "a vision node's segmented objects (wired: inputs: {seen: objects.objects}): "
+             "each places the believed object it shows"),
     )
     outputs = (
         Port("predicted", PredictedState, "what the predictor holds after a world tick"),
@@ -223,6 +226,9 @@ class Predictor(Module):
         for e in self.io.take("perceived"):
             if e.event is Event.OBJECT_DETECTED and self.sim is not None:
                 self._perceived(e)
+        for seen in self.io.take("seen"):
+            if self.sim is not None:
+                self._seen_objects(seen)
         for req in self.io.take("ask"):
             if req.robot == self.robot:
                 self._ask(req)
@@ -274,13 +280,26 @@ class Predictor(Module):
             objects=list(out.objects), moved=list(out.moved), tilted=list(out.tilted), touched=list(out.touched)))
 
     def _perceived(self, e: EventMsg) -> None:
-        """§5.6, resynchronisation from perception: a detected object's top centre moves the nearest believed
-        object there in the plane (it stands where it stood), unless the predicted robot touches it; more than
-        ``object_bound`` away it is a mismatch too."""
+        """§5.6, resynchronisation from perception: a detected object's top centre places the believed object."""
         v = e.values
-        if not {"tx", "ty", "top"} <= set(v):
-            return
-        at = np.array([v["tx"], v["ty"]])
+        if {"tx", "ty", "top"} <= set(v):
+            self._place(np.array([v["tx"], v["ty"]], dtype=np.float64), float(v["top"]), e.module)
+
+    def _seen_objects(self, msg: SegmentedObjects) -> None:
+        """§5.7, the simulator synchronised with what the robot perceives: each segmented object's top centre (its
+        top face, which the camera sees whole) places the believed object."""
+        from contactflow.embodiments.primitives.detect_objects import TOP_BAND
+
+        for obj in msg.objects:
+            pts = obj.points.numpy().astype(np.float64).reshape(-1, 3)
+            if len(pts) == 0 or not np.isfinite(pts).all():
+                continue
+            top = float(pts[:, 2].max())
+            self._place(pts[pts[:, 2] >= top - TOP_BAND][:, :2].mean(axis=0), top, msg.hdr.source)
+
+    def _place(self, at: np.ndarray, top: float, source: str) -> None:
+        """Move the believed object nearest to ``at`` (within ``reach``, in the plane) there: it stands where it
+        stood; unless the predicted robot touches it. More than ``object_bound`` away it is a mismatch too."""
         from contactflow.embodiments.sensors.ground_truth import body_name
 
         own = f"{self.robot}/"
@@ -296,14 +315,14 @@ class Predictor(Module):
         if best is None:
             return
         assert self.detector is not None
-        found = self.detector.object(self.t, best.name, np.array([*at, v["top"]]), gap)
+        found = self.detector.object(self.t, best.name, np.array([*at, top]), gap)
         if found is not None:
             self._report(found)
         T = best.pose()
         T[:2, 3] = at
         best.set_pose(T)
         self.resynced_objects += 1
-        self.log.info("%s: %s moved %.1f mm to where %s detected it", self.robot, best.name, 1000 * gap, e.module)
+        self.log.debug("%s: %s moved %.1f mm to where %s saw it", self.robot, best.name, 1000 * gap, source)
 
     def status_detail(self) -> str:
         if self.sim is None:

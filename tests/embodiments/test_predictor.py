@@ -24,7 +24,7 @@ from contactflow.nodes.status import Event
 ROBOT = "tombatossals"
 BELIEF = CELLS / "pick_place.yaml"  # what the robot believes: the can of 0.2 kg where the cell file puts it
 
-pytestmark = pytest.mark.heavy(seconds=70)
+pytestmark = pytest.mark.heavy(seconds=90)
 
 
 def run(tmp_path, site: str, world_scene, task_file=None, task: str = "pick_and_place", pushes: tuple[str, ...] = ()):
@@ -121,6 +121,52 @@ def test_a_can_pulled_from_the_hand_mid_carry_is_a_surprise_the_careful_pick_and
     assert pulls and start < pulls[0].t < start + 0.3 and pulls[0].value > 30.0 and pulls[0].update == ""
     can = cell.poses[-1].poses.numpy()[cell.poses[-1].names.index(bp.CAN)][:3, 3]
     assert np.linalg.norm(can[:2] - np.array(PLACE_TARGET[:2])) < 0.06 and can[2] == pytest.approx(0.81, abs=0.01)
+
+
+LOOK = """main: look
+tasks:
+  look:
+    timeout: 10
+    nodes:
+      wait: {primitive: wait_event, params: {arm: right, event: success, delay: 1.5}}
+      done: {terminal: success}
+    edges:
+      - {from: wait, to: done, on: success}
+"""
+
+
+def test_the_predictor_places_a_believed_object_where_the_vision_node_sees_it(tmp_path):
+    """§5.7, the simulator synchronised with what the robot perceives: the robot believes the can 5 cm from where
+    it stands; the vision node's segmented objects (wired to the predictor's ``seen``) place the predicted can
+    where the world has it, and the first sight is an object mismatch of 5 cm."""
+    from contactflow.embodiments.layout import vision_node
+
+    belief = tmp_path / "belief.yaml"
+    belief.write_text(BELIEF.read_text().replace("xyz: [0.55, -0.3, 0.81]", "xyz: [0.55, -0.25, 0.81]"))
+    tasks = tmp_path / "look.yaml"
+    tasks.write_text(LOOK)
+    endpoint, site = f"tcp/127.0.0.1:{free_port()}", "pr5"
+    control = control_node(site, ROBOT, ROBOT, tasks, "look", {}, connect=(endpoint,), autostart=True,
+                           predictor={"belief": str(belief)}, inputs={"predictor": {"seen": "objects.objects"}})
+    vision = vision_node(site, ROBOT, connect=(endpoint,))
+    world = world_node(site, BELIEF, listen=endpoint, wait_for=(control["node"], vision["node"]), camera_hz=2.0,
+                       ground_truth_hz=20.0)
+    watch = PredictorWatch(site, endpoint)
+    opener = threading.Timer(0.5, watch.open)
+    opener.start()
+    try:
+        cell = run_cell(tmp_path, world, [control], endpoint, services=(vision,))
+    finally:
+        opener.cancel()
+        watch.close()
+    assert cell.outcomes[ROBOT].event is Event.SUCCESS, cell.events
+    (seen,) = [m for m in watch.mismatches if m.kind == "object"]
+    assert seen.part == "cyl" and seen.value == pytest.approx(0.05, abs=0.01), seen
+    assert seen.location[1] == pytest.approx(-0.3, abs=0.01)  # where the world has it
+    truth = cell.poses[-1].poses.numpy()[cell.poses[-1].names.index("cyl")][:3, 3]
+    after = [s for s in watch.states if s.t > seen.t]
+    assert after and all(np.linalg.norm(s.poses.numpy()[s.objects.index("cyl")][:2, 3] - truth[:2]) < 0.01
+                         for s in after)
 
 
 def test_the_predictor_looks_ahead_a_transport_from_the_predicted_state_and_says_what_it_touched(tmp_path):
