@@ -66,6 +66,8 @@ _commands = msgspec.msgpack.Decoder(ArmCommand | HandCommand | HeadCommand | Cam
 MAX_PENDING = 4096  # commands kept while waiting for the states that apply them
 MAX_HORIZON = 120.0  # s of simulated time a look-ahead may run
 MAX_BACKLOG = 2000  # world ticks (10 s at 200 Hz) kept while the predictor is behind
+NEAR_HAND = 0.12  # m, a seen object whose top centre is this close to a hand link (the robot's, as predicted) is left
+SEEN_SETTLE = 0.01  # m, a seen object this close to its prediction is left (a frame's noise, a few mm, moves no grasp)
 
 
 class Predictor(Module):
@@ -287,19 +289,29 @@ class Predictor(Module):
 
     def _seen_objects(self, msg: SegmentedObjects) -> None:
         """§5.7, the simulator synchronised with what the robot perceives: each segmented object's top centre (its
-        top face, which the camera sees whole) places the believed object."""
+        top face, which the camera sees whole) places the believed object; but not one the robot's hand is at
+        (within ``NEAR_HAND``): the hand hides part of it and the self filter cuts more, so its top centre is off,
+        and the object is the task's, followed by the contacts."""
         from contactflow.embodiments.primitives.detect_objects import TOP_BAND
 
+        hands = np.array([self.sim.art.link_pose(k.split("/", 1)[1])[:3, 3] for k in self._hand]).reshape(-1, 3)
         for obj in msg.objects:
-            pts = obj.points.numpy().astype(np.float64).reshape(-1, 3)
+            try:
+                pts = obj.points.numpy().astype(np.float64).reshape(-1, 3)
+            except (TypeError, ValueError):
+                continue  # no points (a malformed message): nothing to place
             if len(pts) == 0 or not np.isfinite(pts).all():
                 continue
             top = float(pts[:, 2].max())
-            self._place(pts[pts[:, 2] >= top - TOP_BAND][:, :2].mean(axis=0), top, msg.hdr.source)
+            at = pts[pts[:, 2] >= top - TOP_BAND][:, :2].mean(axis=0)
+            if len(hands) and float(np.linalg.norm(hands - np.array([*at, top]), axis=1).min()) < NEAR_HAND:
+                continue
+            self._place(at, top, msg.hdr.source, SEEN_SETTLE)
 
-    def _place(self, at: np.ndarray, top: float, source: str) -> None:
+    def _place(self, at: np.ndarray, top: float, source: str, settle: float = 0.0) -> None:
         """Move the believed object nearest to ``at`` (within ``reach``, in the plane) there: it stands where it
-        stood; unless the predicted robot touches it. More than ``object_bound`` away it is a mismatch too."""
+        stood; unless the predicted robot touches it or it lies within ``settle`` m. More than ``object_bound``
+        away it is a mismatch too."""
         from contactflow.embodiments.sensors.ground_truth import body_name
 
         own = f"{self.robot}/"
@@ -312,7 +324,7 @@ class Predictor(Module):
             d = float(np.linalg.norm(obj.pose()[:2, 3] - at))
             if d <= gap:
                 best, gap = obj, d
-        if best is None:
+        if best is None or gap < settle:
             return
         assert self.detector is not None
         found = self.detector.object(self.t, best.name, np.array([*at, top]), gap)
@@ -322,7 +334,7 @@ class Predictor(Module):
         T[:2, 3] = at
         best.set_pose(T)
         self.resynced_objects += 1
-        self.log.debug("%s: %s moved %.1f mm to where %s saw it", self.robot, best.name, 1000 * gap, source)
+        self.log.info("%s: %s moved %.1f mm to where %s saw it", self.robot, best.name, 1000 * gap, source)
 
     def status_detail(self) -> str:
         if self.sim is None:
