@@ -129,7 +129,6 @@ class Predictor(Module):
         self.resyncs = 0  # times the arms were put back at the measured joints
         self._touching = False  # the predicted hands touch something (no resynchronisation then)
         self._held: dict[str, str] = {}  # hand -> the one object it holds aloft in the prediction
-        self.learned: dict[str, float] = {}  # object -> the mass (kg) a load mismatch taught (§5.7 model update)
         self._asked: threading.Thread | None = None  # the look-ahead under way
         self._asked_request = -1  # its request number
         self._answers: deque[LookAheadReply] = deque()  # look-ahead answers to publish (appended by its thread)
@@ -285,7 +284,7 @@ class Predictor(Module):
         """§5.6, resynchronisation from perception: a detected object's top centre places the believed object."""
         v = e.values
         if {"tx", "ty", "top"} <= set(v):
-            self._place(np.array([v["tx"], v["ty"]], dtype=np.float64), float(v["top"]), e.module)
+            self._place(np.array([v["tx"], v["ty"]], dtype=np.float64), float(v["top"]), e.module, self._touched())
 
     def _seen_objects(self, msg: SegmentedObjects) -> None:
         """§5.7, the simulator synchronised with what the robot perceives: each segmented object's top centre (its
@@ -295,6 +294,7 @@ class Predictor(Module):
         from contactflow.embodiments.primitives.detect_objects import TOP_BAND
 
         hands = np.array([self.sim.art.link_pose(k.split("/", 1)[1])[:3, 3] for k in self._hand]).reshape(-1, 3)
+        touched = self._touched()  # once per frame, not per object
         for obj in msg.objects:
             try:
                 pts = obj.points.numpy().astype(np.float64).reshape(-1, 3)
@@ -306,17 +306,20 @@ class Predictor(Module):
             at = pts[pts[:, 2] >= top - TOP_BAND][:, :2].mean(axis=0)
             if len(hands) and float(np.linalg.norm(hands - np.array([*at, top]), axis=1).min()) < NEAR_HAND:
                 continue
-            self._place(at, top, msg.hdr.source, SEEN_SETTLE)
+            self._place(at, top, msg.hdr.source, touched, SEEN_SETTLE)
 
-    def _place(self, at: np.ndarray, top: float, source: str, settle: float = 0.0) -> None:
-        """Move the believed object nearest to ``at`` (within ``reach``, in the plane) there: it stands where it
-        stood; unless the predicted robot touches it or it lies within ``settle`` m. More than ``object_bound``
-        away it is a mismatch too."""
+    def _touched(self) -> set[str]:
+        """The bodies the predicted robot touches now."""
         from contactflow.embodiments.sensors.ground_truth import body_name
 
         own = f"{self.robot}/"
-        touched = {body_name(b) for c in self.world.contacts() for b in c.bodies
-                   if any(body_name(o).startswith(own) for o in c.bodies)}
+        return {body_name(b) for c in self.world.contacts() for b in c.bodies
+                if any(body_name(o).startswith(own) for o in c.bodies)}
+
+    def _place(self, at: np.ndarray, top: float, source: str, touched: set[str], settle: float = 0.0) -> None:
+        """Move the believed object nearest to ``at`` (within ``reach``, in the plane) there: it stands where it
+        stood; unless it is in ``touched`` (the predicted robot touches it) or lies within ``settle`` m. More than
+        ``object_bound`` away it is a mismatch too."""
         best, gap = None, self.params.reach
         for obj in self.world.objects.values():
             if obj.spec.static or obj.name in touched:
@@ -575,7 +578,6 @@ class Predictor(Module):
         if mass is None:
             return ""
         obj.set_mass(mass)
-        self.learned[obj.name] = mass
         return f"{obj.name} weighs {mass:.3f} kg, not {before:.3f} kg"
 
     def _report(self, m: Mismatch) -> None:
