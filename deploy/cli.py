@@ -33,6 +33,7 @@ BENCHMARKS = {
     "messaging": "contactflow.nodes.bench_messaging",
     "sim": "contactflow.embodiments.bench_sim",
     "grasp": "contactflow.embodiments.bench_grasp",
+    "unscrew": "contactflow.embodiments.bench_unscrew",
     "empty-box": "contactflow.embodiments.bench_empty_box",
     "catch-zone": "contactflow.embodiments.bench_catch_zone",
     "contacts": "contactflow.fusion.bench_contacts",
@@ -302,12 +303,13 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
           out: Path = Path("bench-results"), quick: bool = False,
           jobs: Annotated[int, typer.Option(min=1, help="worker processes, for benchmarks made of independent runs")] = 1,
           runs: Annotated[int | None, typer.Option(min=1, help="runs per strategy (empty-box; default 10) or per case (prediction; default 20)")] = None,
-          trials: Annotated[int | None, typer.Option(min=1, help="trials per object and condition (grasp; default 10)")] = None,
+          trials: Annotated[int | None, typer.Option(min=1, help="trials per object and condition (grasp, unscrew; default 10)")] = None,
           max_time: Annotated[float | None, typer.Option(min=1.0, help="simulated s per run before the supervisor stops it (empty-box)")] = None,
           max_attempts: Annotated[int | None, typer.Option(min=1, help="grasp attempts per run (empty-box)")] = None,
           strategy: Annotated[list[str] | None, typer.Option(help="only this strategy, repeatable (empty-box; default all)")] = None,
           first_seed: Annotated[int | None, typer.Option(help="seed of the first run, the next runs count up (empty-box; default 100)")] = None,
-          executor: Annotated[str | None, typer.Option(help="local (primitives in this process), runtime (world and control nodes over zenoh) or both side by side (grasp, empty-box, catch-zone, vision, contacts)")] = None) -> None:
+          executor: Annotated[str | None, typer.Option(help="local (primitives in this process), runtime (world and control nodes over zenoh) or both side by side (grasp, empty-box, catch-zone, vision, contacts)")] = None,
+          preshape: Annotated[list[str] | None, typer.Option(help="the hand preshape both grasp controllers close from, repeatable for side by side (grasp; default claw)")] = None) -> None:
     """Run a benchmark: prints a table and writes JSON (and plots) under OUT."""
     path = BENCHMARKS.get(name)
     if path is None:
@@ -319,7 +321,7 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
         console.print(f"[red]benchmark {name!r} is not available: {exc}[/]")
         raise typer.Exit(1) from None
     given = {"jobs": jobs if jobs != 1 else None, "runs": runs, "trials": trials, "max_time": max_time, "max_attempts": max_attempts,
-             "strategy": strategy or None, "first_seed": first_seed, "executor": executor}
+             "strategy": strategy or None, "first_seed": first_seed, "executor": executor, "preshape": preshape or None}
     extra = {k: v for k, v in given.items() if v is not None}
     accepted = inspect.signature(mod.run).parameters
     for key in extra:

@@ -40,6 +40,9 @@ SPOT = (0.55, -0.3)
 TABLE_Z = 0.75
 JITTER_XY = 0.005  # m, each trial's object placement about where the vision system saw it (see jittered)
 JITTER_YAW = np.deg2rad(5.0)  # rad
+PRESHAPES = ("claw", "open")
+"""The hand preshapes both controllers may close from (``--preshape``); the first is the bench's default. The claw is the
+thesis's: its Barrett hand opened for a top grasp with the fingers toward the object (see the allegro's preshapes)."""
 
 
 
@@ -75,6 +78,7 @@ class Trial:
     controller: str  # naive | robust
     error: bool
     trial: int
+    preshape: str = PRESHAPES[0]  # the hand's preshape before the grasp closes, for both controllers
 
 
 def perturb(approach: np.ndarray, rng: np.random.Generator, pos: float = 0.05, ang_deg: float = 15.0) -> np.ndarray:
@@ -116,12 +120,12 @@ def scene(spec: ObjectSpec, seed: int = 0) -> tuple[World, SimRobot, LocalPrimit
     return world, robot, LocalPrimitiveRunner(robot)
 
 
-def vision_approach(spec: ObjectSpec) -> np.ndarray:
-    """The approach vector of the visual system: detect_objects on the Kinect cloud (§3.4.1)."""
+def vision_approach(spec: ObjectSpec, preshape: str = PRESHAPES[0]) -> np.ndarray:
+    """The approach vector of the visual system: detect_objects on the Kinect cloud (§3.4.1), for a hand closing from ``preshape``."""
     from contactflow.embodiments.primitives.base import matrix6
 
     _, _, runner = scene(spec)
-    ev = outcome(run_primitive(runner, "detect_objects", {"standoff": 0.04}, max_time=2.0))
+    ev = outcome(run_primitive(runner, "detect_objects", {"standoff": 0.04, "preshape": preshape}, max_time=2.0))
     if ev.event != "success":
         raise RuntimeError(f"bench_grasp: the vision system did not find {spec.name}: {ev.detail}")
     v = ev.values
@@ -167,11 +171,11 @@ def run_trial(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: int,
     move = outcome(run_primitive(runner, "move_to", {"arm": ARM, "target": [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
                                  max_time=10.0))
     z0 = float(robot.ground_truth().object_poses[spec.name][2, 3])
-    grasp = outcome(run_primitive(runner, f"{t.controller}_grasp", {"arm": ARM, "pregrasp_type": "open", **(grasp_params or {})},
+    grasp = outcome(run_primitive(runner, f"{t.controller}_grasp", {"arm": ARM, "pregrasp_type": t.preshape, **(grasp_params or {})},
                                  max_time=90.0))
     lift = outcome(run_primitive(runner, "lift", {"arm": ARM, "distance": 0.1, "watch_grasp": False}, max_time=6.0))
     ok, why = judge(robot, spec.name, z0)
-    return {"object": t.obj, "controller": t.controller, "error": t.error, "trial": t.trial, "success": ok,
+    return {"object": t.obj, "controller": t.controller, "error": t.error, "trial": t.trial, "preshape": t.preshape, "success": ok,
             "why": why, "move": str(move.event), "grasp": str(grasp.event), "lift": str(lift.event),
             "grasp_values": {k: float(x) for k, x in grasp.values.items()}, "sim_time": robot.time - t0}
 
@@ -212,7 +216,7 @@ def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: in
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         site = f"grasp{free_port()}"
         control = control_node(site, ROBOT, ROBOT, TASKS_DIR / "grasp_trial.yaml", t.controller,
-                               {"arm": ARM, "approach": [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
+                               {"arm": ARM, "preshape": t.preshape, "approach": [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]},
                                connect=(endpoint,), autostart=True)
         world = world_node(site, cell, listen=endpoint, wait_for=(control["node"],), seed=seed, ground_truth_hz=50.0)
         run = run_cell(folder, world, [control], endpoint, timeout=600.0)
@@ -225,15 +229,15 @@ def run_trial_runtime(spec: ObjectSpec, approach: np.ndarray, t: Trial, seed: in
     lift = final.get("lift")
     ok, why = judge_poses(run.poses, spec.name, lift.hdr.t_sim if lift is not None else end.hdr.t_sim, end.hdr.t_sim)
     grasp = final.get(f"{t.controller}_grasp")
-    return {"object": t.obj, "controller": t.controller, "error": t.error, "trial": t.trial, "success": ok,
+    return {"object": t.obj, "controller": t.controller, "error": t.error, "trial": t.trial, "preshape": t.preshape, "success": ok,
             "why": why, "move": str(final["move_to"].event) if "move_to" in final else "",
             "grasp": str(grasp.event) if grasp is not None else "", "lift": str(lift.event) if lift is not None else "",
             "grasp_values": dict(grasp.values) if grasp is not None else {}, "sim_time": run.sim_s, "wall_time": run.wall_s}
 
 
 @functools.cache
-def _approach(name: str) -> np.ndarray:
-    return vision_approach(next(s for s in objects() if s.name == name))
+def _approach(name: str, preshape: str) -> np.ndarray:
+    return vision_approach(next(s for s in objects() if s.name == name), preshape)
 
 
 def _seed(t: Trial) -> int:
@@ -244,13 +248,13 @@ def _seed(t: Trial) -> int:
 def _trial(t: Trial, grasp_params: dict[str, object] | None = None) -> dict:
     """One planned trial in this process (the approach of each object is computed once per process)."""
     spec = next(s for s in objects() if s.name == t.obj)
-    return run_trial(spec, _approach(t.obj), t, seed=_seed(t), grasp_params=grasp_params)
+    return run_trial(spec, _approach(t.obj, t.preshape), t, seed=_seed(t), grasp_params=grasp_params)
 
 
 def _runtime_trial(t: Trial) -> dict:
     """One planned trial on the runtime (world and control node in this worker process)."""
     spec = next(s for s in objects() if s.name == t.obj)
-    return run_trial_runtime(spec, _approach(t.obj), t, seed=_seed(t))
+    return run_trial_runtime(spec, _approach(t.obj, t.preshape), t, seed=_seed(t))
 
 
 EXECUTORS = ("local", "runtime", "both")
@@ -269,7 +273,7 @@ def rows_of(results: list[dict]) -> list[dict]:
 
 
 def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n_objects: int | None = None,
-        jobs: int = 1, executor: str = "local") -> dict:
+        jobs: int = 1, executor: str = "local", preshape: list[str] | None = None) -> dict:
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
@@ -283,23 +287,32 @@ def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n
         specs = [s for s in objects() if s.name == "cylinder"]
     if executor not in EXECUTORS:
         raise ParamError(f"bench grasp: --executor {executor!r} is not one of {list(EXECUTORS)}")
+    preshapes = tuple(dict.fromkeys(preshape or PRESHAPES[:1]))
+    for ps in preshapes:
+        if ps not in PRESHAPES:
+            raise ParamError(f"bench grasp: --preshape {ps!r} is not one of {list(PRESHAPES)}")
     executors = ("local", "runtime") if executor == "both" else (executor,)
-    plan = [Trial(s.name, c, e, k) for s in specs for e in (False, True) for c in ("naive", "robust") for k in range(n_trials)]
+    # one column per executor and preshape, side by side; the last is the bench's result
+    configs = [(ex, ps) for ps in preshapes for ex in executors]
+    label = {c: ", ".join(x for x, n in zip(c, (len(executors), len(preshapes)), strict=True) if n > 1) or c[0]
+             for c in configs}
     t_start = time.perf_counter()
-    by_executor: dict[str, list[dict]] = {}
-    walls: dict[str, float] = {}
+    by_config: dict[tuple[str, str], list[dict]] = {}
+    walls: dict[tuple[str, str], float] = {}
     with Progress(transient=True) as progress:
-        for ex in executors:
-            task = progress.add_task(f"grasp trials ({ex})", total=len(plan))
+        for ex, ps in configs:
+            plan = [Trial(s.name, c, e, k, ps) for s in specs for e in (False, True) for c in ("naive", "robust")
+                    for k in range(n_trials)]
+            task = progress.add_task(f"grasp trials ({ex}, {ps})", total=len(plan))
 
             def done(_: int, r: dict, task=task) -> None:
                 progress.update(task, advance=1,
                                 description=f"{r['object']} {r['controller']}{' + error' if r['error'] else ''}")
 
             t0 = time.perf_counter()
-            by_executor[ex] = run_all(_trial if ex == "local" else _runtime_trial, [(t,) for t in plan], jobs, done)
-            walls[ex] = time.perf_counter() - t0
-    results = by_executor[executors[-1]]
+            by_config[ex, ps] = run_all(_trial if ex == "local" else _runtime_trial, [(t,) for t in plan], jobs, done)
+            walls[ex, ps] = time.perf_counter() - t0
+    results = by_config[configs[-1]]
     rows = rows_of(results)
     per_object = {s.name: {f"{c}{'+error' if e else ''}": sum(r["success"] for r in results
                                                                if r["object"] == s.name and r["controller"] == c and r["error"] == e)
@@ -307,30 +320,30 @@ def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n
     summary = {"benchmark": "grasp", "robot": ROBOT, "objects": [s.name for s in specs], "trials_per_condition": n_trials,
                "quick": quick, "rows": rows, "per_object": per_object, "wall_time": time.perf_counter() - t_start,
                "thesis": {"naive": 0.88, "robust": 0.99, "naive + error": 0.19, "robust + error": 0.59},
-               "executor": executors[-1], "trials": results,
-               "executors": {ex: {"rows": rows_of(rs), "wall_time": walls[ex], "trials": rs}
-                             for ex, rs in by_executor.items()}}
+               "executor": configs[-1][0], "preshape": configs[-1][1], "trials": results,
+               "executors": {ex: {"rows": rows_of(rs), "wall_time": walls[ex, ps], "trials": rs}
+                             for (ex, ps), rs in by_config.items() if ps == configs[-1][1]},
+               "preshapes": {ps: {"rows": rows_of(rs), "wall_time": walls[ex, ps], "trials": rs}
+                             for (ex, ps), rs in by_config.items() if ex == configs[-1][0]}}
     (out_dir / "grasp.json").write_text(json.dumps(summary, indent=1))
-    md = ["| controller | stable grasps | failures | success [95 % interval] | thesis |", "|---|---|---|---|---|"]
-    for r in rows:
-        md.append(f"| {r['controller']} | {r['stable']} | {r['failures']} | {rate_text(r['stable'], r['stable'] + r['failures'])} | "
-                  f"{100 * summary['thesis'][r['controller']]:.0f}% |")
+    per = {c: rows_of(rs) for c, rs in by_config.items()}
+    md = ["| controller | " + " | ".join(f"success [95 % interval] ({label[c]})" for c in configs) + " | thesis |",
+          "|---|" + "---|" * len(configs) + "---|"]
+    for i, r in enumerate(rows):
+        cells = [rate_text(per[c][i]["stable"], per[c][i]["stable"] + per[c][i]["failures"]) for c in configs]
+        md.append(f"| {r['controller']} | " + " | ".join(cells) + f" | {100 * summary['thesis'][r['controller']]:.0f}% |")
     (out_dir / "grasp.md").write_text("\n".join(md) + "\n")
     table = Table(title=f"Grasp benchmark (Table 3.3), {len(specs)} objects x {n_trials} independent trials "
                         "(own object pose, approach error and sensor noise each)")
     table.add_column("controller")
-    for ex in executors:
-        table.add_column(f"stable, rate [95 % interval] ({ex})" if len(executors) > 1 else "stable, rate [95 % interval]")
+    for c in configs:
+        table.add_column(f"stable, rate [95 % interval] ({label[c]})" if len(configs) > 1 else "stable, rate [95 % interval]")
     table.add_column("thesis")
-    per = {ex: rows_of(rs) for ex, rs in by_executor.items()}
     for i, r in enumerate(rows):
-        cells = []
-        for ex in executors:
-            x = per[ex][i]
-            cells.append(rate_text(x["stable"], x["stable"] + x["failures"]))
+        cells = [rate_text(per[c][i]["stable"], per[c][i]["stable"] + per[c][i]["failures"]) for c in configs]
         table.add_row(r["controller"], *cells, f"{100 * summary['thesis'][r['controller']]:.0f}%")
-    if len(executors) > 1:
-        table.caption = " | ".join(f"{ex}: {walls[ex]:.0f} s wall" for ex in executors)
+    table.caption = f"hand preshape: {', '.join(preshapes)}" + (
+        " | " + " | ".join(f"{label[c]}: {walls[c]:.0f} s wall" for c in configs) if len(configs) > 1 else "")
     Console().print(table)
     _plot(rows, summary["thesis"], out_dir / "grasp.png")
     return summary

@@ -265,13 +265,26 @@ class RobotHome:
     overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     """Primitive type -> ``Params`` field -> value: thesis parameters set "depending on" the hardware (§3.3)."""
     grasp_center: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """m, where an object sits in a closing hand, in the controlled (grasp) frame."""
+    """m, where an object sits in a hand closing from its open preshape, in the controlled (grasp) frame."""
+    preshape_centers: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+    """Preshape -> m, where an object sits in a hand closing from that preshape, if not at ``grasp_center``."""
     wall_side: tuple[float, float] = (1.0, 0.0)
     """Hand-frame (x, y) side put toward a container wall when grasping beside one."""
 
     @property
     def name(self) -> str:
         return self.spec.name
+
+    def validate(self) -> None:
+        """The spec's cross-checks, and every preshape centre names a preshape of the robot's hands."""
+        self.spec.validate()
+        unknown = sorted(set(self.preshape_centers) - {k for hand in self.spec.hands for k in hand.preshapes})
+        if unknown:
+            raise RegistryError(f"{self.name}.preshape_centers: {unknown} are no preshape of its hands")
+
+    def center(self, preshape: str = "") -> tuple[float, float, float]:
+        """Where an object sits in a hand closing from ``preshape`` ("": the open one), grasp frame (m)."""
+        return tuple(self.preshape_centers.get(preshape, self.grasp_center))
 
     @property
     def factory(self) -> type:
@@ -311,7 +324,7 @@ def home(name: str) -> RobotHome:
     h = importlib.import_module(_ROBOTS[name]).HOME
     if h.name != name:
         raise RegistryError(f"{_ROBOTS[name]}.HOME is robot {h.name!r}, not {name!r}")
-    h.spec.validate()
+    h.validate()
     return h
 
 

@@ -430,12 +430,12 @@ def low_pass(prev: np.ndarray | float | None, x: np.ndarray | float, cutoff_hz: 
     return prev + a * (x - prev)
 
 
-def hand_pose_for(robot: str, T_center: np.ndarray) -> np.ndarray:
-    """The controlled-frame pose that puts robot ``robot``'s grasp centre (its home's) at ``T_center`` (4x4, world)."""
+def hand_pose_for(robot: str, T_center: np.ndarray, preshape: str = "") -> np.ndarray:
+    """The controlled-frame pose that puts robot ``robot``'s grasp centre for ``preshape`` (its home's) at ``T_center`` (4x4, world)."""
     from contactflow.embodiments import registry
 
     off = np.eye(4)
-    off[:3, 3] = registry.home(robot).grasp_center
+    off[:3, 3] = registry.home(robot).center(preshape)
     return T_center @ np.linalg.inv(off)
 
 

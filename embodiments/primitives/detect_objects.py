@@ -155,6 +155,7 @@ class DetectObjects(Primitive):
         standoff: float = 0.05  # m, approach starts this far outside the object's box
         grasp_depth: float = 0.06  # m, grasp frame below the object top (clipped to half the height)
         yaw: float = 1.5707963267948966  # rad, hand yaw of the top grasp
+        preshape: str = ""  # the hand preshape the grasp closes from: the approach puts where it catches an object (the robot's grasp centre for it) on the object ("": open)
         direction: tuple[float, ...] = (0.0, 0.0, -1.0)  # preferred approach direction, world (zeros: any)
         max_angle_deg: float = 30.0  # deg, orientation filter around ``direction``
         max_distance: float = 1.0  # m, distance filter: approach start from the arm base
@@ -208,11 +209,11 @@ class DetectObjects(Primitive):
 
         d = np.asarray(av.direction, float)
         if is_top_grasp(d):
-            return hand_pose_for(self.r.spec.name, top_grasp_pose(av.position, yaw))
+            return hand_pose_for(self.r.spec.name, top_grasp_pose(av.position, yaw), self.params.preshape)
         T = np.eye(4)
         T[:3, :3] = orthonormal_frame(d, np.array([np.cos(yaw), np.sin(yaw), 0.0]))
         T[:3, 3] = av.position
-        return hand_pose_for(self.r.spec.name, T)
+        return hand_pose_for(self.r.spec.name, T, self.params.preshape)
 
     def _reach(self):
         """IK of the arm (any arm without ``params.arm``), seeded at the robot's joints; None: no filter."""

@@ -8,6 +8,7 @@ from enum import StrEnum
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from contactflow.embodiments import registry
 from contactflow.embodiments.primitives.base import Capability, Primitive, PrimitiveError
 from contactflow.embodiments.primitives.hands import ClosingRamp, finger_groups, held_fingers
 from contactflow.embodiments.registry import GRASP_CORRECTIONS
@@ -160,7 +161,7 @@ class RobustGrasp(Primitive):
         sliding: bool = True  # enable the sliding correction (eq. 3.2)
         finger_lost: bool = True  # finger-lost correction: part of the primitive in the thesis (Fig. 3.2); needs a multi-finger hand
         level_tolerance: float = 0.0  # rad, a grasp direction within this angle of straight down is turned straight down before the approach (objects rest on level supports; 0: off, as in the thesis)
-        level_pivot: tuple[float, ...] = (0.0, 0.0, 0.0)  # m, hand-frame point kept in place while levelling (where the hand holds an object)
+        level_pivot: tuple[float, ...] = ()  # m, hand-frame point kept in place while levelling (where the hand holds an object; empty: the robot's grasp centre for pregrasp_type)
         search_offsets: tuple[float, ...] = ()  # m, hand-frame (x, y) pairs: after a close that holds nothing, descend again shifted by the next pair (none in the thesis)
         search_camera: str = ""  # camera that looks for the object after a close that holds nothing, before the search_offsets ("": none; not in the thesis)
         search_radius: float = 0.2  # m, how far from where the grasp began a look finds the object
@@ -183,6 +184,10 @@ class RobustGrasp(Primitive):
         self._check_corrections()
         self.groups = finger_groups(self.spec)
         self.closed = np.asarray(self.spec.preshapes["closed"], dtype=np.float64)
+        pivot = p.level_pivot or registry.home(self.r.spec.name).center(p.pregrasp_type)
+        if len(pivot) != 3:
+            raise ValueError(f"{self.name}: params.level_pivot must be a 3-vector (or empty), got {p.level_pivot}")
+        self.pivot = np.asarray(pivot, dtype=np.float64)
         if len(p.search_offsets) % 2:
             raise ValueError(f"{self.name}: params.search_offsets must hold (x, y) pairs, got {len(p.search_offsets)} numbers")
         self.T_start: np.ndarray | None = None
@@ -217,7 +222,7 @@ class RobustGrasp(Primitive):
         """Start turning a nearly downward grasp direction straight down; False when there is nothing to turn."""
         p = self.params
         T = self.r.frame_pose(self.ee_frame)
-        levelled = levelled_pose(T, self.dir, np.asarray(p.level_pivot, dtype=np.float64), p.level_tolerance)
+        levelled = levelled_pose(T, self.dir, self.pivot, p.level_tolerance)
         if levelled is None:
             return False
         goal, self.levelled = levelled
@@ -506,7 +511,7 @@ class RobustGrasp(Primitive):
         model = getattr(self.r, "spherical", None)
         if model is not None and len(pts):
             pts = pts[model.distance(pts) > p.self_margin]  # the arm and hand are not the object
-        found = look_pose(pts, self.T_start, np.asarray(p.level_pivot, dtype=np.float64), p.search_radius)
+        found = look_pose(pts, self.T_start, self.pivot, p.search_radius)
         if found is not None:
             goal, d = found
             if self.io is not None:

@@ -1,4 +1,4 @@
-"""Unscrew (thesis §3.3.6, Fig. 3.11): pinch the cap, twist, pull; regrasp on resistance; re-centre on the cap from the tactile contacts."""
+"""Unscrew (thesis §3.3.6, Fig. 3.11): pinch the cap, twist, pull; grasp again on resistance or a pinch that missed; re-centre on the cap from the tactile contacts."""
 
 from __future__ import annotations
 
@@ -72,6 +72,8 @@ class Unscrew(Primitive):
         self.slips = 0  # pulls that ended without the cap in the fingers
         self.twists = 0
         self.contacts: list[np.ndarray] = []
+        self.edges: list[np.ndarray] = []  # single pads' contacts of a pinch that has not closed on the cap
+        self.misses = 0  # pinches that closed without the cap
         self.nominal: np.ndarray | None = np.asarray(p.pinch_center, dtype=np.float64) if p.pinch_center else None
         self._pinch()
 
@@ -84,28 +86,36 @@ class Unscrew(Primitive):
         b = self.r.frame_pose(self.pads[self.fingers[1]].link)[:3, 3]
         return float(np.linalg.norm(a - b))
 
-    def _contact_centre(self) -> np.ndarray | None:
-        """Midpoint of the pinching pads' pressure centroids (world), or None unless every pinching pad touches."""
+    def _touches(self) -> list[np.ndarray]:
+        """The pressure centroids (world) of the pinching pads that touch."""
         images = self.r.tactile(self.hand_name)
         pts = []
         for f in self.fingers:
             img = images.get(f)
             if img is None or float(img.max(initial=0.0)) <= TACTILE_CONTACT:
-                return None
+                continue
             local = (img[..., None] * self.taxels[f]).sum(axis=(0, 1)) / float(img.sum())
             T = self.r.frame_pose(self.pads[f].link)
             pts.append(T[:3, :3] @ local + T[:3, 3])
-        return np.mean(pts, axis=0)
+        return pts
+
+    def _contact_centre(self) -> np.ndarray | None:
+        """Midpoint of the pinching pads' pressure centroids (world), or None unless every pinching pad touches."""
+        pts = self._touches()
+        return np.mean(pts, axis=0) if len(pts) == len(self.fingers) else None
 
     def _in_hand(self, point: np.ndarray) -> np.ndarray:
         T = self.r.frame_pose(self.ee_frame)
         return T[:3, :3].T @ (point - T[:3, 3])
 
     def _record_contacts(self) -> None:
-        """The contact centre (world) while every pinching pad touches; averaged, it is where the cap is."""
-        c = self._contact_centre()
-        if c is not None:
-            self.contacts.append(c)
+        """The contact centre (world) while every pinching pad touches; averaged, it is where the cap is. A pad
+        touching alone is kept apart: a pinch that closed beside the cap knows only the side it touched."""
+        pts = self._touches()
+        if len(pts) == len(self.fingers):
+            self.contacts.append(np.mean(pts, axis=0))
+        elif pts:
+            self.edges.extend(pts)
 
     def _twist_about_centre(self) -> None:
         """Turn about the approach axis through the fingers' centre; re-sent every step as the centre's lever arm turns."""
@@ -151,7 +161,8 @@ class Unscrew(Primitive):
                 self._twist_about_centre()
                 self.phase, self.t_phase = Phase.TWIST, self.r.time
             elif self._tip_gap() < p.finger_min_distance or self.r.time - self.t_phase > 3.0:
-                self.fail("fingers closed without pinching the cap", cycles=self.cycles)
+                self.misses += 1
+                self._regrasp("fingers closed without pinching the cap")
             return
         if self.phase is Phase.TWIST:
             self._record_contacts()
@@ -179,7 +190,8 @@ class Unscrew(Primitive):
             if pulled >= p.cap_removed_distance:
                 # "pulls the cap further than": a hand that slipped off a cap still screwed on moves as freely
                 if all(forces.get(finger, 0.0) > TACTILE_CONTACT for finger in self.fingers):
-                    self.succeed(cycles=self.cycles + 1, twists=self.twists, corrections=self.corrections, pulled=pulled)
+                    self.succeed(cycles=self.cycles + 1, twists=self.twists, corrections=self.corrections, pulled=pulled,
+                                 misses=self.misses)
                 else:
                     self.halt()
                     self.slips += 1
@@ -193,17 +205,18 @@ class Unscrew(Primitive):
                 self.cycles += 1
                 if self.cycles >= p.max_cycles:
                     self.fail(f"cap not removed after {p.max_cycles} cycles", cycles=self.cycles, twists=self.twists,
-                              corrections=self.corrections, slips=self.slips)
+                              corrections=self.corrections, slips=self.slips, misses=self.misses)
                     return
                 goal = self.home.copy()
-                if p.recenter and self.contacts and self.nominal is not None:
+                seen = self.contacts or self.edges  # a pinch that missed moves toward the side it touched
+                if p.recenter and seen and self.nominal is not None:
                     # the averaged contacts are the cap centre: bring the fingers' centre of the start pose onto it
-                    off = np.mean(self.contacts, axis=0) - (self.home[:3, :3] @ self.nominal + self.home[:3, 3])
+                    off = np.mean(seen, axis=0) - (self.home[:3, :3] @ self.nominal + self.home[:3, 3])
                     off -= (off @ self.home[:3, 2]) * self.home[:3, 2]
                     if np.linalg.norm(off) > 0.002:
                         goal[:3, 3] += off
                         self.corrections += 1
-                self.contacts = []
+                self.contacts, self.edges = [], []
                 self.home = goal
                 self.arm.move_pose(goal, speed=0.05)
                 self.phase, self.t_phase = Phase.RETURN, self.r.time

@@ -58,6 +58,11 @@ def allegro_hand(name: str, prefix: str) -> HandSpec:
             "closed": (0.0, 1.3, 1.3, 1.0) * 3 + (1.3, 0.9, 0.9, 0.9),
             "pinch": (0.0, 0.9, 0.8, 0.6) + finger_open * 2 + (1.3, 0.5, 0.6, 0.8),
             "cylindrical": (0.0, 0.6, 0.6, 0.4) * 3 + (1.2, 0.3, 0.4, 0.4),
+            # the thesis's Barrett hand opened for a top grasp: fingers and thumb bent toward the approach (fingertips
+            # 2.7 cm, thumb tip 6.8 cm past the grasp frame, 14.6 cm apart), so a descent meets the table or the
+            # object with the fingertips, around the object, and the close wraps it (from "open", a flat paddle, it
+            # meets the top, and the fingers curl into the table beside anything lower than 7 cm)
+            "claw": (0.0, 0.7, 0.2, 0.1) * 3 + (1.3, 0.5, 0.2, 0.2),
             "spherical": (-0.2, 0.5, 0.6, 0.4, 0.0, 0.5, 0.6, 0.4, 0.2, 0.5, 0.6, 0.4, 1.0, 0.4, 0.5, 0.5),
         },
         fingertips=tuple(prefix + t for t in ALLEGRO_TIPS),

@@ -43,6 +43,16 @@ def test_each_robot_has_one_home_found_by_its_package_and_typed_overrides():
     assert registry.home("melfa").grasp_center == (0.0, 0.0, 0.0)
 
 
+def test_a_grasp_centre_is_told_per_preshape_and_names_only_preshapes_the_hands_have():
+    from dataclasses import replace
+
+    tomb = registry.home("tombatossals")
+    assert tomb.center("") == tomb.center("open") == tomb.center("cylindrical") == tomb.grasp_center
+    assert tomb.center("claw") != tomb.grasp_center and "claw" in tomb.spec.hand("right_hand").preshapes
+    with pytest.raises(registry.RegistryError, match=r"tombatossals.preshape_centers: \['fist'\] are no preshape"):
+        replace(tomb, preshape_centers={"fist": (0.0, 0.0, 0.0)}).validate()
+
+
 def test_tombatossals_composition_has_two_arms_hands_and_head(tmp_path):
     spec = registry.get("tombatossals")
     model = pin.buildModelFromUrdf(str(spec.urdf(tmp_path)))

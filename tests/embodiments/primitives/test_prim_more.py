@@ -234,6 +234,18 @@ def test_explore_locates_an_off_centre_contact_and_approaches_over_it() -> None:
     assert not robot.failed
 
 
+def test_detection_puts_where_the_grasp_s_preshape_catches_an_object_on_the_object() -> None:
+    robot, runner = _cylinder_scene()
+    hands = {}
+    for preshape in ("", "claw"):
+        ev = outcome(run_primitive(runner, "detect_objects", {"standoff": 0.04, "preshape": preshape}, max_time=2.0))
+        assert ev.event is Event.SUCCESS, ev.detail
+        hands[preshape] = matrix6(tuple(ev.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "approach")
+    target = hands[""] @ np.r_[TOMB.grasp_center, 1.0]
+    assert hands["claw"] @ np.r_[TOMB.center("claw"), 1.0] == pytest.approx(target, abs=1e-6)
+    assert np.linalg.norm(hands["claw"][:3, 3] - hands[""][:3, 3]) > 0.02  # the claw's hand stands elsewhere
+
+
 def test_detection_and_random_spot_beside_a_wall_turn_the_hand_side_measured_for_walls() -> None:
     robot, runner = _cylinder_scene()  # the cylinder where it was put (the shared scene's sweep may knock it over)
     walls = [0.4, -0.5, 0.58, -0.1]  # the cylinder at x 0.55 is 3 cm from the +x wall

@@ -119,3 +119,19 @@ def test_a_pinch_that_slips_off_a_screwed_cap_is_not_a_removed_cap() -> None:
     assert end.event is Event.FAILURE and "not removed" in end.detail
     assert end.values["slips"] >= 1  # the empty pull was told apart and led to a regrasp
     assert bottle.cap_lift() < 1e-3
+
+
+def test_a_pinch_that_closes_beside_the_cap_is_tried_again_and_the_re_centring_moves_it_to_the_side_touched() -> None:
+    # 1.5 cm off (Table 3.5's approach error): the fingers close beside the cap; the thesis opens, goes back and
+    # grasps again, and with the re-centring the averaged fingertip contacts (here one pad's) move the start pose
+    ends = {}
+    for recenter in (False, True):
+        robot, runner, bottle, _ = over_cap(thread_turns=0.2, offset=(0.0, 0.015, 0.0))
+        events, _ = unscrew(robot, runner, {"max_cycles": 4, "pinch_center": PINCH_CENTER, "recenter": recenter})
+        ends[recenter] = (outcome(events), np.rad2deg(bottle.cap_angle()))
+    plain, turned = ends[False]
+    assert plain.event is Event.FAILURE and "not removed" in plain.detail
+    assert plain.values["misses"] == plain.values["cycles"] == 4 and plain.values["twists"] == 0 and abs(turned) < 10.0
+    recentred, turned = ends[True]
+    assert recentred.event is Event.SUCCESS, recentred.detail
+    assert recentred.values["misses"] >= 1 and recentred.values["corrections"] >= 1 and turned >= 72.0
