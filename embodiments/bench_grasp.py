@@ -345,24 +345,29 @@ def run(out_dir: pathlib.Path, quick: bool = False, trials: int | None = None, n
     table.caption = f"hand preshape: {', '.join(preshapes)}" + (
         " | " + " | ".join(f"{label[c]}: {walls[c]:.0f} s wall" for c in configs) if len(configs) > 1 else "")
     Console().print(table)
-    _plot(rows, summary["thesis"], out_dir / "grasp.png")
+    _plot({label[c]: per[c] for c in configs}, summary["thesis"], out_dir / "grasp.png")
     return summary
 
 
-def _plot(rows: list[dict], thesis: dict, path: pathlib.Path) -> None:
+def _plot(columns: dict[str, list[dict]], thesis: dict, path: pathlib.Path) -> None:
+    """Table 3.3 as bars: each column's rate per controller (executor, preshape) beside the thesis's."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
+    rows = next(iter(columns.values()))
     x = np.arange(len(rows))
-    ax.bar(x - 0.2, [100 * r["success"]["rate"] for r in rows], 0.4, label="simulation")
-    ax.bar(x + 0.2, [100 * thesis[r["controller"]] for r in rows], 0.4, label="thesis (Table 3.3)")
+    width = 0.8 / (len(columns) + 1)
+    for i, (name, rs) in enumerate(columns.items()):
+        ax.bar(x + (i - len(columns) / 2) * width, [100 * r["success"]["rate"] for r in rs], width,
+               label=f"simulation ({name})" if len(columns) > 1 else "simulation")
+    ax.bar(x + len(columns) / 2 * width, [100 * thesis[r["controller"]] for r in rows], width, label="thesis (Table 3.3)")
     ax.set_xticks(x, [r["controller"] for r in rows])
     ax.set_ylabel("stable grasps (%)")
     ax.set_ylim(0, 105)
-    ax.legend()
+    ax.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(columns) + 1)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
