@@ -8,8 +8,9 @@ cap approach as vision gives it; Table 3.5: one bottle (the thesis's most diffic
 uniform ±1.5 cm error added to the approach. Each configuration runs with the re-centring off and on, the
 same seeds side by side. Judged from the cap's joints (ground truth): the cap is unscrewed when its thread
 let go, removed when it also came off the neck in the fingers (the thesis's success also put the cap on the
-table; the simulated cap stays on its lift joint, 10 cm of travel, so removed is as far as it goes). Every trial draws its own approach error,
-bottle placement (±5 mm), camera and sensor noise. Writes ``unscrew.json``, ``unscrew.md`` and ``unscrew.png``.
+table; the simulated cap stays on its lift joint, 10 cm of travel, so removed is as far as it goes). Every
+trial draws its own approach error, bottle placement (±5 mm), camera and sensor noise. Writes
+``unscrew.json``, ``unscrew.md`` and ``unscrew.png``.
 """
 
 from __future__ import annotations
