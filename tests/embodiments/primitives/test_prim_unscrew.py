@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from contactflow.embodiments.bench_unscrew import CAP_IN_HAND, PINCH_CENTER
 from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
 from contactflow.embodiments.primitives.runner import (
     LocalPrimitiveRunner,
@@ -17,8 +18,6 @@ from contactflow.nodes.status import Event
 
 ARM = "right"
 CAP = np.array([0.55, -0.3, 0.96])  # m, centre of the bottle's cap
-CAP_IN_HAND = np.array([-0.03, 0.045, 0.04])  # m, where the thumb-index pinch closes on this cap, in the right_grasp frame
-PINCH_CENTER = [-0.033, 0.048, 0.040]  # m, the tactile contact centre of that pinch on a centred cap (measured once)
 
 
 def vec(T: np.ndarray) -> list[float]:
