@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from contactflow.embodiments.parallel import run_all
-from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+from contactflow.embodiments.primitives.base import hand_pose_for, pose6, top_grasp_pose
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot, SimRobotParams
 from contactflow.embodiments.world import ScrewBottleSpec, World, WorldParams
@@ -37,8 +37,6 @@ NOISE = 0.015  # m, Table 3.5: uniform error on the approach to the cap, each ho
 JITTER_XY = 0.005  # m, where each trial stands the bottle about BASE (the bottles were placed by hand)
 NOISY_BOTTLE = "bottle2"  # the thesis's object 2, its most difficult, the one of Table 3.5
 QUICK_BOTTLE = "bottle4"  # the shortest thread (--quick)
-CAP_IN_HAND = np.array([-0.03, 0.045, 0.04])  # m, where the allegro's thumb-index pinch closes on a cap, grasp frame
-PINCH_CENTER = (-0.033, 0.048, 0.040)  # m, the tactile contact centre of that pinch on a centred cap (measured once)
 CAP_BAND = 0.004  # m, the top of the bottle's points taken as its cap's top face (a thicker band takes in the side the camera sees)
 SELF_MARGIN = 0.02  # m, points this close to the robot model are the robot's (detect_objects' self filter)
 CAP_DEPTH = 0.01  # m, the cap's centre below the top of those points (half a household cap's height)
@@ -111,8 +109,7 @@ def run_trial(spec: ScrewBottleSpec, t: Trial, seed: int) -> dict:
     cap = cap_estimate(robot, spec)
     true_cap = bottle.cap_pose()[:3, 3]
     error = np.r_[rng.uniform(-NOISE, NOISE, 2), 0.0] if t.noise else np.zeros(3)
-    T = top_grasp_pose(cap + error)
-    T[:3, 3] = cap + error - T[:3, :3] @ CAP_IN_HAND
+    T = hand_pose_for(ROBOT, top_grasp_pose(cap + error), "pinch")
     above = T.copy()
     above[2, 3] += 0.06
     for target in (above, T):
@@ -120,8 +117,7 @@ def run_trial(spec: ScrewBottleSpec, t: Trial, seed: int) -> dict:
         if moved.event != "success":
             return _result(t, bottle, None, f"approach: {moved.event} {moved.detail}", 0.0, cap, true_cap)
     t0 = robot.time
-    end = outcome(run_primitive(runner, "unscrew", {"arm": ARM, "max_cycles": MAX_CYCLES, "pinch_center": PINCH_CENTER,
-                                                    "recenter": t.reactive}, max_time=240.0))
+    end = outcome(run_primitive(runner, "unscrew", {"arm": ARM, "max_cycles": MAX_CYCLES, "recenter": t.reactive}, max_time=240.0))
     return _result(t, bottle, end, end.detail, robot.time - t0, cap, true_cap)
 
 

@@ -15,6 +15,10 @@ Example::
         shapes:
           - {kind: cylinder, radius: 0.025, length: 0.16, xyz: [0.0, 0.0, 0.08]}
           - {kind: box, size: [0.03, 0.02, 0.03], xyz: [0.01, 0.0, 0.175]}
+      - {name: bottle, kind: screw_bottle, xyz: [0.5, 0.0, 0.75], thread_turns: 0.5}  # stands free; static: welded
+
+A ``screw_bottle`` (thesis §3.3.6) takes the fields of ``ScrewBottleSpec`` (``body_radius``, ``thread_turns``, ...;
+``xyz`` is the centre of its bottom face); it stands free unless ``static``.
 
 Poses are ``[x, y, z, roll, pitch, yaw]`` (m, rad, world). Errors name the file, line and field.
 """
@@ -30,6 +34,9 @@ _TOP = {"scene", "robots", "objects"}
 _ROBOT = {"name", "embodiment", "base"}
 _OBJECT = {"name", "kind", "size", "radius", "length", "shapes", "xyz", "rpy", "mass", "friction", "static"}
 _SHAPE = {"kind", "size", "radius", "length", "xyz", "rpy"}
+_BOTTLE = ("body_radius", "body_height", "neck_radius", "neck_height", "cap_radius", "cap_height", "cap_mass",
+           "thread_friction", "thread_damping", "thread_turns", "friction", "density")
+"""A screw bottle's numeric fields (ScrewBottleSpec's), besides name, kind, xyz and static."""
 _SHAPE_FIELDS = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",)}
 
 
@@ -46,6 +53,7 @@ class SceneFile:
     robots: tuple[RobotPlacement, ...]
     objects: tuple  # ObjectSpec
     file: str = "<scene>"
+    bottles: tuple = ()  # ScrewBottleSpec
 
 
 def _floats(doc: YamlDoc, path: tuple, n: int) -> tuple[float, ...]:
@@ -86,9 +94,15 @@ def parse_scene(doc: YamlDoc) -> SceneFile:
         robots.append(RobotPlacement(name, emb, base))
     if not robots:
         raise doc.error(("robots",), "a scene needs at least one robot")
-    objects = []
+    objects, bottles = [], []
     for i, _ in enumerate(doc.get(("objects",), list, [])):
         p = ("objects", i)
+        if doc.get(p + ("kind",), str, "") == "screw_bottle":
+            bottle = _bottle(doc, p)
+            if any(o.name == bottle.name for o in objects + bottles):
+                raise doc.error(p + ("name",), f"object {bottle.name!r} is defined twice")
+            bottles.append(bottle)
+            continue
         fields = doc.mapping(p, _OBJECT)
         name = doc.get(p + ("name",), str)
         if "shapes" in fields:
@@ -107,10 +121,26 @@ def parse_scene(doc: YamlDoc) -> SceneFile:
         mass = _number(doc, p + ("mass",), 0.2)
         friction = _number(doc, p + ("friction",), 0.6)
         static = doc.get(p + ("static",), bool, False)
-        if any(o.name == name for o in objects):
+        if any(o.name == name for o in objects + bottles):
             raise doc.error(p + ("name",), f"object {name!r} is defined twice")
         objects.append(ObjectSpec(name, shapes, mass, friction, xyz, rpy, static, kind))
-    return SceneFile(scene, tuple(robots), tuple(objects), doc.file)
+    return SceneFile(scene, tuple(robots), tuple(objects), doc.file, tuple(bottles))
+
+
+def _bottle(doc: YamlDoc, p: tuple):
+    """The screw bottle at ``p``: ScrewBottleSpec's defaults for what the entry leaves out."""
+    from contactflow.embodiments.world import ScrewBottleSpec
+
+    fields = doc.mapping(p, {"name", "kind", "xyz", "static", *_BOTTLE})
+    values = {}
+    for f in sorted(set(_BOTTLE) & set(fields)):
+        v = doc.get(p + (f,), (int, float))
+        thread = f.startswith("thread")  # a thread may be frictionless, undamped or already loose: 0 is allowed
+        if isinstance(v, bool) or not (float(v) >= 0 if thread else float(v) > 0):
+            raise doc.error(p + (f,), f"expected a {'non-negative' if thread else 'positive'} number, got {v!r}")
+        values[f] = float(v)
+    return ScrewBottleSpec(doc.get(p + ("name",), str), _floats(doc, p + ("xyz",), 3),
+                           fixed=doc.get(p + ("static",), bool, False), **values)
 
 
 def _shape(doc: YamlDoc, p: tuple, placed: bool):

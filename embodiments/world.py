@@ -111,7 +111,7 @@ _TO_X = sapien.Pose(q=[np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0])
 
 @dataclass(frozen=True)
 class ScrewBottleSpec:
-    """A bottle whose body is fixed to the world (held, as the other hand does in §3.4.2) and whose cap turns about the bottle axis."""
+    """A bottle whose cap turns about the bottle axis; its body fixed to the world (held, as the other hand does in §3.4.2) or standing free."""
 
     name: str
     xyz: tuple[float, float, float]  # m, centre of the body's bottom face
@@ -126,6 +126,8 @@ class ScrewBottleSpec:
     thread_damping: float = 0.02  # N m s/rad, viscous part of the thread's resistance
     thread_turns: float = 1.5  # turns (counter-clockwise seen from above) until the cap comes free
     friction: float = 1.0  # surface friction coefficient of body and cap
+    fixed: bool = True  # the body welded in place; False: it stands free on its bottom and a hand has to hold it
+    density: float = 500.0  # kg/m^3 of body and neck (a bottle part full: 0.3 kg for the default body)
 
     def cap_top(self) -> float:
         """World z of the cap's top face (m)."""
@@ -342,7 +344,7 @@ class SimArticulation:
 
 
 class SimScrewBottle:
-    """A screw-cap bottle: one articulation rooted (fixed) at the body; the cap turns on a revolute joint about the bottle axis and lifts on a prismatic one.
+    """A screw-cap bottle: one articulation rooted at the body (fixed or free); the cap turns on a revolute joint about the bottle axis and lifts on a prismatic one.
 
     The thread's resistance is a viscous part (the turn joint's drive damping, with zero
     stiffness: PhysX integrates it implicitly, so it stays stable on a light cap) plus a
@@ -364,9 +366,9 @@ class SimScrewBottle:
         body.set_name(f"{s.name}_body")
         half = s.body_height / 2
         body.add_cylinder_collision(pose=sapien.Pose([0.0, 0.0, half]) * _TO_X, radius=s.body_radius, half_length=half,
-                                    material=mat, density=500.0)
+                                    material=mat, density=s.density)
         body.add_cylinder_collision(pose=sapien.Pose([0.0, 0.0, s.body_height + s.neck_height / 2]) * _TO_X,
-                                    radius=s.neck_radius, half_length=s.neck_height / 2, material=mat, density=500.0)
+                                    radius=s.neck_radius, half_length=s.neck_height / 2, material=mat, density=s.density)
         # joint frames turn and slide along their x axis: put it on the bottle axis (+z)
         axis = sapien.Pose(q=[np.cos(np.pi / 4), 0.0, -np.sin(np.pi / 4), 0.0])
         thread = b.create_link_builder(body)
@@ -388,14 +390,14 @@ class SimScrewBottle:
                                      radius=s.neck_radius, half_length=s.neck_height / 2)
             cap.add_cylinder_visual(pose=_TO_X, radius=s.cap_radius, half_length=s.cap_height / 2)
         b.set_initial_pose(sapien.Pose(list(s.xyz)))
-        self.articulation = b.build(fix_root_link=True)
+        self.articulation = b.build(fix_root_link=s.fixed)
         self.articulation.set_name(s.name)
         self.turn, self.lift = self.articulation.get_active_joints()
         self.turn.set_armature([self.armature])
         self.turn.set_drive_property(0.0, s.thread_damping, 1e6, "force")
         self.lift.set_drive_property(0.0, 0.0, 0.0, "force")
         links = self.articulation.get_links()
-        self.cap_link = links[2]
+        self.body_link, self.cap_link = links[0], links[2]
         # the cap rests on the neck it is screwed onto: the bottle's own parts never collide
         for link in links:
             for shape in link.get_collision_shapes():
@@ -420,6 +422,10 @@ class SimScrewBottle:
 
     def cap_pose(self) -> np.ndarray:
         return pose_to_matrix(self.cap_link.get_entity_pose())
+
+    def body_pose(self) -> np.ndarray:
+        """The body's frame (world): the centre of its bottom face, z along the bottle axis."""
+        return pose_to_matrix(self.body_link.get_entity_pose())
 
     def pre_step(self) -> None:
         w = float(self.articulation.get_qvel()[0])
@@ -526,17 +532,24 @@ class World:
         return art
 
     def add_screw_bottle(self, spec: ScrewBottleSpec) -> SimScrewBottle:
-        """A bottle fixed in place whose cap turns against the thread's friction (unscrew, §3.3.6)."""
+        """A bottle (fixed in place or free) whose cap turns against the thread's friction (unscrew, §3.3.6)."""
         if spec.name in self.bottles or spec.name in self.objects:
             raise WorldError(f"screw bottle {spec.name!r} added twice")
         if min(spec.body_radius, spec.body_height, spec.neck_radius, spec.neck_height, spec.cap_radius, spec.cap_height,
-               spec.cap_mass) <= 0:
-            raise WorldError(f"screw bottle {spec.name!r}: sizes and cap_mass must be positive")
+               spec.cap_mass, spec.density) <= 0:
+            raise WorldError(f"screw bottle {spec.name!r}: sizes, cap_mass and density must be positive")
         if spec.thread_friction < 0 or spec.thread_damping < 0 or spec.thread_turns < 0:
             raise WorldError(f"screw bottle {spec.name!r}: thread_friction, thread_damping and thread_turns must be >= 0")
         bottle = SimScrewBottle(self, spec, group=0x8000 + len(self.bottles))
         self.bottles[spec.name] = bottle
         return bottle
+
+    def bottle_poses(self) -> dict[str, np.ndarray]:
+        """Ground truth of the screw bottles: each body's pose under its name, its cap's under ``<name>_cap``."""
+        out = {}
+        for name, b in self.bottles.items():
+            out[name], out[f"{name}_cap"] = b.body_pose(), b.cap_pose()
+        return out
 
     def remove_object(self, name: str) -> None:
         obj = self.objects.pop(name)

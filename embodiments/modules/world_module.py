@@ -261,6 +261,8 @@ class WorldModule(Module):
                 SCENES[scene.scene](world)
             for obj in scene.objects:
                 world.add_object(obj)
+            for bottle in scene.bottles:
+                world.add_screw_bottle(bottle)
             sims = []
             for k, rp in enumerate(scene.robots):
                 base = None if rp.base is None else xyz_rpy_to_matrix(rp.base[:3], rp.base[3:])
@@ -522,8 +524,8 @@ class WorldModule(Module):
                     self._stream_depth(r)
         if not repeat and self.params.ground_truth_hz > 0 and t >= self._gt_due - 1e-9:
             self._gt_due = t + 1.0 / self.params.ground_truth_hz
-            objs = self.world.objects
-            poses = np.stack([o.pose() for o in objs.values()]) if objs else np.zeros((0, 4, 4))
+            objs = {n: o.pose() for n, o in self.world.objects.items()} | self.world.bottle_poses()
+            poses = np.stack(list(objs.values())) if objs else np.zeros((0, 4, 4))
             self._gt_pub(encode(stamp(ObjectPoses(names=list(objs), poses=NDArray.of(poses)),
                                       f"{self.source}/object_poses", self.tick_no + 1, t)))
         if not repeat and self.params.contacts_hz > 0 and t >= self._contacts_due - 1e-9:

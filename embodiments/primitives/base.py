@@ -345,6 +345,8 @@ class Primitive(Module):
     def start(self) -> None:
         if self.robot is None:
             self._bind_hosted()
+        else:
+            self.bind(self.robot)  # a pooled module runs again with new params: they may name another arm
         self.t0 = self.r.time
         self.result = {}
         self._outcome = Status.RUNNING

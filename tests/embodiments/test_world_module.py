@@ -21,6 +21,7 @@ from contactflow.embodiments.messages import (
     TrueContacts,
 )
 from contactflow.embodiments.scene_file import parse_scene
+from contactflow.embodiments.world import ScrewBottleSpec
 from contactflow.nodes.config import parse_node_config
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.messages import Clock, EventMsg, LockstepAck, Mark
@@ -54,6 +55,14 @@ objects:
      "      - {kind: box, size: [1, 1, 1], xyz: [0, 0]}\n", r"scene.yaml:6: objects\[0\].shapes\[0\].xyz: expected 3"),
     ("robots: [{name: melfa}]\nobjects:\n  - {name: c, kind: box, size: [1, 1, 1], xyz: [0, 0, 1], shapes: []}\n",
      r"scene.yaml:3: objects\[0\].kind: an object with shapes gives 'kind' per shape"),
+    ("robots: [{name: melfa}]\nobjects:\n  - {name: b, kind: screw_bottle, xyz: [0, 0, 1], thread: 2}\n",
+     r"scene.yaml:3: objects\[0\].thread: unknown field"),
+    ("robots: [{name: melfa}]\nobjects:\n  - {name: b, kind: screw_bottle, xyz: [0, 0, 1], cap_radius: 0}\n",
+     r"scene.yaml:3: objects\[0\].cap_radius: expected a positive number"),
+    ("robots: [{name: melfa}]\nobjects:\n  - {name: b, kind: screw_bottle, xyz: [0, 0, 1], thread_turns: -1}\n",
+     r"scene.yaml:3: objects\[0\].thread_turns: expected a non-negative number"),
+    ("robots: [{name: melfa}]\nobjects:\n  - {name: b, kind: sphere, radius: 0.1, xyz: [0, 0, 1]}\n"
+     "  - {name: b, kind: screw_bottle, xyz: [0, 0, 1]}\n", r"scene.yaml:4: objects\[1\].name: object 'b' is defined twice"),
 ])
 def test_a_bad_scene_file_names_the_line_and_field(text, where):
     with pytest.raises(ConfigError, match=where):
@@ -70,6 +79,18 @@ def test_objects_of_several_shapes_round_trip_through_a_scene_file():
     parsed = parse_scene(YamlDoc.parse(doc, "bench.yaml")).objects
     assert [(o.name, o.shapes, o.mass, o.xyz) for o in parsed] == [(s.name, s.shapes, s.mass, s.xyz) for s in specs]
     assert sum(len(o.shapes) > 1 for o in parsed) == 4  # car, spray, stapler, weight
+
+
+def test_a_screw_bottle_in_a_scene_file_stands_free_unless_static():
+    doc = ("robots: [{name: tombatossals}]\nobjects:\n"
+           "  - {name: b1, kind: screw_bottle, xyz: [0.5, 0.0, 0.75], thread_turns: 0.5, cap_radius: 0.018}\n"
+           "  - {name: b2, kind: screw_bottle, xyz: [0.6, 0.1, 0.75], static: true}\n")
+    scene = parse_scene(YamlDoc.parse(doc, "scene.yaml"))
+    assert scene.objects == ()
+    b1, b2 = scene.bottles
+    assert (b1.name, b1.xyz, b1.thread_turns, b1.cap_radius, b1.fixed) == ("b1", (0.5, 0.0, 0.75), 0.5, 0.018, False)
+    assert b1.body_radius == ScrewBottleSpec("x", (0, 0, 0)).body_radius  # what the entry leaves out: the spec's default
+    assert b2.fixed
 
 
 class Client:

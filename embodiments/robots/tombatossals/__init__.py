@@ -18,6 +18,14 @@ objects held with the approach on GRASP_CENTER, 9/10 / 10/10 here, 9/10 / 9/10 a
 A deeper claw (fingers at 1.2 rad, the thumb opposing the middle finger, centre -3.5 cm) held as many without
 approach error and fewer with it (robust 53/100 against 69/100, trials 0-9)."""
 
+PINCH_CAP = (-0.03, 0.045, 0.04)
+"""m, grasp frame: where the allegro's thumb-index pinch (the unscrew's, closing from the open hand) closes on a
+cap; a top approach puts this point on the cap's centre (preshape centre ``pinch``)."""
+
+PINCH_CONTACT = (-0.033, 0.048, 0.040)
+"""m, grasp frame: the tactile contact centre of that pinch on a centred cap (measured once): the unscrew's
+``pinch_center``, about which it twists and toward which it re-centres."""
+
 WALL_SIDE = (1.0, 0.0)
 """Beside a box wall the open allegro grasps best with the side its fingers curl toward (+x) to the wall:
 brick, cube, can and ball on a 5x5 grid over the empty-box scene's bottom, one top grasp each, approach
@@ -28,7 +36,7 @@ everywhere 31/100."""
 HOME = RobotHome(
     spec=SPEC,
     grasp_center=GRASP_CENTER,
-    preshape_centers={"claw": CLAW_CENTER},
+    preshape_centers={"claw": CLAW_CENTER, "pinch": PINCH_CAP},
     wall_side=WALL_SIDE,
     overrides={
         # Simulated wrist F/T of the panda arms: contact torques are tenths of N m, not the JR3's N m.
@@ -59,5 +67,6 @@ HOME = RobotHome(
                          "search_offsets": (0.09, -0.08, 0.025, 0.06, 0.0, 0.0), "search_camera": "kinect"},
         "detect_objects": {"wall_side": WALL_SIDE},
         "place_location": {"wall_side": WALL_SIDE},
+        "unscrew": {"pinch_center": PINCH_CONTACT},
     },
 )

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from contactflow.embodiments.bench_unscrew import CAP_IN_HAND, PINCH_CENTER
 from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
 from contactflow.embodiments.primitives.runner import (
     LocalPrimitiveRunner,
@@ -12,6 +11,7 @@ from contactflow.embodiments.primitives.runner import (
     outcome,
     run_primitive,
 )
+from contactflow.embodiments.robots.tombatossals import PINCH_CAP, PINCH_CONTACT
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import ScrewBottleSpec, SimScrewBottle, World, WorldParams
 from contactflow.nodes.status import Event
@@ -34,7 +34,7 @@ def over_cap(thread_turns: float, offset: tuple[float, float, float] = (0.0, 0.0
     robot = SimRobot(world, "tombatossals")
     runner = LocalPrimitiveRunner(robot)
     centred = top_grasp_pose(CAP)
-    centred[:3, 3] = CAP - centred[:3, :3] @ CAP_IN_HAND
+    centred[:3, 3] = CAP - centred[:3, :3] @ np.asarray(PINCH_CAP)
     T = centred.copy()
     T[:3, 3] += offset
     above = T.copy()
@@ -96,7 +96,7 @@ def test_screwed_cap_is_regrasped_and_recentred_when_pinched_1cm_off() -> None:
         # 1 cm along the pinch line: the first pinch closes around a cap off the fingers' centre
         robot, runner, bottle, centred = over_cap(thread_turns=5.0, offset=(0.0, -0.01, 0.0))
         a0 = bottle.cap_angle()
-        events, pinches = unscrew(robot, runner, {"max_cycles": 3, "pinch_center": PINCH_CENTER, "recenter": recenter})
+        events, pinches = unscrew(robot, runner, {"max_cycles": 3, "pinch_center": PINCH_CONTACT, "recenter": recenter})
         end = outcome(events)
         assert end.event is Event.FAILURE and "not removed" in end.detail  # still screwed: every pull was resisted
         assert end.values["twists"] == 3 and (end.values["corrections"] >= 1) == recenter
@@ -113,7 +113,7 @@ def test_a_pinch_that_slips_off_a_screwed_cap_is_not_a_removed_cap() -> None:
     # while twisting and the hand pulls 4 cm away with nothing in it (this was reported as the cap removed)
     robot, runner, bottle, _ = over_cap(thread_turns=5.0, offset=(0.0, -0.01, 0.004))
     runner.idle(0.1)
-    events, _ = unscrew(robot, runner, {"max_cycles": 3, "pinch_center": PINCH_CENTER, "recenter": False})
+    events, _ = unscrew(robot, runner, {"max_cycles": 3, "pinch_center": PINCH_CONTACT, "recenter": False})
     end = outcome(events)
     assert end.event is Event.FAILURE and "not removed" in end.detail
     assert end.values["slips"] >= 1  # the empty pull was told apart and led to a regrasp
@@ -126,7 +126,7 @@ def test_a_pinch_that_closes_beside_the_cap_is_tried_again_and_the_re_centring_m
     ends = {}
     for recenter in (False, True):
         robot, runner, bottle, _ = over_cap(thread_turns=0.2, offset=(0.0, 0.015, 0.0))
-        events, _ = unscrew(robot, runner, {"max_cycles": 4, "pinch_center": PINCH_CENTER, "recenter": recenter})
+        events, _ = unscrew(robot, runner, {"max_cycles": 4, "pinch_center": PINCH_CONTACT, "recenter": recenter})
         ends[recenter] = (outcome(events), np.rad2deg(bottle.cap_angle()))
     plain, turned = ends[False]
     assert plain.event is Event.FAILURE and "not removed" in plain.detail
