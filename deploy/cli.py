@@ -308,7 +308,7 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
           max_attempts: Annotated[int | None, typer.Option(min=1, help="grasp attempts per run (empty-box)")] = None,
           strategy: Annotated[list[str] | None, typer.Option(help="only this strategy, repeatable (empty-box; default all)")] = None,
           first_seed: Annotated[int | None, typer.Option(help="seed of the first run, the next runs count up (empty-box; default 100)")] = None,
-          executor: Annotated[str | None, typer.Option(help="local (primitives in this process), runtime (world and control nodes over zenoh) or both side by side (grasp, empty-box, catch-zone, vision, contacts)")] = None,
+          executor: Annotated[str | None, typer.Option(help="local (primitives in this process), runtime (world and control nodes over zenoh) or both side by side (grasp, unscrew, empty-box, catch-zone, vision, contacts)")] = None,
           preshape: Annotated[list[str] | None, typer.Option(help="the hand preshape both grasp controllers close from, repeatable for side by side (grasp; default claw)")] = None) -> None:
     """Run a benchmark: prints a table and writes JSON (and plots) under OUT."""
     path = BENCHMARKS.get(name)

@@ -193,6 +193,15 @@ def object_entry(spec) -> dict:
     return out
 
 
+def bottle_entry(spec) -> dict:
+    """A scene file's entry for ``spec`` (a ScrewBottleSpec), the inverse of what :func:`parse_scene` reads."""
+    out: dict = {"name": spec.name, "kind": "screw_bottle", "xyz": [float(c) for c in spec.xyz]}
+    out.update({f: float(getattr(spec, f)) for f in _BOTTLE})
+    if spec.fixed:
+        out["static"] = True
+    return out
+
+
 def load_scene(path: str | Path) -> SceneFile:
     """A scene file by path, or a cell shipped in ``embodiments/cells`` by name (``pick_place``)."""
     shipped = Path(__file__).parent / "cells" / f"{path}.yaml"

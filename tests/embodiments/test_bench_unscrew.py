@@ -41,3 +41,42 @@ def test_the_tables_count_successes_unscrewed_caps_and_failures_by_cause_per_re_
     assert plain["unscrewed"]["successes"] == 2 and plain["time"] == 40.0 and plain["moves"] == 8.0
     assert plain["failures"] == {"every pinch missed the cap": 1} and rows[1]["failures"] == {}
     assert rows[2]["success"]["successes"] == 0 and rows[3]["success"]["ci95"][1] == 1.0
+
+
+def test_a_runtime_trial_is_judged_from_the_bottle_and_cap_poses() -> None:
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    spec = bench_unscrew.ScrewBottleSpec("bottle2", (0.5, 0.0, 0.75), thread_turns=0.5)
+    neck = np.array([0.0, 0.0, spec.body_height + spec.neck_height + spec.cap_height / 2])
+
+    def at(turn_deg: float, lift: float, tilt_deg: float = 0.0) -> dict:
+        body = np.eye(4)
+        a = np.radians(tilt_deg)
+        body[:3, :3] = [[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]]
+        body[:3, 3] = (0.5, 0.0, 0.8)
+        c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
+        cap = body.copy()
+        cap[:3, :3] = body[:3, :3] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        cap[:3, 3] = body[:3, 3] + body[:3, :3] @ (neck + [0.0, 0.0, lift])
+        return {"bottle2": body, "bottle2_cap": cap}
+
+    def event(name: str, kind: str, t: float, **values: float):
+        return SimpleNamespace(module=f"tombatossals/control/{name}", event=kind, detail="", values=values,
+                               hdr=SimpleNamespace(t_sim=t))
+
+    trial = bench_unscrew.Trial("bottle2", True, False, 0, "runtime")
+    # 30 degree twists sampled every 10 degrees: the turn is unwrapped through +-180 degrees
+    opened = [(0.1 * k, at(10.0 * k, 0.0)) for k in range(19)] + [(2.0, at(180.0, 0.04))]
+    ends = {"unscrew": event("unscrew", "success", 2.0, twists=6.0, duration=40.0)}
+    r = bench_unscrew.runtime_result(trial, spec, opened, ends, "success", 30.0)
+    assert r["success"] and r["unscrewed"] and r["turned_deg"] == pytest.approx(180.0) and r["lift"] == pytest.approx(0.04)
+    assert (r["twists"], r["time"], r["cause"]) == (6, 40.0, "")
+    toppled = opened[:-1] + [(2.0, at(180.0, 0.04, tilt_deg=45.0))]
+    r = bench_unscrew.runtime_result(trial, spec, toppled, ends, "success", 30.0)
+    assert not r["success"] and r["cause"] == "bottle toppled"
+    held_closed = [(0.1 * k, at(3.0 * k, 0.0)) for k in range(10)]
+    failed = {"grasp": event("robust_grasp", "failure", 5.0)}
+    r = bench_unscrew.runtime_result(trial, spec, held_closed, failed, "failure", 10.0)
+    assert not r["success"] and not r["unscrewed"] and r["cause"] == "robust_grasp: failure"

@@ -296,3 +296,16 @@ def test_explore_runs_its_alternate_sweep_on_a_coin_flip(tomba) -> None:
     assert 0.0 in ends and 1.0 in ends
     bad = outcome(run_primitive(runner, "explore", {**params, "alternate": [0.1, 0.2]}))
     assert bad.event is Event.ERROR and "params.alternate: expected a multiple of 3 values, got 2" in bad.detail
+
+
+def test_a_primitive_run_again_with_another_arm_drives_that_arm(tomba) -> None:
+    from contactflow.embodiments.primitives.hold import Hold
+
+    robot, _ = tomba
+    hold = Hold("hold", Hold.Params(arm="left")).bind(robot)
+    hold.start()
+    assert (hold.arm_name, hold.hand_name) == ("left", "left_hand")
+    # a node's pooled module is re-run with the next node's params (a move of the left arm, then of the right)
+    hold.set_params({"arm": "right"})
+    hold.start()
+    assert (hold.arm_name, hold.hand_name, hold.ee_frame) == ("right", "right_hand", "right_grasp")
