@@ -214,7 +214,9 @@ def runtime_result(t: Trial, spec: ScrewBottleSpec, series: list[tuple[float, di
     elif tilt >= TOPPLED_DEG:
         cause = "bottle toppled"
     elif unscrew is None:
-        failed = next((e for e in sorted(ends.values(), key=lambda e: e.hdr.t_sim) if e.event != "success"), None)
+        # the task's last failed step ended it (an approach that stopped short is tolerated: the grasp follows it)
+        failed = max((e for n, e in ends.items() if n != "task" and e.event != "success"), key=lambda e: e.hdr.t_sim,
+                     default=None)
         cause = f"{failed.module.rsplit('/', 1)[-1]}: {failed.event}" if failed is not None else "no outcome"
     elif values.get("misses", 0) >= values.get("cycles", 1) and unscrew.event != "success":
         cause = "every pinch missed the cap"
