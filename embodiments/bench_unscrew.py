@@ -162,10 +162,8 @@ def run_trial_runtime(spec: ScrewBottleSpec, t: Trial, seed: int) -> dict:
     draws) and tombatossals' control node running ``open_bottle`` in lockstep, in this process."""
     import tempfile
 
-    import yaml
-
-    from contactflow.embodiments.layout import control_node, run_cell, world_node
-    from contactflow.embodiments.scene_file import bottle_entry, load_scene
+    from contactflow.embodiments.layout import control_node, run_cell, world_node, write_cell
+    from contactflow.embodiments.scene_file import load_scene
     from contactflow.embodiments.tasks import TASKS_DIR
     from contactflow.nodes.procs import free_port
 
@@ -176,8 +174,7 @@ def run_trial_runtime(spec: ScrewBottleSpec, t: Trial, seed: int) -> dict:
     spec = replace(spec, xyz=(x + dx, y + dy, z), fixed=False)
     with tempfile.TemporaryDirectory(prefix="unscrew-trial-") as d:
         folder = pathlib.Path(d)
-        cell = folder / "cell.yaml"
-        cell.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": ROBOT}], "objects": [bottle_entry(spec)]}))
+        cell = write_cell(folder / "cell.yaml", ROBOT, [], [spec])
         endpoint, site = f"tcp/127.0.0.1:{free_port()}", f"unscrew{free_port()}"
         control = control_node(site, ROBOT, ROBOT, TASKS_DIR / "unscrew.yaml", connect=(endpoint,), autostart=True,
                                plan={"max_cycles": MAX_CYCLES, "recenter": t.reactive,
@@ -196,15 +193,12 @@ def runtime_result(t: Trial, spec: ScrewBottleSpec, series: list[tuple[float, di
     name = spec.name
     body0 = series[0][1][name]
     neck = body0[:3, :3].T @ (series[0][1][f"{name}_cap"][:3, 3] - body0[:3, 3])
-    tilt, turn, lift = 0.0, 0.0, 0.0
-    yaws = []
-    for _, p in series:
-        body, cap = p[name], p[f"{name}_cap"]
-        tilt = max(tilt, float(np.degrees(np.arccos(np.clip(body[2, 2], -1.0, 1.0)))))
-        R = body[:3, :3].T @ cap[:3, :3]
-        yaws.append(float(np.arctan2(R[1, 0], R[0, 0])))
-        lift = float((body[:3, :3].T @ (cap[:3, 3] - body[:3, 3]) - neck)[2])
-    turn = float(np.unwrap(yaws)[-1] - yaws[0]) if yaws else 0.0
+    tilt = max(float(np.degrees(np.arccos(np.clip(p[name][2, 2], -1.0, 1.0)))) for _, p in series)
+    rel = [p[name][:3, :3].T @ p[f"{name}_cap"][:3, :3] for _, p in series]  # the cap's turn on the body
+    yaws = np.unwrap([np.arctan2(R[1, 0], R[0, 0]) for R in rel])
+    turn = float(yaws[-1] - yaws[0])
+    body, cap = series[-1][1][name], series[-1][1][f"{name}_cap"]
+    lift = float((body[:3, :3].T @ (cap[:3, 3] - body[:3, 3]) - neck)[2])
     unscrewed = turn >= 2.0 * np.pi * spec.thread_turns - 1e-3 or lift >= 0.005
     success = outcome_event == "success" and lift >= 0.03 and tilt < TOPPLED_DEG
     unscrew = ends.get("unscrew")

@@ -387,13 +387,14 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         stop_nodes(started, watch, processes)
 
 
-def write_cell(path: Path, robot: str, objects: list) -> Path:
-    """A scene file at ``path``: ``robot`` at its own placement, the table and ``objects`` (ObjectSpecs)."""
-    from contactflow.embodiments.scene_file import object_entry
+def write_cell(path: Path, robot: str, objects: list, bottles: list = ()) -> Path:
+    """A scene file at ``path``: ``robot`` at its own placement, the table, ``objects`` (ObjectSpecs) and ``bottles``
+    (ScrewBottleSpecs)."""
+    from contactflow.embodiments.scene_file import bottle_entry, object_entry
 
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": robot}],
-                                    "objects": [object_entry(o) for o in objects]}))
+                                    "objects": [object_entry(o) for o in objects] + [bottle_entry(b) for b in bottles]}))
     return path
 
 
