@@ -258,6 +258,10 @@ def concretize(type_: str, params: Mapping[str, Any], arms: list[str], last_arm:
         if type_ == "transport" and goal.obstacles:
             boxes = np.asarray(goal.obstacles, dtype=np.float64).reshape(-1, 6)
             out["obstacles"] = [float(v) for b in boxes for v in b[:3]]
+    elif type_ == "place" and target is not None:
+        # where the grasp frame is with the object resting at the target: the place slows down above it
+        current = np.asarray(hand_at(out["arm"]), dtype=np.float64) if hand_at is not None else None
+        out["target"] = _explicit_goal(target, size, hand, current, False)
     elif type_ == "push" and target is not None and hand_at is not None:
         T = np.asarray(hand_at(out["arm"]), dtype=np.float64)
         d = target - T[:3, 3]

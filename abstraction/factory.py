@@ -290,6 +290,8 @@ class Factory:
         goal = self._goal(atd, state, standoff=0.10 if free else 0.0, pushes=pushes)
         if free and atd.obstacles:
             goal = replace(goal, obstacles=tuple(self._obstacles(atd)))
+        if concrete == "place" and state.goal is None:
+            goal = replace(goal, target=(), approach=())  # onto another object: its location is not the rest pose
         p: dict[str, Any] = {}
         shape = self.hand_shape(state.hand_shape, notes)
         if concrete in ("move_to", "transport"):

@@ -68,6 +68,19 @@ def test_push_target_is_where_the_object_ends_not_the_hand():
     assert out["target"][2] == pytest.approx(0.8)  # the hand keeps its height and heading
 
 
+def test_a_place_s_target_is_where_the_hand_is_with_the_object_resting_there():
+    hand = HandGeometry(GRIPPER.points, grasp_center=(0.0, 0.0, 0.03))
+    current = np.eye(4)
+    current[:3, :3] = top_down(0.3)
+    current[:3, 3] = (0.4, 0.2, 1.0)
+    out = concretize("place", {"velocity": 0.005, "goal": {"target": [0.4, 0.2, 0.81]}}, ["arm"],
+                     hand_at=lambda arm: current, hands={"arm": hand})
+    T = xyz_rpy_to_matrix(out["target"][:3], out["target"][3:])
+    assert T[:3, :3] == pytest.approx(current[:3, :3], abs=1e-9)  # the hand goes down as it is
+    assert T[:3, :3] @ np.array(hand.grasp_center) + T[:3, 3] == pytest.approx([0.4, 0.2, 0.81], abs=1e-9)
+    assert "target" not in concretize("place", {"velocity": 0.005}, ["arm"])  # not told: the thesis's place
+
+
 def test_the_primitive_params_pass_through_and_a_bad_goal_is_refused():
     out = concretize("transport", {"force_threshold": 3.0, "guarded": True, "goal": {"target": BOX_AT}}, ["arm"])
     assert out["force_threshold"] == 3.0 and out["guarded"] is True and len(out["target"]) == 6

@@ -68,6 +68,8 @@ def test_factories_choose_their_own_primitives_and_parameters():
     # the noisy wrist wrench raises baxter's contact thresholds and lowers its filter
     assert baxter["put_down"].params["force_threshold"] > tomb["put_down"].params["force_threshold"]
     assert baxter["put_down"].params["filter_hz"] < tomb["put_down"].params["filter_hz"]
+    # the place knows where the object goes down (the ATD's target, in the world): it slows down above it
+    assert tomb["put_down"].params["goal"]["target"] == pytest.approx([0.55, 0.15, 0.81])
     assert baxter["preshape_hand"].params["abort_force"] > melfa["preshape_hand"].params["abort_force"]
     # grasp force from the object's mass (0.15 kg) on the grippers: per pad on melfa's, held while carrying
     assert 2.5 <= melfa["grasp_object"].params["grip_force"] <= 20.0
@@ -207,6 +209,25 @@ def test_cyclic_atd_retries_after_grasp_lost(robot):
     assert entered.count("approach") == 2 and entered.count("reopen") == 1
     retry = [r for r in reports if r.kind is ProgressKind.EDGE and r.transition == "retry"]
     assert len(retry) == 1 and retry[0].event is AbstractEvent.GRASP_LOST
+
+
+def test_a_place_onto_another_object_is_not_told_that_object_s_location_as_its_rest():
+    text = """
+statemachine:
+  name: stack
+  objects:
+    cup: {location: [0.1, 0.5, 0.06], size: [0.06, 0.06, 0.1]}
+    box: {location: [0.0, 0.6, 0.03], size: [0.1, 0.1, 0.06]}
+  states:
+    - {name: take, type: grasp, object: cup}
+    - {name: put, type: place, target: {object: box}}
+    - {name: done, type: success}
+  transitions:
+    - {origin: take, destination: put, events: [success]}
+    - {origin: put, destination: done, events: [success]}
+"""
+    nodes = translate(parse_atd(text, "stack.yaml"), factory_for(TOMBATOSSALS)).estd.nodes
+    assert nodes["put"].type == "place" and "target" not in nodes["put"].params.get("goal", {})
 
 
 CORRECTED = """<statemachine name="corrected" start="grasp_object">

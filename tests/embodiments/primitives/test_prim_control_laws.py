@@ -15,7 +15,7 @@ from contactflow.embodiments.primitives.base import (
     wall_yaws,
 )
 from contactflow.embodiments.primitives.catalog import CATALOG
-from contactflow.embodiments.primitives.place import place_velocity
+from contactflow.embodiments.primitives.place import place_speed, place_velocity
 from contactflow.embodiments.primitives.place_location import free_spot
 from contactflow.embodiments.primitives.release import release_velocity
 from contactflow.embodiments.primitives.robust_grasp import (
@@ -75,6 +75,11 @@ def test_place_release_slide_eqs() -> None:
     n = np.array([0.0, 0.0, 1.0])
     assert place_velocity(np.zeros(3), n, 0.005, 5.0)[2] == -0.005
     assert not place_velocity(np.array([0.0, 0.0, 6.0]), n, 0.005, 5.0).any()
+    # told where the object rests: fast until slow_distance above it, the thesis's velocity from there
+    assert place_speed(0.10, 0.005, 0.05, 0.04) == 0.05
+    assert place_speed(0.04, 0.005, 0.05, 0.04) == place_speed(-0.01, 0.005, 0.05, 0.04) == 0.005
+    assert place_speed(None, 0.005, 0.05, 0.04) == 0.005  # not told: eq. 3.4 all the way
+    assert place_speed(0.10, 0.005, 0.001, 0.04) == 0.005  # never slower than velocity
     assert release_velocity(np.array([0.0, 0.0, 6.0]), n, 0.001, 5.0)[2] == 0.001
     assert not release_velocity(np.array([0.0, 0.0, 2.0]), n, 0.001, 5.0).any()
     to = np.array([0.1, 0.0, 0.0])

@@ -217,6 +217,38 @@ def test_place_stops_on_a_support_higher_than_expected() -> None:
     assert moved < 0.001 and force < 5.0  # stopped, not pressing on
 
 
+@pytest.mark.parametrize("platform", [False, True])
+def test_a_place_told_where_the_object_rests_goes_down_fast_then_slow_and_still_stops_on_an_early_support(platform) -> None:
+    robot = melfa_around_plate(0.1)
+    runner = LocalPrimitiveRunner(robot)
+    frame = MELFA["frame"]
+    assert outcome(run_primitive(runner, "close_until_force", {})).event is Event.SUCCESS
+    rest = robot.frame_pose(frame).copy()  # where the hand is with the plate on the table
+    rest[1, 3] += 0.15
+    if platform:  # 5 cm above the table where the plate goes: the fast descent meets it before the slow one
+        robot.world.add_object(box("platform", (0.1, 0.1, 0.05), xyz=(rest[0, 3], rest[1, 3], 0.775), static=True))
+    assert outcome(run_primitive(runner, "lift", {"distance": 0.08})).event is Event.SUCCESS
+    assert outcome(run_primitive(runner, "transport", {"target": [0, 0.15, 0, 0, 0, 0], "relative": True})).event is Event.SUCCESS
+    t0 = robot.time
+    events, (ts, ps, _) = drive(runner, "p", "place", {"target": vec(rest)}, max_time=30.0, **MELFA)
+    end = outcome(of(events, "p"))
+    assert end.event is Event.SUCCESS and end.values["force"] >= 5.0
+    plate = robot.ground_truth().object_poses["obj"]
+    if platform:
+        assert 0.025 < end.values["travelled"] < 0.04
+        assert plate[2, 3] == pytest.approx(0.83, abs=0.003)  # on the platform, standing
+    else:
+        assert 0.075 < end.values["travelled"] < 0.09
+        assert plate[2, 3] == pytest.approx(0.78, abs=0.003)
+        speed = -np.diff(ps[:, 2]) / np.diff(ts)
+        height = ps[1:, 2] - rest[2, 3]
+        assert speed[height > 0.05].max() > 0.03  # fast down to 4 cm over it
+        assert speed[height < 0.035].max() < 0.01  # then at the thesis's 5 mm/s
+        assert robot.time - t0 < 10.0  # at 5 mm/s all the way: 16 s
+    moved, force = held_still(runner, **MELFA)
+    assert moved < 0.001 and force < 5.0
+
+
 def test_slide_presses_into_the_force_band_and_loosens_up_a_rising_support() -> None:
     slope = 0.2  # rad: the support rises 2 cm per 10 cm of sliding toward +y
     ramp = box("ramp", (0.2, 0.2, 0.05), xyz=(0.5, -0.28, 0.83 - 0.025 / np.cos(slope)), rpy=(slope, 0.0, 0.0),
