@@ -8,14 +8,17 @@ depth camera above and behind the robot (the arm hides the object at the touch; 
 built before the approach carries the knowledge) + occupancy grid (§4.4.4; the object is fixed, so the range
 generator runs with ``require_motion=False``) and simulator prediction support (§4.5.2: a
 prediction scene with the object displaced by N(0, 2 cm), robot posed at the measured
-joints). The rig (robot, arm, hand) is a parameter; ``melfa`` (arm + parallel gripper with
-two 5x8 pads) is the default because the Tombatossals Allegro hand currently passes through
-objects in the simulator (no contact force; reported to the embodiments area). Per
+joints). The rig (robot, arm, hand, how the hand is held and moved) is a parameter, both by
+default side by side: ``tombatossals`` (the thesis's protocol: the Allegro hand touches with its
+palm facing the direction, the thumb up; its arm stands on the table, so the touches come from
+35-75 degrees above the horizontal and the moves to their starts are planned around the object
+the Kinect sees) and ``melfa`` (arm + parallel gripper with two 5x8 pads, level to 50 degrees
+down). After each touch the hand backs off the way it came. Per
 modality the clouds are fused and condensed (threshold-cluster-centroid); a touch is
 detected when a contact comes out, ε is the distance of the closest contact to the ground
 truth (force-weighted mean of the simulator's true hand-object contact points, evaluation
 only) and σ its spread. Touches where the hand never reached the object are left out, as
-in the thesis. Writes ``contacts.json``, ``contacts.md`` and ``contacts.png``.
+in the thesis. Writes ``contacts.json``, ``contacts.md`` and ``contacts_<robot>.png``.
 
 That is the ``local`` executor. ``runtime`` runs the same touches through the runtime path,
 in lockstep: a world node (the rig's robot, the table, the fixed object; the true contacts
@@ -83,14 +86,31 @@ class Rig:
     object_xy: tuple[float, float] = (0.56, 0.11)
     turn: tuple[float, ...] = (1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0)  # rotation applied to the home ee orientation
     camera: str = ""  # the robot's own depth camera; "" = a fixed head-like camera above and behind
+    facing: bool = False  # each touch turns the hand's approach axis (z) along its direction, its y axis up
+    elevations: tuple[float, ...] = (0.0, 25.0, 50.0)  # deg below the horizontal, of the touch directions
+    planned: bool = False  # the move to a touch's start is planned (OMPL) around the object as the camera sees it
 
 
 RIGS = {
     "melfa": Rig(),
+    # the thesis's protocol: the Allegro hand touches with its palm and fingers, the thumb up and clear of the
+    # table; its arm stands on the table, so the hand comes from above (level, the elbow would meet the table)
     "tombatossals": Rig("tombatossals", "right", "right_hand", "right_palm_link",
-                        ("right_palm_link", "right_link_"), (0.55, -0.30), (1.0, 0, 0, 0, 0, 1.0, 0, -1.0, 0),
-                        "kinect"),
+                        ("right_palm_link", "right_link_"), (0.55, -0.30), camera="kinect", facing=True,
+                        elevations=(35.0, 55.0, 75.0), planned=True),
 }
+START = 0.13  # m, a touch starts this far before the object's centre along its direction
+
+
+def start_pose(rig: Rig, home: np.ndarray, centre: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The hand's pose where a touch along ``d`` starts: ``START`` before the object's centre, held as the rig holds it."""
+    T = home.copy()
+    if rig.facing:
+        up = np.array([0.0, 0.0, 1.0]) - d[2] * d
+        y = up / np.linalg.norm(up)
+        T[:3, :3] = np.column_stack([np.cross(y, d), y, d])
+    T[:3, 3] = centre - START * d
+    return T
 POSE_SIGMA = 0.02  # m, object pose error of the prediction scene (thesis §4.7)
 PRESS_FORCE = 1.5  # N, wrist force at which the touch is recorded
 
@@ -185,6 +205,7 @@ def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random.Generator, progress,
                task) -> list[Touch]:
+    from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, run_primitive
     from contactflow.embodiments.registry import CameraSpec
     from contactflow.embodiments.sensors.camera import DepthCamera
     from contactflow.embodiments.sim_robot import SimRobot
@@ -195,6 +216,7 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
     world.add_object(spec)
     robot = SimRobot(world, rig.robot)
     arm = robot.arm(rig.arm)
+    runner = LocalPrimitiveRunner(robot) if rig.planned else None
     home_q = arm.q()
     home_T = arm.ee_pose()
     home_T[:3, :3] = np.asarray(rig.turn).reshape(3, 3) @ home_T[:3, :3]
@@ -216,15 +238,25 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
     cam = frame.T_world_cam[:3, 3]
     obj_pts = segment_object(frame.points, robot.spherical.distance, rparams, roi_lo, roi_hi)
     touches = []
+    back: np.ndarray | None = None
     for d in dirs:
-        arm.move_joints(home_q)
-        arm.wait(6.0)
+        if back is not None:  # off the object first, the way it came (a hand on an edge would drag it home)
+            arm.move_pose(back, speed=0.25)
+            arm.wait(6.0)
+        if runner is not None:
+            run_primitive(runner, "move_to", {"arm": rig.arm, "target": _target(home_T), "speed": 0.25}, max_time=15.0)
+        else:
+            arm.move_joints(home_q)
+            arm.wait(6.0)
         rng_gen = RangeGenerator(rparams)
         rng_gen.initialize(obj_pts, cam)
-        start = home_T.copy()
-        start[:3, 3] = centre - 0.13 * d
-        arm.move_pose(start, speed=0.25)
-        arm.wait(6.0)
+        start = back = start_pose(rig, home_T, centre, d)
+        if runner is not None:
+            run_primitive(runner, "move_to", {"arm": rig.arm, "target": _target(start), "speed": 0.25,
+                                              "sense_obstacles": True}, max_time=15.0)
+        else:
+            arm.move_pose(start, speed=0.25)
+            arm.wait(6.0)
         touch = Touch(name, d.tolist(), None)
         robot.tare_ft(rig.arm)
         arm.guarded_move(np.concatenate([0.04 * d, np.zeros(3)]), max_force=2.5, duration=5.0)
@@ -265,7 +297,7 @@ HOLD = 0.2  # s the hand stays where the touch stopped
 SETTLE = 0.05  # s after a touch felt the wrist force within which the world must see the hand on the object
 FUSED = {"tactile": "tactile", "force": "force_torque", "tactile + force": "*"}
 """The runtime's fusion services: modality -> the generators (of the robot's arm) each fuses."""
-MISSING = {"range": "no range generator on the runtime (the rig's head camera is not in the world)",
+MISSING = {"range": "no range generator on the runtime",
            "all": "needs range", "all + simulator": "needs range and a prediction scene node"}
 
 
@@ -283,13 +315,18 @@ def touch_task(rig: Rig, home: np.ndarray, centre: np.ndarray, dirs: list[np.nda
     nodes: dict[str, dict] = {}
     order: list[str] = []
     for i, d in enumerate(dirs):
-        start = home.copy()
-        start[:3, 3] = centre - 0.13 * d
+        start = start_pose(rig, home, centre, d)
         # as the local arm.move_pose + wait(6): no contact stops the move (a hand landing on the object on its way
         # to the start stays there, and the touch starts from where it is), 6 s at most
         move = {"arm": rig.arm, "planning": False, "speed": 0.25, "abort_force": 1e4}
-        nodes[f"home_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(home)}, "timeout": 6}
-        nodes[f"approach_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start)}, "timeout": 6}
+        if rig.planned:  # as the local planned moves: OMPL around the object the camera sees, 15 s at most
+            planned = {"arm": rig.arm, "speed": 0.25}
+            nodes[f"home_{i}"] = {"primitive": "move_to", "params": {**planned, "target": _target(home)}, "timeout": 15}
+            nodes[f"approach_{i}"] = {"primitive": "move_to", "timeout": 15,
+                                      "params": {**planned, "target": _target(start), "sense_obstacles": True}}
+        else:
+            nodes[f"home_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(home)}, "timeout": 6}
+            nodes[f"approach_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start)}, "timeout": 6}
         nodes[f"touch_{i}"] = {"primitive": "touch", "timeout": 10,
                                "params": {"arm": rig.arm, "direction": [float(v) for v in d], "frame": "world",
                                           "force_threshold": PRESS_FORCE, "velocity": 0.04, "max_distance": 0.2}}
@@ -537,74 +574,92 @@ def _cells(r: dict | None) -> list[str]:
             f"{r['sigma_cm']:.2f}"]
 
 
-def run(out_dir: pathlib.Path, quick: bool = False, rig: str = "melfa", executor: str = "local") -> dict:
-    from contactflow.nodes.params import ParamError
-
-    if executor not in EXECUTORS:
-        raise ParamError(f"bench contacts: --executor {executor!r} is not one of {list(EXECUTORS)}")
-    executors = ("local", "runtime") if executor == "both" else (executor,)
-    out_dir = pathlib.Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+def _run_rig(rig: Rig, quick: bool, executors: tuple[str, ...], out_dir: pathlib.Path,
+             cparams: CondensationParams) -> tuple[dict, dict[str, dict]]:
+    """One rig's touches with each executor: its part of the summary and its rows per executor."""
     rng = np.random.default_rng(0)
-    the_rig = RIGS[rig]
-    specs = object_specs(the_rig)
+    specs = object_specs(rig)
     objects = ["box"] if quick else list(specs)
-    dirs = directions(n_az=3, elevations=(0.0,)) if quick else directions()
-    cparams = CondensationParams()
-    touches: list[Touch] = []
+    dirs = directions(n_az=3, elevations=rig.elevations[:1]) if quick else directions(elevations=rig.elevations)
     per: dict[str, dict] = {}
-    summary: dict = {"benchmark": "contacts", "quick": quick, "rig": dataclasses.asdict(the_rig), "objects": objects,
-                     "directions": len(dirs), "executor": executor,
-                     "goal": {"fused_detection_pct": 95.0, "fused_eps_cm": 2.0}}
+    part: dict = {"rig": dataclasses.asdict(rig), "objects": objects, "directions": len(dirs)}
     if "local" in executors:
         t0 = time.time()
+        touches: list[Touch] = []
         with Progress(transient=True) as progress:
-            task = progress.add_task("touches", total=len(objects) * len(dirs))
+            task = progress.add_task(f"{rig.robot}: touches", total=len(objects) * len(dirs))
             for name in objects:
-                touches.extend(run_object(name, specs[name], the_rig, dirs, rng, progress, task))
+                touches.extend(run_object(name, specs[name], rig, dirs, rng, progress, task))
         per["local"] = evaluate(touches, cparams)
-        summary.update({
+        part.update({
             "touches": len(touches), "missed_touches": sum(t.truth is None for t in touches),
             "seconds": time.time() - t0, "modalities": per["local"],
             "per_touch": [{"object": t.obj, "direction": t.direction,
                            "truth": None if t.truth is None else t.truth.tolist(),
                            "hypotheses": {k: len(v) for k, v in t.clouds.items()}} for t in touches]})
+        _plot(touches, out_dir / f"contacts_{rig.robot}.png", cparams)
     if "runtime" in executors:
         t0 = time.time()
         rt: list[dict] = []
         with tempfile.TemporaryDirectory(prefix="bench-contacts-") as d, Progress(transient=True) as progress:
-            task = progress.add_task("touches on the runtime", total=len(objects))
+            task = progress.add_task(f"{rig.robot}: touches on the runtime", total=len(objects))
             for name in objects:
-                rt += run_object_runtime(name, specs[name], the_rig, dirs, pathlib.Path(d) / name)
+                rt += run_object_runtime(name, specs[name], rig, dirs, pathlib.Path(d) / name)
                 progress.advance(task)
         per["runtime"] = evaluate_runtime(rt)
-        summary["runtime"] = {"touches": len(rt), "missed_touches": sum(t["truth"] is None for t in rt),
-                              "seconds": time.time() - t0, "modalities": per["runtime"], "per_touch": rt}
+        part["runtime"] = {"touches": len(rt), "missed_touches": sum(t["truth"] is None for t in rt),
+                           "seconds": time.time() - t0, "modalities": per["runtime"], "per_touch": rt}
+    return part, per
+
+
+def run(out_dir: pathlib.Path, quick: bool = False, rig: str = "both", executor: str = "local") -> dict:
+    """Table 4.1 with each rig (``both``: tombatossals' Allegro hand, the thesis's, and melfa's gripper beside it)
+    and each executor, side by side; writes ``contacts.json``, ``contacts.md`` and ``contacts_<robot>.png``."""
+    from contactflow.nodes.params import ParamError
+
+    if executor not in EXECUTORS:
+        raise ParamError(f"bench contacts: --executor {executor!r} is not one of {list(EXECUTORS)}")
+    if rig not in (*RIGS, "both"):
+        raise ParamError(f"bench contacts: --rig {rig!r} is not one of {[*RIGS, 'both']}")
+    executors = ("local", "runtime") if executor == "both" else (executor,)
+    rigs = tuple(RIGS) if rig == "both" else (rig,)
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cparams = CondensationParams()
+    summary: dict = {"benchmark": "contacts", "quick": quick, "executor": executor, "rigs": {},
+                     "goal": {"fused_detection_pct": 95.0, "fused_eps_cm": 2.0}}
+    per: dict[tuple[str, str], dict] = {}
+    for r in rigs:
+        summary["rigs"][r], rows = _run_rig(RIGS[r], quick, executors, out_dir, cparams)
+        per.update({(r, ex): row for ex, row in rows.items()})
+    columns = [(r, ex) for r in rigs for ex in executors]
+
+    def label(c: tuple[str, str]) -> str:  # the rig always (which hand touched), the executor where there are two
+        return f" ({c[0]}, {c[1]})" if len(executors) > 1 else f" ({c[0]})"
+
     table = Table(title="Table 4.1 in simulation: contact detection per modality (detected: of the touches, "
                         "each an independent approach; [95 % Wilson interval])")
     table.add_column("modality", justify="right")
-    for ex in executors:
-        suffix = f" ({ex})" if len(executors) > 1 else ""
+    for c in columns:
         for col in ("detected", "ε (cm)", "σ (cm)"):
-            table.add_column(col + suffix, justify="right")
+            table.add_column(col + label(c), justify="right")
     for col in ("thesis detected", "thesis ε", "thesis σ"):
         table.add_column(col, justify="right")
-    head = " | ".join(f"{c}{f' ({ex})' if len(executors) > 1 else ''}" for ex in executors
-                      for c in ("detected", "ε (cm)", "σ (cm)"))
+    head = " | ".join(f"{col}{label(c)}" for c in columns for col in ("detected", "ε (cm)", "σ (cm)"))
     md = [f"| modality | {head} | thesis detected | thesis ε (cm) | thesis σ (cm) |",
-          "|---|" + "---|" * (3 * len(executors) + 3)]
+          "|---|" + "---|" * (3 * len(columns) + 3)]
     for mod in MODALITIES:
         th = THESIS.get(mod)
-        cells = [mod, *(c for ex in executors for c in _cells(per[ex].get(mod))),
+        cells = [mod, *(x for c in columns for x in _cells(per[c].get(mod))),
                  *((f"{th[0]:.1f} %", f"{th[1]:.2f}", f"±{th[2]:.2f}") if th else ("-",) * 3)]
         table.add_row(*cells)
         md.append("| " + " | ".join(cells) + " |")
-    if "runtime" in per:
-        table.caption = "runtime: " + "; ".join(f"{m}: {r['missing']}" for m, r in per["runtime"].items() if "missing" in r)
+    missing = {f"{r}: {m}": row["missing"] for (r, ex), rows in per.items() if ex == "runtime"
+               for m, row in rows.items() if "missing" in row}
+    if missing:
+        table.caption = "runtime: " + "; ".join(f"{k}: {v}" for k, v in missing.items())
         md += ["", table.caption]
     Console().print(table)
     (out_dir / "contacts.md").write_text("\n".join(md) + "\n")
-    if touches:
-        _plot(touches, out_dir / "contacts.png", cparams)
     (out_dir / "contacts.json").write_text(json.dumps(summary, indent=2))
     return summary

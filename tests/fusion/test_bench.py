@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from contactflow.fusion import bench_contacts, bench_fusion
 
 
@@ -13,19 +15,36 @@ def test_bench_fusion_quick(tmp_path):
 
 
 def test_bench_contacts_quick(tmp_path):
-    s = bench_contacts.run(tmp_path, quick=True)
-    assert (tmp_path / "contacts.md").exists() and (tmp_path / "contacts.png").exists()
-    assert s["touches"] == 3
-    touched = s["touches"] - s["missed_touches"]
+    s = bench_contacts.run(tmp_path, quick=True, rig="melfa")
+    assert (tmp_path / "contacts.md").exists() and (tmp_path / "contacts_melfa.png").exists()
+    melfa = s["rigs"]["melfa"]
+    assert melfa["touches"] == 3
+    touched = melfa["touches"] - melfa["missed_touches"]
     assert touched >= 2
-    assert s["modalities"]["all"]["detected"] >= 1  # the fused modalities find a touch
+    assert melfa["modalities"]["all"]["detected"] >= 1  # the fused modalities find a touch
+
+
+@pytest.mark.heavy(seconds=90)
+def test_the_thesis_s_allegro_hand_touches_the_fixed_box_and_fuses_each_touch_the_same_in_process_and_on_the_runtime(tmp_path):
+    s = bench_contacts.run(tmp_path, quick=True, rig="tombatossals", executor="both")
+    tomb = s["rigs"]["tombatossals"]
+    assert tomb["rig"]["elevations"][0] == 35.0 and tomb["directions"] == 3
+    # the hand meets the fixed object from every direction (its palm on it: no finger passes through)
+    assert tomb["touches"] == 3 and tomb["missed_touches"] == 0
+    assert all(t["truth"] is not None and t["hypotheses"]["force"] > 0 for t in tomb["per_touch"])
+    local, runtime = tomb["modalities"], tomb["runtime"]["modalities"]
+    assert local["all"]["detected"] == local["force"]["detected"] == 3 and 0.0 < local["force"]["eps_cm"] < 6.0
+    # the same touches through the world and control nodes: the fused F/T cues find them as in process
+    assert runtime["force"]["detected"] == 3 and abs(runtime["force"]["eps_cm"] - local["force"]["eps_cm"]) < 1.0
+    assert "tombatossals" in (tmp_path / "contacts.md").read_text().splitlines()[0]
+    assert (tmp_path / "contacts_tombatossals.png").stat().st_size > 10_000
 
 
 def test_bench_contacts_runtime_fuses_the_worlds_robot_cues_and_judges_them_by_its_true_contacts(tmp_path):
     import math
 
-    s = bench_contacts.run(tmp_path, quick=True, executor="runtime")
-    rt = json.loads((tmp_path / "contacts.json").read_text())["runtime"]
+    s = bench_contacts.run(tmp_path, quick=True, rig="melfa", executor="runtime")
+    rt = json.loads((tmp_path / "contacts.json").read_text())["rigs"]["melfa"]["runtime"]
     assert rt["touches"] == 3 and rt["touches"] - rt["missed_touches"] >= 2  # the world's eval/ stream saw the hand touch
     rows = rt["modalities"]
     # the wrist F/T cues of the world's robot state, fused by the fusion node, find the touches within centimetres
@@ -36,13 +55,13 @@ def test_bench_contacts_runtime_fuses_the_worlds_robot_cues_and_judges_them_by_i
     # what the runtime has no generator for is reported missing, not faked
     assert {m for m, r in rows.items() if "missing" in r} == {"range", "all", "all + simulator"}
     assert "missing" in (tmp_path / "contacts.md").read_text()
-    assert s["executor"] == "runtime" and "modalities" not in s  # no local figures were computed
+    assert s["executor"] == "runtime" and "modalities" not in s["rigs"]["melfa"]  # no local figures were computed
 
 
-def test_bench_contacts_refuses_an_unknown_executor(tmp_path):
-    import pytest
-
+def test_bench_contacts_refuses_an_unknown_executor_or_rig(tmp_path):
     from contactflow.nodes.params import ParamError
 
     with pytest.raises(ParamError, match="--executor 'sim' is not one of"):
         bench_contacts.run(tmp_path, quick=True, executor="sim")
+    with pytest.raises(ParamError, match="--rig 'ur5' is not one of"):
+        bench_contacts.run(tmp_path, quick=True, rig="ur5")
