@@ -92,12 +92,12 @@ class Rig:
 
 
 RIGS = {
-    "melfa": Rig(),
     # the thesis's protocol: the Allegro hand touches with its palm and fingers, the thumb up and clear of the
     # table; its arm stands on the table, so the hand comes from above (level, the elbow would meet the table)
     "tombatossals": Rig("tombatossals", "right", "right_hand", "right_palm_link",
                         ("right_palm_link", "right_link_"), (0.55, -0.30), camera="kinect", facing=True,
                         elevations=(35.0, 55.0, 75.0), planned=True),
+    "melfa": Rig(),
 }
 START = 0.13  # m, a touch starts this far before the object's centre along its direction
 
