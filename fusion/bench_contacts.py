@@ -84,7 +84,6 @@ class Rig:
     ft_link: str = "panda_hand"
     hand_links: tuple[str, ...] = ("panda_hand", "panda_leftfinger", "panda_rightfinger")
     object_xy: tuple[float, float] = (0.56, 0.11)
-    turn: tuple[float, ...] = (1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0)  # rotation applied to the home ee orientation
     camera: str = ""  # the robot's own depth camera; "" = a fixed head-like camera above and behind
     facing: bool = False  # each touch turns the hand's approach axis (z) along its direction, its y axis up
     elevations: tuple[float, ...] = (0.0, 25.0, 50.0)  # deg below the horizontal, of the touch directions
@@ -100,6 +99,8 @@ RIGS = {
     "melfa": Rig(),
 }
 START = 0.13  # m, a touch starts this far before the object's centre along its direction
+POSE_SIGMA = 0.02  # m, object pose error of the prediction scene (thesis §4.7)
+PRESS_FORCE = 1.5  # N, wrist force at which the touch is recorded
 
 
 def start_pose(rig: Rig, home: np.ndarray, centre: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -111,8 +112,6 @@ def start_pose(rig: Rig, home: np.ndarray, centre: np.ndarray, d: np.ndarray) ->
         T[:3, :3] = np.column_stack([np.cross(y, d), y, d])
     T[:3, 3] = centre - START * d
     return T
-POSE_SIGMA = 0.02  # m, object pose error of the prediction scene (thesis §4.7)
-PRESS_FORCE = 1.5  # N, wrist force at which the touch is recorded
 
 
 def object_specs(rig: Rig) -> dict:
@@ -219,7 +218,6 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
     runner = LocalPrimitiveRunner(robot) if rig.planned else None
     home_q = arm.q()
     home_T = arm.ee_pose()
-    home_T[:3, :3] = np.asarray(rig.turn).reshape(3, 3) @ home_T[:3, :3]
     prediction = PredictionScene(spec, rig)
     centre = np.array([*rig.object_xy, TARGET_Z[name]])
     roi_lo, roi_hi = centre - [0.12, 0.12, 0.2], centre + [0.12, 0.12, 0.2]
@@ -445,7 +443,6 @@ def run_object_runtime(name: str, spec, rig: Rig, dirs: list[np.ndarray], folder
     world = World(WorldParams(timestep=0.0025))
     world.add_table()
     home = SimRobot(world, rig.robot).arm(rig.arm).ee_pose()
-    home[:3, :3] = np.asarray(rig.turn).reshape(3, 3) @ home[:3, :3]
     centre = np.array([*rig.object_xy, TARGET_Z[name]])
     folder.mkdir(parents=True, exist_ok=True)
     task_file = folder / "touches.yaml"
