@@ -8,7 +8,7 @@ depth camera above and behind the robot (the arm hides the object at the touch; 
 built before the approach carries the knowledge) + occupancy grid (§4.4.4; the object is fixed, so the range
 generator runs with ``require_motion=False``) and simulator prediction support (§4.5.2: a
 prediction scene with the object displaced by N(0, 2 cm), robot posed at the measured
-joints). The rig (robot, arm, hand, how the hand is held and moved) is a parameter, both by
+joints; each predicted contact supports the voxels within those 2 cm). The rig (robot, arm, hand, how the hand is held and moved) is a parameter, both by
 default side by side: ``tombatossals`` (the thesis's protocol: the Allegro hand touches with its
 palm facing the direction, the thumb up; its arm stands on the table, so the touches come from
 35-75 degrees above the horizontal and the moves to their starts are planned around the object
@@ -286,7 +286,8 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
         pts = segment_object(frame.points, robot.spherical.distance, rparams, roi_lo, roi_hi)
         touch.clouds["range"] = rng_gen.observe(pts, robot.spherical.distance, now)
         predicted = prediction.contacts(robot.art.qpos(), rng.normal(0.0, POSE_SIGMA, 3))
-        touch.clouds["simulator"] = simulator_support(predicted, now, SimulatorParams())
+        # each predicted point spread over the object's pose uncertainty (§4.5.2): the scene's object is N(0, σ) off
+        touch.clouds["simulator"] = simulator_support(predicted, now, SimulatorParams(dilate=POSE_SIGMA))
     return touches
 
 

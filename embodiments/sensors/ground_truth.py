@@ -44,5 +44,5 @@ def read_ground_truth(world, t: float | None = None) -> GroundTruth:
                 continue
             contacts.append(TrueContact(a, b, np.asarray(p.position, dtype=np.float64),
                                         np.asarray(p.normal, dtype=np.float64), f))
-    poses = {n: o.pose() for n, o in world.objects.items() if not o.spec.static}
+    poses = {n: o.pose() for n, o in world.objects.items() if not o.spec.static} | world.bottle_poses()
     return GroundTruth(world.time if t is None else t, poses, contacts)

@@ -12,6 +12,7 @@ from contactflow.embodiments.primitives.runner import (
     run_primitive,
 )
 from contactflow.embodiments.robots.tombatossals import PINCH_CAP, PINCH_CONTACT
+from contactflow.embodiments.sensors.ground_truth import read_ground_truth
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import ScrewBottleSpec, SimScrewBottle, World, WorldParams
 from contactflow.nodes.status import Event
@@ -75,6 +76,9 @@ def test_screw_cap_needs_torque_to_turn_and_comes_free_after_its_thread() -> Non
     load.update(torque=0.0, pull=2.0)
     world.run(0.3)
     assert bottle.cap_lift() > 0.05 and bottle.cap_pose()[2, 3] > 0.96 + 0.05
+    # the ground truth (what eval/ and the benches read) has the bottle and its cap where they are
+    truth = read_ground_truth(world).object_poses
+    assert np.allclose(truth["bottle_cap"], bottle.cap_pose()) and np.allclose(truth["bottle"], bottle.body_pose())
 
 
 def test_unscrew_turns_the_cap_until_it_comes_off() -> None:
