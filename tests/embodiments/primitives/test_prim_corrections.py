@@ -247,6 +247,9 @@ def test_a_place_told_where_the_object_rests_goes_down_fast_then_slow_and_still_
         assert robot.time - t0 < 10.0  # at 5 mm/s all the way: 16 s
     moved, force = held_still(runner, **MELFA)
     assert moved < 0.001 and force < 5.0
+    for bad in ([0.5, 0.0, 0.8], [0.5, float("nan"), 0.8, 0.0, 0.0, 0.0]):  # refused before the hand moves
+        (err,) = run_primitive(runner, "place", {"target": bad})
+        assert err.event is Event.ERROR and "params.target" in err.detail, err.detail
 
 
 def test_slide_presses_into_the_force_band_and_loosens_up_a_rising_support() -> None:
