@@ -8,8 +8,8 @@ depth camera above and behind the robot (the arm hides the object at the touch; 
 built before the approach carries the knowledge) + occupancy grid (§4.4.4; the object is fixed, so the range
 generator runs with ``require_motion=False``) and simulator prediction support (§4.5.2: a
 prediction scene with the object displaced by N(0, 2 cm), robot posed at the measured
-joints; each predicted contact supports the voxels within those 2 cm). The rig (robot, arm, hand, how the hand is held and moved) is a parameter, both by
-default side by side: ``tombatossals`` (the thesis's protocol: the Allegro hand touches with its
+joints; each predicted contact supports the voxels within those 2 cm). The rig (robot, arm,
+hand, how the hand is held and moved) is a parameter, both by default side by side: ``tombatossals`` (the thesis's protocol: the Allegro hand touches with its
 palm facing the direction, the thumb up; its arm stands on the table, so the touches come from
 35-75 degrees above the horizontal and the moves to their starts are planned around the object
 the Kinect sees) and ``melfa`` (arm + parallel gripper with two 5x8 pads, level to 50 degrees
@@ -101,6 +101,14 @@ RIGS = {
 START = 0.13  # m, a touch starts this far before the object's centre along its direction
 POSE_SIGMA = 0.02  # m, object pose error of the prediction scene (thesis §4.7)
 PRESS_FORCE = 1.5  # N, wrist force at which the touch is recorded
+
+
+PLANNED_TIMEOUT = 15.0  # s, a planned move home or to a touch's start
+
+
+def planned_move(rig: Rig, target: np.ndarray, around_object: bool) -> dict:
+    """``move_to`` parameters of a planned rig's move to ``target`` (OMPL; around the object the camera sees)."""
+    return {"arm": rig.arm, "target": _target(target), "speed": 0.25, "sense_obstacles": around_object}
 
 
 def start_pose(rig: Rig, home: np.ndarray, centre: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -242,7 +250,7 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
             arm.move_pose(back, speed=0.25)
             arm.wait(6.0)
         if runner is not None:
-            run_primitive(runner, "move_to", {"arm": rig.arm, "target": _target(home_T), "speed": 0.25}, max_time=15.0)
+            run_primitive(runner, "move_to", planned_move(rig, home_T, False), max_time=PLANNED_TIMEOUT)
         else:
             arm.move_joints(home_q)
             arm.wait(6.0)
@@ -250,8 +258,7 @@ def run_object(name: str, spec, rig: Rig, dirs: list[np.ndarray], rng: np.random
         rng_gen.initialize(obj_pts, cam)
         start = back = start_pose(rig, home_T, centre, d)
         if runner is not None:
-            run_primitive(runner, "move_to", {"arm": rig.arm, "target": _target(start), "speed": 0.25,
-                                              "sense_obstacles": True}, max_time=15.0)
+            run_primitive(runner, "move_to", planned_move(rig, start, True), max_time=PLANNED_TIMEOUT)
         else:
             arm.move_pose(start, speed=0.25)
             arm.wait(6.0)
@@ -318,11 +325,11 @@ def touch_task(rig: Rig, home: np.ndarray, centre: np.ndarray, dirs: list[np.nda
         # as the local arm.move_pose + wait(6): no contact stops the move (a hand landing on the object on its way
         # to the start stays there, and the touch starts from where it is), 6 s at most
         move = {"arm": rig.arm, "planning": False, "speed": 0.25, "abort_force": 1e4}
-        if rig.planned:  # as the local planned moves: OMPL around the object the camera sees, 15 s at most
-            planned = {"arm": rig.arm, "speed": 0.25}
-            nodes[f"home_{i}"] = {"primitive": "move_to", "params": {**planned, "target": _target(home)}, "timeout": 15}
-            nodes[f"approach_{i}"] = {"primitive": "move_to", "timeout": 15,
-                                      "params": {**planned, "target": _target(start), "sense_obstacles": True}}
+        if rig.planned:  # the local bench's planned moves
+            nodes[f"home_{i}"] = {"primitive": "move_to", "params": planned_move(rig, home, False),
+                                  "timeout": PLANNED_TIMEOUT}
+            nodes[f"approach_{i}"] = {"primitive": "move_to", "params": planned_move(rig, start, True),
+                                      "timeout": PLANNED_TIMEOUT}
         else:
             nodes[f"home_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(home)}, "timeout": 6}
             nodes[f"approach_{i}"] = {"primitive": "move_to", "params": {**move, "target": _target(start)}, "timeout": 6}

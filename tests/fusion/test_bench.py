@@ -57,6 +57,7 @@ def test_on_the_runtime_a_planned_rig_plans_its_moves_to_the_start_around_the_ob
         for i, d in enumerate(dirs):  # the start, as in process: 13 cm before the centre, the palm facing d if the rig says
             start = bench_contacts.start_pose(rig, home, centre, d)
             assert approach[i]["params"]["target"][:3] == pytest.approx(list(centre - 0.13 * d))
+            assert approach[i]["params"]["target"] == pytest.approx(bench_contacts._target(start))  # and its turn
             if rig.facing:
                 assert np.allclose(start[:3, 2], d) and start[2, 1] > 0  # the palm along d, the thumb side up
             else:
