@@ -58,6 +58,8 @@ QUICK_CAMERA_HZ = 0.25  # Hz of simulated time: --quick feeds the vision nodes f
 PUSH_PROGRESS = 0.02  # m, how much closer to its target (top view) a pushed object must end
 PLACE_TOLERANCE = 0.06  # m, how far (top view) from its place location a placed object may end (about its diameter)
 PLACE_HEIGHT = 0.02  # m, how far its centre may end above or below the place location (fallen over: further)
+QUIET_LIMIT = 150.0  # s of wall time a dispatched task may go without progress before the demo stops waiting for it
+TASK_LIMIT = 1200.0  # s of wall time the demo waits for one task at most (a slow machine is slow, not stalled)
 Positions = Mapping[str, Sequence[float]]  # object name -> world position (m)
 
 
@@ -324,10 +326,19 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
             from rich.live import Live
 
             with Live(progress_table(follow), console=console, refresh_per_second=4) as live:
-                deadline = time.monotonic() + 150
-                while not follow.done.wait(0.25) and time.monotonic() < deadline:
+                start = heard = time.monotonic()
+                n_heard = len(follow.progress)
+                while not follow.done.wait(0.25):
+                    now = time.monotonic()
+                    if len(follow.progress) != n_heard:
+                        n_heard, heard = len(follow.progress), now
+                    if now - heard > QUIET_LIMIT or now - start > TASK_LIMIT:
+                        break
                     live.update(progress_table(follow))
                 live.update(progress_table(follow))
+            if not follow.done.is_set():
+                console.print(f"[red]stopped waiting for {name}[/]: no progress for {time.monotonic() - heard:.0f} s "
+                              f"({time.monotonic() - start:.0f} s since its dispatch)")
 
             def settled(follow: TaskFollow = follow, seen: dict[str, int] = seen) -> bool:
                 # a robot's last report may arrive after the broker's, and its world (published just

@@ -144,6 +144,12 @@ class LockstepClock(SimClock):
                     self._seq, self._t)
         self._ack(encode(msg))
 
+    def working(self, tick: int) -> None:
+        """Tell the world this node is still stepping ``tick`` (not an answer: it waits on)."""
+        self._seq += 1
+        msg = stamp(LockstepAck(node=self.node, tick=tick, working=True), f"lockstep/{self.node}", self._seq, self._t)
+        self._ack(encode(msg))
+
     def close(self) -> None:
         self._token.close()
         super().close()

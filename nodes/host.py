@@ -59,6 +59,8 @@ QUEUE_DEPTH = 256  # messages kept per input port between two steps
 MAX_SOURCES = 1024  # sources tracked per input port; bounds memory against hostile senders
 MAX_SEQ_JUMP = 1 << 24  # a sequence number this far ahead is a new numbering (a forged or reset source), not loss
 MARK_WAIT = 5.0  # s of wall time a lockstep node waits for the messages a tick's marks name before it steps
+WORK_BEAT = 1.0  # s of wall time between a lockstep node's "still working" notes while one tick's step lasts
+SLOW_STEP = 1.0  # s of wall time a module's step may take before the node logs it
 MAX_MARK_LEAD = 64
 """Messages of one stream a mark may name beyond the last one heard: a tick leaves a few in flight, so a
 mark further ahead is forged (or predates the node) and is not waited for, else one hostile ack would
@@ -282,6 +284,7 @@ class ModuleHost:
         self._wake = threading.Event()  # ends a wall-clock node's wait for its next due module
         self._ack_lock = threading.Lock()
         self._acked: tuple[int, bool] | None = None  # lockstep: the last tick acked, and whether the node was busy
+        self._stepping: tuple[int, float] | None = None  # lockstep: the tick being stepped, and when it was last told
         self._thread: threading.Thread | None = None
         self._node_token: Handle | None = None
         self._marks: dict[tuple[str, str], int] = {}  # (key, source) -> last seq published this tick (lockstep)
@@ -568,11 +571,15 @@ class ModuleHost:
                         hm.woken, hm.next_due = False, now + period
                     else:
                         hm.next_due = max(hm.next_due + period, now) if hm.next_due > now - period else now + period
+                    t0 = time.monotonic()
                     try:
                         status = m.step()
                     except Exception as exc:
                         self._fail(hm, f"step raised {type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
                         continue
+                    took = time.monotonic() - t0
+                    if took > SLOW_STEP and self.tick_no >= 0:  # what keeps a lockstep world waiting
+                        self.log.warning("%s: one step took %.1f s (tick %d)", hm.addr, took, self.tick_no)
                     hm.counters.steps += 1
                     if status != Status.RUNNING:
                         m.state = status
@@ -628,8 +635,11 @@ class ModuleHost:
     def _loop(self) -> None:
         clock = self.clock
         if isinstance(clock, LockstepClock):
+            threading.Thread(target=self._beat, args=(clock,), daemon=True, name=f"{self.config.node}-beat").start()
             while (got := clock.wait_tick(self._stop)) is not None:
                 k, marks = got
+                with self._ack_lock:
+                    self._stepping = (k, time.monotonic())
                 with self._delivery:
                     self.tick_no = k
                 self._await_marks(k, marks)
@@ -641,12 +651,23 @@ class ModuleHost:
                 with self._ack_lock:
                     busy = self._busy()
                     clock.ack(k, self._take_marks(), busy)
-                    self._acked = (k, busy)
+                    self._acked, self._stepping = (k, busy), None
             return
         while not self._stop.is_set():
             due = self.tick()
             clock.wait_until(due, self._wake)
             self._wake.clear()
+
+    def _beat(self, clock: LockstepClock) -> None:
+        """Lockstep: while the step of one tick lasts, tell the world every WORK_BEAT that the node is still at
+        it (a first plan on a loaded machine can take longer than the world's deadline), so the world waits
+        instead of holding the node's robots. The loop's own thread is busy; this one ends with the loop."""
+        while not self._stop.wait(WORK_BEAT / 4):
+            with self._ack_lock:
+                stepping = self._stepping
+                if stepping is not None and time.monotonic() - stepping[1] >= WORK_BEAT:
+                    clock.working(stepping[0])
+                    self._stepping = (stepping[0], time.monotonic())
 
     # -- idle and busy ----------------------------------------------------------------------
     def wake(self, hm: HostedModule) -> None:

@@ -81,13 +81,16 @@ class LockstepAck(Message, tag="lockstep_ack"):
     """A lockstep node stepped its modules for world tick ``tick`` (and sent what they commanded).
 
     A node that was idle at its ack and then gets work (a primitive told to run) acks the same
-    tick again with ``busy``: a world paused while its nodes were idle resumes.
+    tick again with ``busy``: a world paused while its nodes were idle resumes. A node whose step
+    of a tick takes long (a first plan on a loaded machine) says so every second with ``working``:
+    not an answer, the world waits on for it (up to its ``max_step``) instead of holding its robots.
     """
 
     node: str  # the node's name
-    tick: int  # the world tick it stepped
+    tick: int  # the world tick it stepped (with working: the tick it is stepping)
     marks: list[Mark] = []  # the last message of each stream its modules published during the tick
     busy: bool = False  # a primitive or task of the node was running (Module.busy) when it acked
+    working: bool = False  # not an answer: the node is still stepping the tick (its loop is alive)
 
 
 class Vector(Message, tag="vector"):

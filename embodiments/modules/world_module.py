@@ -11,7 +11,9 @@ Two clocks (``params.clock``):
 
 - ``lockstep``: tick k+1 runs only when every node announced on ``alive/lockstep/*`` has
   acknowledged tick k, or after ``deadline`` s of wall time (an OVERRUN event; a node that
-  misses it has its robots held). A seeded run repeats exactly whatever the process layout.
+  misses it has its robots held). A node still stepping the tick says so every second (a
+  ``working`` note) and is waited for up to ``max_step``: slow is not dead. A seeded run
+  repeats exactly whatever the process layout.
   With ``idle: pause`` the world also stops while every lockstep node is idle (no primitive
   or task running, :meth:`Module.busy`) and resumes when one gets work: a task dispatched at
   any wall-clock moment starts at the tick its robot went idle, so a seeded run repeats even
@@ -181,7 +183,8 @@ class WorldModule(Module):
         max_rtf: float = 0.0  # lockstep: never faster than this many times real time (0: as fast as the nodes answer)
         control_rate: float = 200.0  # Hz, one tick: joint control, state messages, the clock (§6.3.1)
         settle: float = 0.3  # s of physics before the first tick (objects come to rest)
-        deadline: float = 10.0  # s of wall time a lockstep node has to answer a tick (a plan may take seconds)
+        deadline: float = 10.0  # s of wall time a lockstep node has to answer a tick, or to say it is still working on it
+        max_step: float = 120.0  # s of wall time a lockstep node that keeps saying it is working may take over one tick
         slice: float = 0.05  # s of wall time one step may spend on lockstep ticks
         ground_truth_hz: float = 20.0  # Hz of object poses on eval/
         contacts_hz: float = 0.0  # Hz of simulated time, each robot's true contacts with the objects on eval/<r>/true_contacts
@@ -214,6 +217,7 @@ class WorldModule(Module):
         self._tick_marks: list[Mark] = []  # ... passed on with the current tick's clock
         self._lockstep: set[str] = set()
         self._busy: dict[str, bool] = {}  # lockstep node -> busy at its last ack
+        self._working: dict[str, tuple[int, float]] = {}  # lockstep node -> (tick, wall time) of its last working note
         self.paused = False  # idle: pause, and every lockstep node acked the current tick idle
         self.pauses = 0
         self._cond = threading.Condition()
@@ -246,8 +250,9 @@ class WorldModule(Module):
             raise ValueError(f"{where}.idle: {p.idle!r} is not run, or pause with the lockstep clock")
         if not p.scene_file and self._given is None:
             raise ValueError(f"{where}.scene_file: a world needs a scene file")
-        if p.control_rate <= 0 or p.deadline <= 0 or p.slice <= 0 or p.max_rtf < 0:
-            raise ValueError(f"{where}: control_rate, deadline and slice must be positive, max_rtf not negative")
+        if p.control_rate <= 0 or p.deadline <= 0 or p.slice <= 0 or p.max_rtf < 0 or p.max_step < p.deadline:
+            raise ValueError(f"{where}: control_rate, deadline and slice must be positive, max_rtf not negative, "
+                             f"max_step at least the deadline")
         transport = io.transport  # the world is infrastructure: its streams are per robot, not per port
         self.ks = ks = io.keyspace
         addr = f"{io.robot}/{io.node}/{self.name}" if hasattr(io, "robot") else self.name
@@ -340,6 +345,10 @@ class WorldModule(Module):
                     self.log.warning("%s: refused an ack of node %r for tick %d (the world is at tick %d)",
                                      key, ack.node, ack.tick, self.tick_no)
                 return
+            if ack.working:  # not an answer: the node's loop is alive and still stepping that tick
+                if ack.tick == self.tick_no:
+                    self._working[ack.node] = (ack.tick, time.monotonic())
+                return
             for m in ack.marks:
                 if m.seq > self._marks.get((m.key, m.source), 0):
                     self._marks[(m.key, m.source)] = m.seq
@@ -360,6 +369,7 @@ class WorldModule(Module):
                 self._lockstep.discard(node)
                 self._acks.pop(node, None)
                 self._busy.pop(node, None)
+                self._working.pop(node, None)
             self._cond.notify_all()
 
     def _on_controller(self, key: str, alive: bool) -> None:
@@ -427,7 +437,7 @@ class WorldModule(Module):
         k = self.tick_no
         now = time.monotonic()
         deadline, repeat = now + self.params.deadline, now + self.params.republish
-        start_by = now + self.params.start_timeout
+        start_by, give_up = now + self.params.start_timeout, now + self.params.max_step
         while True:
             with self._cond:
                 expected = self._lockstep | (set(self.params.wait_for) if k == 0 else set())
@@ -436,10 +446,12 @@ class WorldModule(Module):
                     return self._run_on(expected)
                 now = time.monotonic()
                 absent = k == 0 and bool(set(missing) - self._lockstep)  # a node tick 1 waits for is not up yet
-                if now >= (start_by if absent else deadline):
+                if absent and now >= start_by:
+                    break
+                if not absent and now >= deadline and (now >= give_up or not self._all_working(missing, k, now)):
                     break
                 if not self._requests:
-                    self._cond.wait(min(max(deadline - now, 0.0), repeat - now, 0.05) if repeat > now else 0.0)
+                    self._cond.wait(max(0.0, min(repeat - now, 0.05)))
             if self._serve_requests():  # the time the world spent rendering is not the nodes' delay
                 deadline = time.monotonic() + self.params.deadline
             if time.monotonic() >= repeat:  # a node that joined after the tick was published gets it now
@@ -447,6 +459,8 @@ class WorldModule(Module):
                 repeat = time.monotonic() + self.params.republish
         self.overruns += 1
         detail = f"tick {k}: lockstep node(s) {sorted(missing)} did not answer within {self.params.deadline:g} s"
+        if now >= give_up:
+            detail = f"tick {k}: lockstep node(s) {sorted(missing)} still working on it after {self.params.max_step:g} s"
         self.log.warning(detail)
         self.io.emit(Event.OVERRUN, detail, self._when())
         with self._cond:
@@ -456,6 +470,11 @@ class WorldModule(Module):
         for name in stalled:
             self._hold(name, f"its controller node(s) {sorted(missing)} stalled")
         return True
+
+    def _all_working(self, nodes: list[str], tick: int, now: float) -> bool:
+        """Whether every one of ``nodes`` said within the deadline that it is still working on ``tick`` (under the lock)."""
+        return all(self._working.get(n, (-1, 0.0))[0] == tick and now - self._working[n][1] < self.params.deadline
+                   for n in nodes)
 
     def _run_on(self, nodes: set[str]) -> bool:
         """Whether the next tick may run now that ``nodes`` answered (under the lock): always, unless

@@ -162,26 +162,19 @@ def test_bench_rig_reaches_the_contacts_bench_and_is_refused_where_it_means_noth
     assert unknown.exit_code == 2 and "--rig 'ur5' is not one of" in unknown.output, unknown.output
 
 
-def test_bench_caps_reach_the_empty_box_runs_and_are_refused_where_they_mean_nothing(tmp_path):
+def test_bench_empty_box_runs_chosen_strategies_from_a_chosen_seed_within_the_caps(tmp_path):
     refused = invoke("bench", "messaging", "--quick", "--max-time", 5, "--out", tmp_path)
     assert refused.exit_code == 2 and "does not take --max-time" in refused.output, refused.output
-    result = invoke("bench", "empty-box", "--quick", "--runs", 2, "--max-time", 4, "--max-attempts", 1, "--out", tmp_path)
-    assert result.exit_code == 0, result.output
-    saved = json.loads((tmp_path / "empty_box.json").read_text())
-    assert saved["max_time"] == 4.0 and saved["max_attempts"] == 1 and len(saved["runs"]) == 6
-    assert sorted({r["seed"] for r in saved["runs"]}) == [100, 101]
-    assert all(r["time"] <= 4.0 + 0.5 and r["attempts"] <= 2 for r in saved["runs"]), saved["runs"]
-    assert "4 s of simulated time or 1 grasp attempt " in (tmp_path / "empty_box.md").read_text()
-
-
-def test_bench_empty_box_runs_chosen_strategies_from_a_chosen_seed(tmp_path):
     result = invoke("bench", "empty-box", "--quick", "--strategy", "vision", "--strategy", "random", "--first-seed", 7,
-                    "--max-time", 2, "--out", tmp_path)
+                    "--runs", 2, "--max-time", 4, "--max-attempts", 1, "--out", tmp_path)
     assert result.exit_code == 0, result.output
     saved = json.loads((tmp_path / "empty_box.json").read_text())
-    assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [("vision", 7), ("random", 7)]
+    assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [("vision", 7), ("vision", 8), ("random", 7), ("random", 8)]
     assert [r["method"] for r in saved["rows"]] == ["vision", "random"] and saved["first_seed"] == 7
-    assert "(seeds 7-7)" in (tmp_path / "empty_box.md").read_text()
+    assert saved["max_time"] == 4.0 and saved["max_attempts"] == 1
+    assert all(r["time"] <= 4.0 + 0.5 and r["attempts"] <= 2 for r in saved["runs"]), saved["runs"]
+    md = (tmp_path / "empty_box.md").read_text()
+    assert "(seeds 7-8)" in md and "4 s of simulated time or 1 grasp attempt " in md
     bad = invoke("bench", "empty-box", "--quick", "--strategy", "telepathy", "--out", tmp_path / "bad")
     assert bad.exit_code == 2 and "unknown strategy 'telepathy'" in bad.output, bad.output
     assert not (tmp_path / "bad" / "empty_box.json").exists()

@@ -126,8 +126,8 @@ class Client:
     def send(self, msg) -> None:
         self._cmd(encode(msg))
 
-    def ack(self, tick: int, marks: list[Mark] | None = None) -> None:
-        self._ack(encode(LockstepAck(node="tester", tick=tick, marks=marks or [])))
+    def ack(self, tick: int, marks: list[Mark] | None = None, working: bool = False) -> None:
+        self._ack(encode(LockstepAck(node="tester", tick=tick, marks=marks or [], working=working)))
 
     def close(self) -> None:
         for s in self._subs:
@@ -226,6 +226,51 @@ def test_a_lockstep_node_holds_the_world_at_each_tick_until_it_answers(world):
     token.close()  # gone: the world runs on without it
     assert wait_for(lambda: wm.tick_no > k + 50, 10)
     assert wm.overruns == 0
+
+
+def test_a_lockstep_node_that_says_it_is_still_working_is_waited_for_up_to_max_step_then_held(tmp_path):
+    node, c = start_world(tmp_path, deadline=1.0, max_step=4.0)
+    try:
+        wm = node.host.modules[("site", "world")].module
+        tokens = [c.t.token(c.ks.alive_lockstep("tester")), c.t.token(c.ks.alive_controller("melfa", "tester"))]
+        assert wait_for(lambda: "tester" in wm._lockstep and "tester" in wm.robots["melfa"].controllers, 10)
+        time.sleep(0.3)
+        k = wm.tick_no
+        # working on tick k for 2.5 s, a note every 0.3 s: past the 1 s deadline, the world waits and holds nothing
+        for _ in range(8):
+            c.ack(k, working=True)
+            time.sleep(0.3)
+        assert wm.tick_no == k and wm.overruns == 0 and not wm.robots["melfa"].held
+        c.ack(k + 5, working=True)  # a note for a tick not published yet is forged: refused
+        assert wait_for(lambda: wm.refused_acks == 1, 5) and wm.tick_no == k
+        c.ack(k)
+        assert wait_for(lambda: wm.tick_no == k + 1, 5)
+        # the notes stop (the node froze): held one deadline after the last
+        c.ack(k + 1, working=True)
+        t0 = time.monotonic()
+        assert wait_for(lambda: wm.overruns == 1, 5) and 0.8 < time.monotonic() - t0 < 2.0
+        assert wait_for(lambda: wm.robots["melfa"].held, 5)
+        assert wait_for(lambda: any(e.event is Event.OVERRUN and "did not answer within 1 s" in e.detail
+                                    for e in c.events), 5)
+        # a node that keeps saying it works on one tick (a loop stuck in a module) is held after max_step
+        c.send(stamp(arm_cmd(ArmCommandKind.TARE, seq=1), "melfa/tester/m/cmd", 1, 0.0))  # takes the robot back
+        assert wait_for(lambda: not wm.robots["melfa"].held, 5)
+        k = wm.tick_no  # (the world waits a deadline at each tick the stalled node does not answer)
+        c.ack(k)
+        assert wait_for(lambda: wm.tick_no == k + 1, 5)
+        base, t0 = wm.overruns, time.monotonic()
+        while wm.overruns == base and time.monotonic() - t0 < 8.0:
+            c.ack(k + 1, working=True)
+            time.sleep(0.3)
+        assert wm.overruns == base + 1 and 3.5 < time.monotonic() - t0 < 5.0
+        assert wait_for(lambda: wm.robots["melfa"].held, 5)
+        assert wait_for(lambda: any(e.event is Event.OVERRUN and "still working on it after 4 s" in e.detail
+                                    for e in c.events), 5)
+        for tok in tokens:
+            tok.close()
+    finally:
+        c.close()
+        node.stop()
 
 
 def test_the_world_holds_a_robot_whose_controller_is_gone_and_raises_hardware_failure(world):

@@ -189,3 +189,43 @@ def test_a_forged_mark_far_ahead_of_its_stream_does_not_hold_the_node():
         sub.close()
     assert host.marks_refused == 1 and host.mark_timeouts == 0
     assert len(consumer.seen) == 20
+
+
+class Slow(Module):
+    """Takes ``hold_s`` of wall time over its step at ``at`` (a first plan on a loaded machine)."""
+
+    layer = Layer.TASK
+    Params = EveryTick
+
+    def start(self) -> None:
+        self.at, self.hold_s, self.steps = 3, 2.6, 0
+
+    def step(self) -> Status:
+        if self.steps == self.at:
+            time.sleep(self.hold_s)
+        self.steps += 1
+        return Status.RUNNING
+
+
+def test_a_node_slow_over_one_tick_tells_the_world_every_second_that_it_is_still_working_on_it(caplog):
+    t = LocalTransport()
+    ks = KeySpace("ls")
+    cfg = ModuleConfig("slow", "slow", Slow, Slow.Params(), "site")
+    host = ModuleHost(node("n1", (cfg,)), t)
+    host.add(cfg, Slow("slow"))
+    got: list[tuple[float, LockstepAck]] = []
+    sub = t.subscribe(ks.lockstep("*"), lambda key, payload: got.append((time.monotonic(), decode(payload, LockstepAck, key))))
+    host.start()
+    try:
+        with caplog.at_level("WARNING", logger="contactflow.node.n1"):
+            run_world(t, ks, ["n1"], 6, pass_marks=False)
+    finally:
+        host.shutdown()
+        sub.close()
+    notes = [(when, a) for when, a in got if a.working]
+    answers = [a.tick for _, a in got if not a.working]
+    assert answers == list(range(6))  # every tick answered once; the notes are not answers
+    # two notes during the 2.6 s step of tick 3 (at about 1 and 2 s), none for another tick
+    assert [a.tick for _, a in notes] == [3, 3] and 0.7 < notes[1][0] - notes[0][0] < 1.3, notes
+    assert all(a.node == "n1" and not a.marks for _, a in notes)
+    assert any("site/n1/slow: one step took 2.6 s (tick 3)" in r.getMessage() for r in caplog.records), caplog.text
