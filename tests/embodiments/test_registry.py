@@ -88,6 +88,8 @@ def test_grasp_corrections_are_capabilities_and_finger_lost_needs_fingers():
     from dataclasses import replace
 
     assert "finger_lost" in registry.get("tombatossals").capabilities.grasp_corrections
+    # on wherever the hand allows it: tombatossals' home does not turn it off for its task files
+    assert registry.home("tombatossals").overrides["robust_grasp"].get("finger_lost", True)
     for name in ("melfa", "baxter"):  # parallel grippers
         spec = registry.get(name)
         assert spec.capabilities.grasp_corrections == ("alignment", "sliding", "force_adaptation"), name

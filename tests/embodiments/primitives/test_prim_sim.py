@@ -226,8 +226,8 @@ def test_robust_grasp_finger_lost_correction_fires_and_shifts_toward_the_contact
     robot = SimRobot(world, "tombatossals")
     runner = LocalPrimitiveRunner(robot)
     run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.535, -0.27, 0.92)))})
-    # on explicitly: the tombatossals profile turns it off (see profiles.py); the fingers close at one
-    # speed (the profile slows them while backing off the table, and they then meet the slim cylinder later)
+    # without the alignment (it centres the cylinder first) and with the fingers closing at one speed (the
+    # profile slows them while backing off the table, and they then meet the slim cylinder later)
     runner.start("g", "robust_grasp", {"arm": ARM, "pregrasp_type": "open", "alignment": False, "finger_lost": True,
                                        "pressing_closing_velocity": -1.0})
     prim = runner.active["g"].prim
