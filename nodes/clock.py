@@ -138,16 +138,11 @@ class LockstepClock(SimClock):
             self._done = self._tick
             return self._tick, self._marks
 
-    def ack(self, tick: int, marks: list[Mark] | None = None, busy: bool = False) -> None:
+    def ack(self, tick: int, marks: list[Mark] | None = None, busy: bool = False, working: bool = False) -> None:
+        """Answer ``tick``; with ``working``, tell the world the node is still stepping it (not an answer: it waits on)."""
         self._seq += 1
-        msg = stamp(LockstepAck(node=self.node, tick=tick, marks=marks or [], busy=busy), f"lockstep/{self.node}",
-                    self._seq, self._t)
-        self._ack(encode(msg))
-
-    def working(self, tick: int) -> None:
-        """Tell the world this node is still stepping ``tick`` (not an answer: it waits on)."""
-        self._seq += 1
-        msg = stamp(LockstepAck(node=self.node, tick=tick, working=True), f"lockstep/{self.node}", self._seq, self._t)
+        msg = stamp(LockstepAck(node=self.node, tick=tick, marks=marks or [], busy=busy, working=working),
+                    f"lockstep/{self.node}", self._seq, self._t)
         self._ack(encode(msg))
 
     def close(self) -> None:

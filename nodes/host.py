@@ -666,7 +666,7 @@ class ModuleHost:
             with self._ack_lock:
                 stepping = self._stepping
                 if stepping is not None and time.monotonic() - stepping[1] >= WORK_BEAT:
-                    clock.working(stepping[0])
+                    clock.ack(stepping[0], working=True)
                     self._stepping = (stepping[0], time.monotonic())
 
     # -- idle and busy ----------------------------------------------------------------------

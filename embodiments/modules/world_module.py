@@ -473,7 +473,7 @@ class WorldModule(Module):
 
     def _all_working(self, nodes: list[str], tick: int, now: float) -> bool:
         """Whether every one of ``nodes`` said within the deadline that it is still working on ``tick`` (under the lock)."""
-        return all(self._working.get(n, (-1, 0.0))[0] == tick and now - self._working[n][1] < self.params.deadline
+        return all((w := self._working.get(n)) is not None and w[0] == tick and now - w[1] < self.params.deadline
                    for n in nodes)
 
     def _run_on(self, nodes: set[str]) -> bool:
