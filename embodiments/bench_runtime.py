@@ -4,7 +4,8 @@
    whole runtime in lockstep: a world node and control nodes running their tasks over zenoh
    (tombatossals' pick and place; with two robots, melfa's tap at the same table, one cell).
    Each layout is run with every node in one process (a session each) and with each node a
-   process of its own, side by side; every run starts in a fresh process.
+   process of its own, side by side; every run starts in a fresh process. Lockstep makes the two
+   layouts one run: the bench says whether they gave the same events at the same simulated times.
 2. Command -> sensor round trip over loopback: a controller session in lockstep with a world
    node in another process receives tick k's state, sends an arm command, answers the tick,
    and waits for the state that shows the command applied (one physics tick in between).
@@ -12,7 +13,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import multiprocessing as mp
+import shutil
 import tempfile
 import threading
 import time
@@ -27,13 +30,21 @@ def _cell_job(args: tuple[bool, bool, str]) -> dict:
     """One run of the reference cell; in-process layouts run here, in a fresh worker process."""
     from contactflow.embodiments.layout import run_cell, table_cell
     from contactflow.nodes.procs import free_port
+    from contactflow.nodes.status import Event
 
     melfa, processes, folder = args
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     site = f"bench{free_port()}"
     run = run_cell(Path(folder), *table_cell(site, endpoint, melfa=melfa), endpoint, processes=processes)
+    last = run.poses[-1] if run.poses else None
     return {"rtf": run.rtf, "sim_s": run.sim_s, "wall_s": run.wall_s,
-            "outcomes": {r: str(e.event) for r, e in run.outcomes.items()}}
+            "outcomes": {r: str(e.event) for r, e in run.outcomes.items()},
+            # what says the layouts ran the same run: the event sequence (simulated time, module, event), hashed
+            "events": len(run.events), "trace": hashlib.sha1(repr(run.events).encode()).hexdigest()[:16],
+            "visited": sorted({m for _, m, _ in run.events}),
+            "overruns": sum(m.event is Event.OVERRUN for m in run.messages),
+            "objects": {n: [round(float(v), 4) for v in T[:3, 3]] for n, T in zip(last.names, last.poses.numpy(),
+                                                                                   strict=True)} if last else {}}
 
 
 def rtf_runs(folder: Path, advance=lambda: None, layouts=LAYOUTS) -> dict:
@@ -46,6 +57,8 @@ def rtf_runs(folder: Path, advance=lambda: None, layouts=LAYOUTS) -> dict:
                 row[layout] = pool.apply(_cell_job, ((melfa, processes, str(folder / f"{label[0]}_{layout}")),))
             advance()
         row["split_vs_one"] = row["split"]["rtf"] / row["one_process"]["rtf"] if row["one_process"]["rtf"] else 0.0
+        row["repeated"] = (row["split"]["trace"], row["split"]["sim_s"]) == (row["one_process"]["trace"],
+                                                                              row["one_process"]["sim_s"])
         out[label] = row
     return out
 
@@ -112,11 +125,16 @@ def round_trip(ticks: int, folder: Path) -> dict:
             "max_ms": float(ms.max())}
 
 
-def run(quick: bool = False, advance=lambda: None) -> dict:
-    """Both measures; ``quick`` runs the one-robot layouts only and fewer round trips."""
+def run(quick: bool = False, advance=lambda: None, out_dir: Path | None = None) -> dict:
+    """Both measures; ``quick`` runs the one-robot layouts only and fewer round trips. The node logs of a
+    layout pair that did not give the same events are kept in ``out_dir``/runtime_logs."""
     with tempfile.TemporaryDirectory(prefix="cf-bench-runtime-") as tmp:
         folder = Path(tmp)
         rtf = rtf_runs(folder, advance, LAYOUTS[:1] if quick else LAYOUTS)
+        differed = [label for label, row in rtf.items() if not row["repeated"]]
+        if differed and out_dir is not None:
+            shutil.copytree(folder, out_dir / "runtime_logs", dirs_exist_ok=True,
+                            ignore=lambda d, names: [n for n in names if not (Path(d, n).is_dir() or n.endswith(".log"))])
         return {"rtf": rtf, "round_trip": round_trip(100 if quick else 2000, folder)}
 
 

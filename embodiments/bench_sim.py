@@ -251,7 +251,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
                            "median_length_rad": float(np.median(lengths)) if lengths else None,
                            "problems": len(problems), "timeout_s": timeout, "stages": _stages(profiles)}
         summary["planning"] = plans
-        summary["runtime"] = bench_runtime.run(quick, advance=lambda: progress.advance(task))
+        summary["runtime"] = bench_runtime.run(quick, advance=lambda: progress.advance(task), out_dir=out_dir)
     table = Table(title="contactflow bench sim")
     table.add_column("measure")
     table.add_column("value", justify="right")
@@ -278,6 +278,9 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
         one, split = row["one_process"], row["split"]
         table.add_row(f"runtime RTF, {label}: one process | split (vs one)",
                       f"{one['rtf']:.1f}x | {split['rtf']:.1f}x ({row['split_vs_one']:.2f})")
+        table.add_row(f"runtime, {label}: the same events in both layouts | overruns",
+                      f"{'yes' if row['repeated'] else 'NO'} ({one['events']} events) | "
+                      f"{one['overruns']} | {split['overruns']}")
     rt = summary["runtime"]["round_trip"]
     table.add_row(f"command -> sensor round trip, loopback ({rt['ticks']} ticks): p50 / p99",
                   f"{rt['p50_ms']:.2f} / {rt['p99_ms']:.2f} ms")

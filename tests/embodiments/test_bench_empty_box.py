@@ -15,7 +15,7 @@ from contactflow.embodiments.world import World, WorldParams, box
 from contactflow.nodes.status import Event
 
 
-def test_bench_empty_box_quick(tmp_path) -> None:
+def test_bench_empty_box_quick_and_the_vision_strategy_on_the_runtime_as_in_process(tmp_path) -> None:
     summary = bench_empty_box.run(tmp_path, quick=True, jobs=2)  # runs on two worker processes
     assert [r["method"] for r in summary["rows"]] == ["random", "exploration", "vision"]
     assert all(r["runs"] == 1 for r in summary["rows"])
@@ -24,24 +24,22 @@ def test_bench_empty_box_quick(tmp_path) -> None:
     assert saved["benchmark"] == "empty_box" and len(saved["runs"]) == 3
     assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [(s, 100) for s in bench_empty_box.STRATEGIES]
     assert all(r["time"] <= saved["max_time"] + 1.0 for r in saved["runs"])
-    vision = next(r for r in saved["runs"] if r["strategy"] == "vision")
-    assert vision["success"] and vision["left"] == 0, vision  # one object in view: seen, grasped and put out
+    local = next(r for r in saved["runs"] if r["strategy"] == "vision")
+    assert local["success"] and local["left"] == 0, local  # one object in view: seen, grasped and put out
     # one run per strategy: its worst case is that run
     for row, one in zip(saved["rows"], saved["runs"], strict=True):
         assert (row["attempts_max"], row["time_max"]) == (one["attempts"], one["time"])
     assert (tmp_path / "empty_box.png").stat().st_size > 0
     assert "| most attempts | longest (sim s) |" in (tmp_path / "empty_box.md").read_text()
 
-
-def test_the_vision_strategy_empties_the_box_on_the_runtime_as_in_process(tmp_path) -> None:
-    """The same seeded run as a world node and a control node over zenoh: the supervisor reads eval/ and progress."""
-    summary = bench_empty_box.run(tmp_path, quick=True, strategy=["vision"], executor="both")
-    local, runtime = sorted(summary["runs"], key=lambda r: r["executor"])
-    assert (local["executor"], runtime["executor"]) == ("local", "runtime")
+    # the same seeded vision run as a world node and a control node over zenoh: the supervisor reads eval/ and progress
+    on_runtime = bench_empty_box.run(tmp_path / "runtime", quick=True, strategy=["vision"], executor="runtime")
+    (runtime,) = on_runtime["runs"]
+    assert runtime["executor"] == "runtime" and local["executor"] == "local"
     assert runtime["success"] and runtime["left"] == 0 and runtime["attempts"] == local["attempts"] == 1, runtime
     assert runtime["result"] == "supervisor: the box is empty"
     assert abs(runtime["time"] - local["time"]) < 2.0  # the same task and physics, sampled at 4 Hz on eval/
-    assert [(r["method"], r["executor"]) for r in summary["rows"]] == [("vision", "local"), ("vision", "runtime")]
+    assert [(r["method"], r["executor"]) for r in on_runtime["rows"]] == [("vision", "runtime")]
 
 
 def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:

@@ -3,7 +3,6 @@ marks and the idle pause make them repeat beside the suite's other worker as the
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from contactflow.embodiments.layout import run_cell, table_cell
@@ -12,33 +11,6 @@ from contactflow.nodes.status import Event
 
 ROBOT = "tombatossals"
 pytestmark = pytest.mark.heavy(seconds=100)
-
-
-def can_position(wm) -> np.ndarray:
-    return wm.robots[ROBOT].sim.ground_truth().object_poses["cyl"][:3, 3].copy()
-
-
-def test_pick_and_place_runs_over_the_key_space_and_repeats_exactly_in_one_process_and_in_two(tmp_path):
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    kept = {}
-    one = run_cell(tmp_path / "one", *table_cell("rt1", endpoint), endpoint,
-                   keep=lambda wm: kept.update(can=can_position(wm), overruns=wm.overruns,
-                                               refused=wm.robots[ROBOT].refused))
-    assert one.outcomes[ROBOT].event is Event.SUCCESS, one.events
-    assert kept["overruns"] == 0 and kept["refused"] == 0
-    # the can left its place and stands on the table near the place target
-    cyl = kept["can"]
-    assert cyl[2] == pytest.approx(0.81, abs=0.015)
-    assert np.hypot(cyl[0] - 0.55, cyl[1] + 0.3) > 0.1
-    visited = {m for _, m, _ in one.events}
-    assert {"detect_objects", "move_to", "robust_grasp", "lift", "transport", "place", "release"} <= visited
-
-    # the same configuration, each node a process of its own
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    two = run_cell(tmp_path / "two", *table_cell("rt1", endpoint), endpoint, processes=True)
-    assert two.outcomes[ROBOT].event is Event.SUCCESS
-    assert two.outcomes[ROBOT].hdr.t_sim == pytest.approx(one.outcomes[ROBOT].hdr.t_sim, abs=1e-9)
-    assert two.events == one.events
 
 
 def test_world_control_and_vision_pick_and_place_what_the_vision_node_segmented_and_repeat_in_three_processes(tmp_path):
