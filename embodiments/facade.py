@@ -149,14 +149,15 @@ class ArmFacade(ABC):
         self.ctl.guarded_move(np.asarray(twist, dtype=np.float64), frame, max_force, duration, self._failed)
 
     def plan(self, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
-             obstacles: tuple = (), cloud: np.ndarray | None = None, rest: bool = False):
+             obstacles: tuple = (), cloud: np.ndarray | None = None, rest: bool = False, checks: int = 0):
         """OMPL plan from the current commanded joints to a joint goal or a 4x4 pose of the controlled frame.
 
         Collision-checked against the given ``obstacles`` (planning ``Obstacle`` records) and
         point ``cloud`` (N, 3) plus the cell's fixtures (the table): what the caller sensed.
-        With ``rest`` a pose goal's joints are solved from the home posture (see ``plan_arm``).
+        With ``rest`` a pose goal's joints are solved from the home posture; a search ends at ``timeout`` s or,
+        with ``checks``, after that many state checks (see ``plan_arm``).
         """
         from contactflow.embodiments.control.planning import plan_arm
 
         return plan_arm(self.robot, self, goal, planner=planner, timeout=timeout, checker=checker,
-                        obstacles=obstacles, cloud=cloud, rest=rest)
+                        obstacles=obstacles, cloud=cloud, rest=rest, checks=checks)

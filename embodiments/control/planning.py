@@ -300,7 +300,9 @@ class ArmPlanner:
         return all(self.valid(w) for w in waypoints)
 
     def plan(self, start: np.ndarray, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0,
-             seed: int | None = None) -> Plan:
+             seed: int | None = None, checks: int = 0) -> Plan:
+        """A path from ``start`` to ``goal``; each search ends at ``timeout`` s, or with ``checks`` > 0 after that
+        many state checks whatever the time: the same search, so the same path, on any machine and load."""
         if planner not in PLANNERS:
             raise ValueError(f"planner {planner!r} is not one of {sorted(PLANNERS)}")
         start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
@@ -317,20 +319,22 @@ class ArmPlanner:
         if seed is not None:
             seed_ompl(seed)
         step = self.params.search_step
-        dense = self._search(start, goal, planner, timeout, step)
+        dense = self._search(start, goal, planner, timeout, step, checks)
         if dense is not None:
             t = time.perf_counter()
             free = self._path_free(dense)
             prof.validate = time.perf_counter() - t
             if not free and step > self.params.check_step:
-                dense = self._search(start, goal, planner, timeout, self.params.check_step)
+                dense = self._search(start, goal, planner, timeout, self.params.check_step, checks)
         if dense is None:
-            fail.why_not, fail.timed_out = f"{planner} found no path in {timeout} s", True
+            fail.why_not = f"{planner} found no path in {f'{checks} state checks' if checks > 0 else f'{timeout} s'}"
+            fail.timed_out = True
             fail.planning_time = time.perf_counter() - t0
             return fail
         return Plan(self.joints, dense, planner, time.perf_counter() - t0, True, profile=prof)
 
-    def _search(self, start: np.ndarray, goal: np.ndarray, planner: str, timeout: float, step: float) -> np.ndarray | None:
+    def _search(self, start: np.ndarray, goal: np.ndarray, planner: str, timeout: float, step: float,
+                checks: int = 0) -> np.ndarray | None:
         """OMPL search checking motions every ``step`` rad: the shortcut path, densified to ``check_step``, or None."""
         n = len(self.idx)
         space = ob.RealVectorStateSpace(n)
@@ -362,7 +366,12 @@ class ArmPlanner:
         ss.setPlanner(p)
         prof.searches += 1
         t = time.perf_counter()
-        solved = bool(ss.solve(timeout)) and ss.haveExactSolutionPath()
+        if checks > 0:
+            first = prof.search_checks
+            solved = bool(ss.solve(ob.PlannerTerminationCondition(lambda: prof.search_checks - first >= checks)))
+        else:
+            solved = bool(ss.solve(timeout))
+        solved = solved and ss.haveExactSolutionPath()
         prof.search += time.perf_counter() - t
         if not solved:
             return None
@@ -463,8 +472,9 @@ def sensed_cloud(robot, camera: str = "kinect", self_margin: float = 0.03, fixtu
 
 def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: float = 2.0, checker: str = "coal",
              obstacles: tuple[Obstacle, ...] | list[Obstacle] = (), cloud: np.ndarray | None = None,
-             fixtures: bool = True, seed: int | None = None, rest: bool = False) -> Plan | None:
-    """Plan ``arm`` of a robot (simulated or remote) from its commanded joints to a joint goal or a 4x4 pose.
+             fixtures: bool = True, seed: int | None = None, rest: bool = False, checks: int = 0) -> Plan | None:
+    """Plan ``arm`` of a robot (simulated or remote) from its commanded joints to a joint goal or a 4x4 pose
+    (``timeout`` and ``checks``: :meth:`ArmPlanner.plan`).
 
     Collisions are checked against ``obstacles`` and the point ``cloud`` the caller sensed or
     was given, plus the cell's fixtures when ``fixtures``; never against the simulated objects.
@@ -495,4 +505,4 @@ def plan_arm(robot, arm, goal: np.ndarray, planner: str = "KPIECE1", timeout: fl
             return None
     else:
         q_goal = goal
-    return ap.plan(q_full[ap.idx], q_goal, planner=planner, timeout=timeout, seed=seed)
+    return ap.plan(q_full[ap.idx], q_goal, planner=planner, timeout=timeout, seed=seed, checks=checks)

@@ -23,7 +23,7 @@ class MoveTo(Primitive):
         standoff: float = 0.0  # m, stop this far back along the target z (approach) axis
         planning: bool = True  # use the OMPL planner (False: straight Cartesian line)
         planner: str = "KPIECE1"  # OMPL planner (thesis §3.3.2)
-        planning_timeout: float = 2.0  # s
+        planning_checks: int = 50_000  # state checks per plan search (2-4 s): a count, the same on any machine
         obstacles: tuple[float, ...] = ()  # obstacle point cloud the planner avoids, flat [x, y, z, ...] (world)
         sense_obstacles: bool = False  # also plan against the camera cloud (robot removed by the spherical model)
         speed: float = 0.1  # m/s Cartesian (rad/s joint speed when planned: 5x this)
@@ -46,7 +46,7 @@ class MoveTo(Primitive):
         self.planned = False
         if p.planning:
             cloud = planning_cloud(self, p.obstacles, "obstacles", p.sense_obstacles)
-            plan = self.arm.plan(self.goal, planner=p.planner, timeout=p.planning_timeout, cloud=cloud,
+            plan = self.arm.plan(self.goal, planner=p.planner, checks=p.planning_checks, cloud=cloud,
                                  rest=p.rest_posture)
             if plan is not None:
                 self.arm.execute(plan, abort_force=p.abort_force, speed=5 * p.speed)

@@ -81,7 +81,7 @@ class Transport(Primitive):
         rot_tolerance: float = 0.05  # rad
         stuck_time: float = 1.0  # s without progress = local minimum
         stuck_progress: float = 0.005  # m of progress expected in stuck_time
-        planning_timeout: float = 2.0  # s
+        planning_checks: int = 50_000  # state checks per plan search (2-4 s): a count, the same on any machine
         timeout: float = 30.0  # s
         guarded: bool = False  # a contact over force_threshold ends the motion with SUCCESS (a guarded move)
         preshape: str = ""  # hand preshape taken at the start ("" = keep)
@@ -124,7 +124,7 @@ class Transport(Primitive):
         self.halt()
         # the planner sees only what this primitive was given or senses, plus the cell's fixtures
         cloud = planning_cloud(self, self.params.obstacles, "obstacles", self.params.sense_obstacles)
-        plan = self.arm.plan(goal, timeout=self.params.planning_timeout, cloud=cloud)
+        plan = self.arm.plan(goal, checks=self.params.planning_checks, cloud=cloud)
         if plan is None:
             self.mode = "error"
             return

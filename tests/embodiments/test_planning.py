@@ -102,6 +102,32 @@ def test_a_failed_plan_says_which_end_is_invalid_or_that_time_ran_out():
     assert planner("").plan(start, goal, planner="RRTConnect", timeout=5.0).success
 
 
+def test_a_search_given_a_check_budget_ends_on_its_count_whatever_the_time():
+    """What a primitive plans with: a search that ends after so many state checks is the same search on a fast
+    machine and on a loaded one (a seeded lockstep run repeats), where a timeout cuts it wherever the clock says."""
+    import time
+
+    from contactflow.embodiments import registry
+
+    spec = registry.get("melfa")
+    kin = Kinematics(spec.urdf(), xyz_rpy_to_matrix(spec.base_xyz, spec.base_rpy))
+    joints = spec.arm("arm").joints
+    idx = kin.q_index(joints)
+    start, goal = kin.q[idx].copy(), kin.q[idx] + 0.5
+
+    def slow_islands(q: np.ndarray) -> bool:  # joint 1 never crosses 0.25, and every check takes 0.2 ms
+        time.sleep(0.0002)
+        return bool(abs(q[idx][0] - 0.25) > 0.05)
+
+    plan = ArmPlanner(kin, joints, slow_islands, kin.q).plan(start, goal, planner="RRTConnect", timeout=0.01,
+                                                            checks=1500)
+    assert not plan.success and plan.timed_out and plan.why_not == "RRTConnect found no path in 1500 state checks"
+    assert 1500 <= plan.profile.search_checks < 1700, plan.profile  # the count ended it, at the next iteration
+    assert plan.planning_time > 0.3  # far past the timeout, which a budget does not use
+    free = ArmPlanner(kin, joints, lambda q: True, kin.q).plan(start, goal, planner="RRTConnect", checks=1500)
+    assert free.success and 0 < free.profile.search_checks <= 1500
+
+
 def test_a_path_found_at_the_search_step_is_searched_again_at_the_check_step_when_it_fails_there():
     from contactflow.embodiments import registry
 
