@@ -16,7 +16,7 @@ import math
 import threading
 import time
 import traceback
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -75,6 +75,7 @@ class Counters:
     steps: int = 0
     errors: int = 0
     gaps: dict[str, int] = field(default_factory=dict)  # input port -> sequence numbers never received
+    dropped: dict[str, int] = field(default_factory=dict)  # input port -> messages pushed out of its full queue
 
 
 class SeqTracker:
@@ -112,12 +113,13 @@ class HostedIO:
         self._hm = hm
         self._lock = threading.Lock()
         self._latest: dict[str, Message] = {}
-        self._queues: dict[str, deque[Message]] = {p.name: deque(maxlen=QUEUE_DEPTH) for p in hm.module.inputs}
+        self._queues: dict[str, deque[Message]] = {p.name: deque() for p in hm.module.inputs}
         self._trackers: dict[str, SeqTracker] = {p.name: SeqTracker() for p in hm.module.inputs}
         self._seqs: dict[str, int] = {}  # one counter per stream, so a gap on a stream means loss
         self._held: list[tuple[str, Message]] = []  # lockstep: messages sent during the tick being stepped, for the next
         self.emitted: set[Event] = set()  # the events the module raised itself since its last RUN
         hm.counters.gaps = {p.name: 0 for p in hm.module.inputs}
+        hm.counters.dropped = {p.name: 0 for p in hm.module.inputs}
 
     @property
     def now(self) -> float:
@@ -155,7 +157,7 @@ class HostedIO:
                 self._held.append((port, msg))
             else:
                 self._latest[port] = msg
-                self._queues[port].append(msg)
+                self._enqueue(port, msg)
         self._host.delivered()
         return missed
 
@@ -166,9 +168,20 @@ class HostedIO:
             for port, msg in held:
                 if msg.hdr.tick < tick:
                     self._latest[port] = msg
-                    self._queues[port].append(msg)
+                    self._enqueue(port, msg)
                 else:
                     self._held.append((port, msg))
+
+    def _enqueue(self, port: str, msg: Message) -> None:
+        """Queue ``msg`` (the lock held); on a full queue the oldest message of the source with the most queued
+        goes, so a source that floods a port pushes out its own messages, never a quieter source's."""
+        q = self._queues[port]
+        if len(q) >= QUEUE_DEPTH:
+            counts = Counter(m.hdr.source for m in q)
+            top = max(counts, key=counts.__getitem__)
+            del q[next(i for i, m in enumerate(q) if m.hdr.source == top)]
+            self._hm.counters.dropped[port] += 1
+        q.append(msg)
 
     def heard(self, port: str, source: str) -> int:
         """The highest sequence number of ``source`` delivered on ``port`` (0: none)."""
@@ -526,7 +539,7 @@ class ModuleHost:
         m = hm.module
         msg = StatusMsg(module=str(hm.addr), layer=str(m.layer), state=m.state, rate_hz=m.params.rate_hz,
                         steps=hm.counters.steps, rejected=hm.counters.rejected, detail=hm.detail or self._detail(hm),
-                        gaps=dict(hm.counters.gaps))
+                        gaps=dict(hm.counters.gaps), dropped=dict(hm.counters.dropped))
         stamp(msg, f"{hm.addr}/status", hm.io.next_seq("/status"), self.clock.now())
         hm.status_pub(encode(msg))
         hm.last_status = self.clock.now()

@@ -32,6 +32,7 @@ class StatusMsg(Message, tag="status"):
     rejected: int = 0  # inputs dropped by validation
     detail: str = ""  # why the state is what it is (an error's message)
     gaps: dict[str, int] = {}  # input port -> sequence numbers its sources skipped (lost messages)
+    dropped: dict[str, int] = {}  # input port -> messages pushed out of its full queue (the most queued source's oldest)
 
 
 class Command(StrEnum):

@@ -11,7 +11,7 @@ import pytest
 from contactflow.embodiments.messages import JointCommand
 from contactflow.nodes.clock import SimClock
 from contactflow.nodes.config import ConfigError, parse_node_config
-from contactflow.nodes.host import ModuleHost, SeqTracker
+from contactflow.nodes.host import QUEUE_DEPTH, ModuleHost, SeqTracker
 from contactflow.nodes.messages import (
     Command,
     ControlReply,
@@ -349,6 +349,25 @@ def test_sequence_gaps_are_counted_per_input_and_reported_in_status():
     statuses = [m.hdr for _, m in seen if isinstance(m, StatusMsg) and m.module == "site/n/lp"]
     assert [h.seq for h in statuses] == list(range(1, len(statuses) + 1))
     assert {h.source for h in statuses} == {"site/n/lp/status"}
+
+
+def test_a_source_that_floods_an_input_pushes_out_its_own_messages_not_a_quieter_sources():
+    host, clock, seen = make_host(PIPE)
+    put = host.transport.publisher("cf/t/m/site/n/src/out/signal")
+    host.send_control("src", Command.STOP, {})
+    for k in range(1, 601):  # between two steps: 600 messages of one source, 5 of another among the first
+        put(encode(stamp(Vector(values=[float(k)]), "fake/flood", k, 0.0)))
+        if k % 10 == 0 and k <= 50:
+            put(encode(stamp(Vector(values=[-float(k)]), "fake/quiet", k // 10, 0.0)))
+    lp = host.modules[("site", "lp")]
+    queued = lp.io.take("in")
+    assert len(queued) == QUEUE_DEPTH and lp.counters.dropped == {"in": 605 - QUEUE_DEPTH}
+    assert [m.hdr.seq for m in queued if m.hdr.source == "fake/quiet"] == [1, 2, 3, 4, 5]
+    # the flooder kept its newest, in order
+    assert [m.hdr.seq for m in queued if m.hdr.source == "fake/flood"] == list(range(600 - QUEUE_DEPTH + 6, 601))
+    run_for(host, clock, 1.1)
+    status = [m for _, m in seen if isinstance(m, StatusMsg) and m.module == "site/n/lp"][-1]
+    assert status.dropped == {"in": 605 - QUEUE_DEPTH}
 
 
 def test_sequence_tracker_bounds_its_memory_and_ignores_unnumbered_messages():
