@@ -2,6 +2,7 @@
 
 CATALOG = {
     "contact_fusion": "contactflow.fusion.service:ContactFusion",
+    "cell_fusion": "contactflow.fusion.cell:CellFusion",
     "contact_cues": "contactflow.fusion.cues:ContactCues",
     "tactile_hypotheses": "contactflow.fusion.generators.tactile:TactileGenerator",
     "force_torque_hypotheses": "contactflow.fusion.generators.force_torque:ForceTorqueGenerator",

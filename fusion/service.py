@@ -16,7 +16,7 @@ import numpy as np
 
 from contactflow.fusion.condensation import CondensationParams, Method
 from contactflow.fusion.events import ContactTracker, TrackerParams
-from contactflow.fusion.hypotheses import VOXEL_SIZE
+from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses
 from contactflow.fusion.integrator import Integrator, IntegratorParams
 from contactflow.fusion.loop import FusionLoop
 from contactflow.fusion.messages import (
@@ -117,18 +117,23 @@ class ContactFusion(Module):
         self.loop.drop_after = p.drop_after
         self.loop.retune(p.integrator(), p.condensation(), p.tracker())
 
+    def admit(self, msg: HypothesisCloud, now: float) -> Hypotheses | None:
+        """The cloud of ``msg`` for the next cycle (None: not fused); a malformed cloud raises WireError."""
+        return msg.hypotheses()
+
     def step(self) -> Status:
         assert self.io is not None
         now = self.io.now
         for msg in self.io.take("hypotheses"):
             assert isinstance(msg, HypothesisCloud)
             try:
-                cloud = msg.hypotheses()
+                cloud = self.admit(msg, now)
             except WireError as exc:
                 self.rejected += 1
                 self.io.log(f"rejected cloud: {exc}")
                 continue
-            self.loop.offer(msg.source, cloud, now, robot=msg.robot, link=msg.link, msg=msg.hdr.id)
+            if cloud is not None:
+                self.loop.offer(msg.source, cloud, now, robot=msg.robot, link=msg.link, msg=msg.hdr.id)
         cycle = self.loop.step(now)
         if cycle is None:
             return Status.RUNNING

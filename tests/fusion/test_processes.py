@@ -1,4 +1,5 @@
-"""Two robots' generators in two node processes, fused by one integrator, over zenoh on loopback."""
+"""Two robots' generators in two node processes, fused into their cell's map by one integrator, over zenoh on loopback;
+a robot of another cell talks on the same site and is refused."""
 
 import threading
 
@@ -32,11 +33,9 @@ def configs(port_a, port_b):
                 "outputs": {"hypotheses": KS.hypotheses(robot, "tactile")}}
 
     a = {"site": SITE, "node": "arm1", "host": "h1", "robot": "r1", "clock": "wall", "zenoh": zen_a,
-         "modules": [tactile("r1")]}
-    fusion = {"name": "fusion", "type": "contact_fusion", "robot": "site",
-              "params": {"robot": "site", "sources": "*/*", "hold": 0.3, "timeout": 0.3},
-              "inputs": {"hypotheses": KS.hypotheses("*", "*")},
-              "outputs": {s: KS.fused("site", s) for s in ("hypotheses", "contacts", "events")}}
+         "modules": [tactile("r1"), {**tactile("r3"), "name": "tactile_r3"}]}
+    fusion = {"name": "fusion", "type": "cell_fusion", "robot": "site",
+              "params": {"robot": "table", "robots": ["r1", "r2"], "hold": 0.3, "timeout": 0.3}}
     b = {"site": SITE, "node": "arm2", "host": "h2", "robot": "r2", "clock": "wall", "zenoh": zen_b,
          "modules": [tactile("r2"), fusion]}
     return a, b
@@ -55,16 +54,16 @@ def test_two_robots_fused_across_processes(tmp_path):
         with lock:
             events.append(decode(payload, ContactEventMsg, key))
 
-    sub = tool.subscribe(KS.fused("*", "events"), on_event)
+    sub = tool.subscribe(KS.fused("table", "events"), on_event)  # the cell's map
     try:
-        up = wait_for(lambda: len(tool.alive(KS.alive_module(), timeout=0.3)) >= 3, timeout=40)
+        up = wait_for(lambda: len(tool.alive(KS.alive_module(), timeout=0.3)) >= 4, timeout=40)
         logs = lambda: (tmp_path / "a.log").read_text()[-1500:] + (tmp_path / "b.log").read_text()[-1500:]  # noqa: E731
         assert up, logs()
-        pub = {r: (tool.publisher(taxel_key(r)), tool.publisher(taxel_key(r, "tactile"))) for r in ("r1", "r2")}
-        where = {"r1": [0.5, 0.3, 0.8], "r2": [0.5, -0.3, 0.8]}
+        pub = {r: (tool.publisher(taxel_key(r)), tool.publisher(taxel_key(r, "tactile"))) for r in ("r1", "r2", "r3")}
+        where = {"r1": [0.5, 0.3, 0.8], "r2": [0.5, -0.3, 0.8], "r3": [0.9, 0.0, 0.8]}
 
         def touch(robots):
-            for r in ("r1", "r2"):
+            for r in ("r1", "r2", "r3"):
                 tactile, poses = one_pad_hand([where[r]], [2.0 if r in robots else 0.0], robot=r)
                 pub[r][0](encode(poses))
                 pub[r][1](encode(tactile))
@@ -73,8 +72,11 @@ def test_two_robots_fused_across_processes(tmp_path):
             with lock:
                 return {e.robot for e in events if e.event == Event.CONTACT_MADE}
 
-        ok = wait_for(lambda: (touch({"r1", "r2"}), made() == {"r1", "r2"})[1], timeout=20, interval=0.05)
+        ok = wait_for(lambda: (touch({"r1", "r2", "r3"}), made() == {"r1", "r2"})[1], timeout=20, interval=0.05)
         assert ok, logs()
+        # r3, a robot of another cell talking on the same site, touched too: refused, never in the cell's map
+        said = " ".join((tmp_path / "b.log").read_text().split())  # the log's lines are wrapped
+        assert "refused #1 (robot): a cloud about robot 'r3', not of this cell ['r1', 'r2']" in said, said
         with lock:
             first = {e.robot: e for e in events if e.event == Event.CONTACT_MADE}
         assert np.linalg.norm(np.array(first["r1"].location) - where["r1"]) < 0.01
@@ -86,6 +88,7 @@ def test_two_robots_fused_across_processes(tmp_path):
 
         ok = wait_for(lambda: (touch({"r2"}), broken() == {"r1"})[1], timeout=10, interval=0.05)
         assert ok, logs()
+        assert made() == {"r1", "r2"}
     finally:
         sub.close()
         tool.close()
