@@ -103,11 +103,11 @@ def list_nodes(site: Site = None, connect: Connect = None, wait: float = 1.3) ->
     sub.close()
     t.close()
     table = Table(title=f"site {ks.site}: {len(nodes)} nodes, {len(modules)} modules")
-    for col in ("host/node", "module", "layer", "state", "rate Hz", "steps", "rejected", "gaps", "detail"):
+    for col in ("host/node", "module", "layer", "state", "rate Hz", "steps", "rejected", "gaps", "dropped", "detail"):
         table.add_column(col)
     for n in sorted(nodes):
         host, node_name = n.split("/")[-2:]
-        table.add_row(f"[bold]{host}/{node_name}[/]", "", "", "[green]alive[/]", "", "", "", "", "")
+        table.add_row(f"[bold]{host}/{node_name}[/]", "", "", "[green]alive[/]", "", "", "", "", "", "")
         for m in sorted(modules):
             robot, mnode, mname = m.split("/")[-3:]
             if mnode != node_name:
@@ -115,13 +115,14 @@ def list_nodes(site: Site = None, connect: Connect = None, wait: float = 1.3) ->
             s = statuses.get(f"{robot}/{mnode}/{mname}")
             table.add_row("", f"{robot}/{mname}", s.layer if s else "?", str(s.state) if s else "?",
                           f"{s.rate_hz:g}" if s else "", str(s.steps) if s else "",
-                          str(s.rejected) if s else "", _gaps(s.gaps) if s else "", (s.detail[:40] if s else ""))
+                          str(s.rejected) if s else "", _per_port(s.gaps) if s else "",
+                          _per_port(s.dropped) if s else "", (s.detail[:40] if s else ""))
     console.print(table)
 
 
-def _gaps(gaps: dict[str, int]) -> str:
-    """Missed messages per input port, loss shown in red; "0" when nothing was missed."""
-    lost = {port: n for port, n in sorted(gaps.items()) if n}
+def _per_port(counts: dict[str, int]) -> str:
+    """Messages missed (gaps) or pushed out of a full queue (dropped) per input port, in red; "0" for none."""
+    lost = {port: n for port, n in sorted(counts.items()) if n}
     return " ".join(f"[red]{port}:{n}[/]" for port, n in lost.items()) if lost else "0"
 
 
