@@ -23,7 +23,7 @@ import yaml
 
 from contactflow.embodiments.messages import ObjectPoses
 from contactflow.fusion.messages import ContactEventMsg
-from contactflow.nodes.messages import Clock, EventMsg
+from contactflow.nodes.messages import Clock, EventMsg, StatusMsg
 from contactflow.nodes.status import Event
 from contactflow.nodes.task_module import TaskProgressMsg
 from contactflow.nodes.taskgraph import NodeKind, TaskGraph
@@ -101,6 +101,14 @@ def contact_modules(robot: str, embodiment: str = "") -> list[dict]:
             {"name": "contacts", "type": "contact_fusion", **pace,
              "params": {"robot": robot, "sources": f"{robot}/*", "publish_hypotheses": False, "timeout": 0.3,
                         "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3}}]
+
+
+def cell_map_module(cell: str, robots: tuple[str, ...]) -> dict:
+    """The module entry of a cell's contact map (``cell_fusion``): the clouds of every generator of ``robots`` fused
+    into one map, out on ``contacts/fused/<cell>/...``, at the pace of a robot's own fusion (:func:`contact_modules`)."""
+    return {"name": "cell_map", "type": "cell_fusion", "robot": "site", "autostart": True,
+            "params": {"robot": cell, "robots": list(robots), "publish_hypotheses": False, "timeout": 0.3,
+                       "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3}}
 
 
 def _plain(v: Any) -> Any:
@@ -199,7 +207,8 @@ def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect
 
 
 class SiteWatch:
-    """A tool session on a site: every module event, and the world clock's progress (what ``contactflow echo`` shows)."""
+    """A tool session on a site: every module event, each module's last status, and the world clock's progress
+    (what ``contactflow echo`` and ``contactflow ls`` show)."""
 
     FINAL = frozenset({Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.TIMEOUT, Event.HARDWARE_FAILURE})
 
@@ -213,6 +222,7 @@ class SiteWatch:
         self.poses: list[ObjectPoses] = []  # the worlds' ground truth (eval/), as it came
         self.progress: list[TaskProgressMsg] = []  # every task module's progress, as it came
         self.contacts: list[ContactEventMsg] = []  # every robot's fused contact events, as they came
+        self.status: dict[str, StatusMsg] = {}  # each module's (robot/node/module) last status
         self.first_tick: tuple[float, float] | None = None  # (sim s, wall s) of tick 1
         self.last_tick: tuple[float, float] | None = None
         self._lock = threading.Lock()
@@ -220,7 +230,13 @@ class SiteWatch:
                       self.t.subscribe(self.ks.clock(), self._on_clock),
                       self.t.subscribe(self.ks.evaluation("*", "object_poses"), self._on_poses),
                       self.t.subscribe(self.ks.output("*", "*", "task", "progress"), self._on_progress),
-                      self.t.subscribe(self.ks.fused("*", "events"), self._on_contact)]
+                      self.t.subscribe(self.ks.fused("*", "events"), self._on_contact),
+                      self.t.subscribe(self.ks.status(), self._on_status)]
+
+    def _on_status(self, key: str, payload: bytes) -> None:
+        msg = decode(payload, StatusMsg, key)
+        with self._lock:
+            self.status[msg.module] = msg
 
     def _on_contact(self, key: str, payload: bytes) -> None:
         msg = decode(payload, ContactEventMsg, key)
@@ -269,6 +285,11 @@ class SiteWatch:
         with self._lock:
             return list(self.poses)
 
+    def statuses(self) -> dict[str, StatusMsg]:
+        """Each module's last status so far."""
+        with self._lock:
+            return dict(self.status)
+
     def messages(self) -> list[EventMsg]:
         """Every event so far, as it came."""
         with self._lock:
@@ -296,6 +317,7 @@ class CellRun:
     messages: list[EventMsg]  # every event as it came, with its detail and values
     poses: list[ObjectPoses]  # the world's ground truth object poses (eval/), as they came
     contacts: list[ContactEventMsg]  # the robots' fused contact events, as they came
+    statuses: dict[str, StatusMsg]  # each module's last status (robot/node/module -> status), at the end
 
     @property
     def rtf(self) -> float:
@@ -382,7 +404,7 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         if keep is not None and not processes:
             keep(started[0].host.modules[("site", "world")].module)
         return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, watch.messages(),
-                       watch.object_poses(), watch.contact_events())
+                       watch.object_poses(), watch.contact_events(), watch.statuses())
     finally:
         stop_nodes(started, watch, processes)
 
@@ -460,12 +482,13 @@ def _pose(xyz: tuple[float, float, float]) -> list[float]:
     return [p[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
 
 
-def table_cell(site: str, endpoint: str, melfa: bool = False,
-               predictor: Mapping[str, Any] | None = None, task: str = "pick_and_place") -> tuple[dict, list[dict]]:
+def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping[str, Any] | None = None,
+               task: str = "pick_and_place", cell_map: bool = False) -> tuple[dict, list[dict]]:
     """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3, ``task`` of
     ``thesis.yaml``: ``careful_pick_and_place`` corrects what its predictor reports), its grasp watched on its
     fused contacts while it carries the can (and by its predictor, with ``predictor``: its params); with
-    ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube.
+    ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube; with ``cell_map`` too, melfa
+    runs its contact fusion as well and tombatossals' control node the cell's map of both (:func:`cell_map_module`).
 
     Returns the world node (listening on ``endpoint``, waiting for the control nodes before
     tick 1, so a run repeats exactly) and the control nodes (connecting to it, tasks autostarted).
@@ -478,7 +501,9 @@ def table_cell(site: str, endpoint: str, melfa: bool = False,
                              contacts=True, predictor=predictor)]
     if melfa:
         controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE)},
-                                     connect=(endpoint,), autostart=True))
+                                     connect=(endpoint,), autostart=True, contacts=cell_map))
+        if cell_map:
+            controls[0]["modules"].append(cell_map_module("shared_table", ("tombatossals", "melfa")))
     cell = CELLS / ("shared_table.yaml" if melfa else "pick_place.yaml")
     w = world_node(site, cell, listen=endpoint, wait_for=tuple(c["node"] for c in controls))
     return w, controls

@@ -26,7 +26,7 @@ class CellFusionParams(FusionParams):
     robots: tuple[str, ...] = ()  # the cell's robots; a cloud about any other robot is refused
     reliability: tuple[str, ...] = ()  # "<robot>=w" or "<robot>/<generator>=w", w in (0, 1]: likelihoods times w
     max_skew: float = 2.0  # s, a cloud stamped further than this from the node's clock (another clock) is refused
-    max_rate: float = 50.0  # Hz, clouds of one robot taken per second (a burst of one second's worth); more refused
+    max_rate: float = 500.0  # Hz, clouds of one robot taken per second, all its generators (a second's burst)
 
     def validate(self) -> None:
         super().validate()
@@ -68,6 +68,12 @@ class CellFusion(ContactFusion):
     def on_params(self, old) -> None:  # type: ignore[no-untyped-def]
         super().on_params(old)
         self.weights = self.params.weights()
+
+    def status_detail(self) -> str:
+        """How many sources of each robot of the cell feed the map, and the refusals (``contactflow ls``)."""
+        plugged = Counter(s.robot for s in self.integrator.sources.values())
+        refused = ", ".join(f"{why} {n}" for why, n in sorted(self.refused.items())) or "none"
+        return f"sources: {', '.join(f'{r} {plugged[r]}' for r in self.params.robots)}; refused: {refused}"
 
     def admit(self, msg: HypothesisCloud, now: float) -> Hypotheses | None:
         p = self.params

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
-import open3d as o3d
 
 from contactflow.fusion.hypotheses import normalise
 from contactflow.fusion.integrator import Fused
@@ -110,6 +109,9 @@ def condense(fused: Fused, params: CondensationParams | None = None) -> list[Con
 
 def clusters(points: np.ndarray, eps: float, min_points: int = 1) -> list[np.ndarray]:
     """Euclidean clusters (open3d DBSCAN); indices into ``points``, noise left out."""
+    # imported here: a process that only reads fusion messages (a world, a probe, the CLI) does not load open3d
+    import open3d as o3d
+
     if points.shape[0] == 0:
         return []
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))

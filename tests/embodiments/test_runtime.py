@@ -22,8 +22,15 @@ def test_two_robots_in_one_cell_each_run_a_task_without_disturbing_the_other(tmp
                     contacts=gt.contacts, refused=[r.refused for r in wm.robots.values()],
                     failed=[r.sim.failed for r in wm.robots.values()])
 
-    run = run_cell(tmp_path, *table_cell("rt2", endpoint, melfa=True), endpoint, keep=keep)
+    run = run_cell(tmp_path, *table_cell("rt2", endpoint, melfa=True, cell_map=True), endpoint, keep=keep)
     assert all(o.event is Event.SUCCESS for o in run.outcomes.values()), run.events
+    # every cue of both robots (each hand's tactile and F/T, motion support, null) in the one map, nothing refused
+    # (its status, as contactflow ls shows it, at the end)
+    assert run.statuses["site/control_tombatossals/cell_map"].detail == "sources: tombatossals 6, melfa 4; refused: none"
+    cell = [c for c in run.contacts if c.hdr.source == "site/control_tombatossals/cell_map/events"]
+    assert [(c.robot, c.link, str(c.event)) for c in cell][:1] == [(ROBOT, "right_hand", "contact_made")], cell
+    own = [c for c in run.contacts if c.hdr.source.startswith(f"{ROBOT}/")]  # tombatossals' own fusion
+    assert {(c.robot, str(c.event)) for c in own} == {(c.robot, str(c.event)) for c in cell}
     assert ("touch", "success") in {(m, e) for _, m, e in run.events}
     # the can was moved by tombatossals; melfa touched down at the cube and left it standing there
     cyl = kept["can"]

@@ -43,6 +43,9 @@ def test_the_cell_map_fuses_every_robot_of_the_cell_and_goes_out_under_the_cells
     assert sorted(c.robot for c in contacts.contacts) == ["baxter", "melfa"]
     assert io.event_labels() == [Event.CONTACT_MADE, Event.CONTACT_MADE]
     assert sum(fusion.refused.values()) == 0
+    io.feed("hypotheses", cloud(A, "tombatossals"))
+    fusion.step()
+    assert fusion.status_detail() == "sources: baxter 1, melfa 1; refused: robot 1"
 
 
 def test_a_less_reliable_source_weighs_less_in_the_map():
