@@ -131,8 +131,7 @@ def run(quick: bool = False, advance=lambda: None, out_dir: Path | None = None) 
     with tempfile.TemporaryDirectory(prefix="cf-bench-runtime-") as tmp:
         folder = Path(tmp)
         rtf = rtf_runs(folder, advance, LAYOUTS[:1] if quick else LAYOUTS)
-        differed = [label for label, row in rtf.items() if not row["repeated"]]
-        if differed and out_dir is not None:
+        if out_dir is not None and not all(row["repeated"] for row in rtf.values()):
             shutil.copytree(folder, out_dir / "runtime_logs", dirs_exist_ok=True,
                             ignore=lambda d, names: [n for n in names if not (Path(d, n).is_dir() or n.endswith(".log"))])
         return {"rtf": rtf, "round_trip": round_trip(100 if quick else 2000, folder)}
