@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.fusion.condensation import CondensationParams, Method
+from contactflow.fusion.condensation import CondensationParams, Method, backend
 from contactflow.fusion.events import ContactTracker, TrackerParams
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses
 from contactflow.fusion.integrator import Integrator, IntegratorParams
@@ -96,6 +96,8 @@ class ContactFusion(Module):
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
         self.params.validate()
+        # the clustering's library loads now: in the first cycle its import would hold the loop while clouds queue
+        backend()
         self.reset()
 
     def reset(self) -> None:
