@@ -12,6 +12,7 @@ import functools
 import importlib
 import sys
 import threading
+from collections.abc import Collection, Iterator
 from pathlib import Path
 
 from contactflow.nodes.module import Layer, Module
@@ -43,7 +44,30 @@ def catalog() -> dict[str, str]:
 @functools.cache
 def layer_types(layer: Layer) -> frozenset[str]:
     """Short names of the registered module types of ``layer`` (imports every registered type, once)."""
-    return frozenset(name for name in catalog() if resolve(name).layer is layer)
+    return frozenset(name for name in catalog() if _layer(name) is layer)
+
+
+@functools.cache
+def _layer(name: str) -> Layer:
+    return resolve(name).layer
+
+
+class LayerTypes(Collection[str]):
+    """The registered module types of ``layers``, as a collection that imports a type only to tell whether it is
+    one of them: a task file's validation asks about the few types it names, not the ~100 registered (1-2 s of
+    imports, on the control query that runs the task). Listing it (an error message) imports them all."""
+
+    def __init__(self, *layers: Layer) -> None:
+        self.layers = frozenset(layers)
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and name in catalog() and _layer(name) in self.layers
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(sorted(set().union(*(layer_types(layer) for layer in self.layers))))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
 
 
 _PATH_LOCK = threading.Lock()

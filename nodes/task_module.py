@@ -166,12 +166,6 @@ class TaskModule(Module):
 
     def setup(self, io: ModuleIO) -> None:
         super().setup(io)
-        from contactflow.nodes.registry import layer_types
-
-        # RUN validates the task file against every registered module type, which imports them all (1-2 s):
-        # done here, before the module is announced, so the control query that runs the task does not time out
-        for layer in (Layer.PRIMITIVE, Layer.SERVICE):
-            layer_types(layer)
         self.runner = self._runner or ControlRunner(io, self.params.robot, self.params.pool)
         self.engine = TaskEngine(self.runner, lambda: io.now, library=self._library, on_progress=self._progress)
         self.run_id = ""

@@ -40,9 +40,9 @@ def _known_types(primitives: Collection[str] | None) -> tuple[Collection[str] | 
     """(types a node may run, types a helper may run)."""
     if primitives is REGISTERED:
         from contactflow.nodes.module import Layer
-        from contactflow.nodes.registry import layer_types
+        from contactflow.nodes.registry import LayerTypes
 
-        return layer_types(Layer.PRIMITIVE), layer_types(Layer.PRIMITIVE) | layer_types(Layer.SERVICE)
+        return LayerTypes(Layer.PRIMITIVE), LayerTypes(Layer.PRIMITIVE, Layer.SERVICE)
     return primitives, primitives
 
 
