@@ -242,7 +242,9 @@ def _parse_node(doc: YamlDoc, path: PathKey, site: str, host: str, name: str, po
         if robot == "site":
             raise doc.error(path + ("contacts",), "contact fusion needs the node's robot")
         try:
-            generated += contact_modules(robot)
+            # a node that hosts the robot's predictor fuses its predicted contacts too (simulator support)
+            generated += contact_modules(robot, predictor=any(isinstance(m, dict) and m.get("type") == "predictor"
+                                                              for m in modules))
         except KeyError as exc:
             raise doc.error(path + ("robot",), str(exc).strip("'\"")) from None
     written = len(modules)

@@ -72,12 +72,13 @@ def primitive_modules(robot: str, embodiment: str = "", types: list[str] | None 
     return out
 
 
-def contact_modules(robot: str, embodiment: str = "") -> list[dict]:
+def contact_modules(robot: str, embodiment: str = "", predictor: bool = False) -> list[dict]:
     """Module entries of a robot's own contact fusion (thesis ch. 4) on its control node: the tactile and wrist
     F/T generators of every arm with a hand (``contact_cues``), the robot's posed model (``model``, from the
     joints the world publishes) feeding motion support (§4.5.1: where the hands go next) and null hypotheses
-    (§4.2.1: the space they swept), and ``contact_fusion`` over them all, whose contacts and events go out on
-    ``contacts/fused/<robot>/...`` (what ``wait_event`` with ``sensor: fused`` reads)."""
+    (§4.2.1: the space they swept), with ``predictor`` (the node hosts the robot's predictor) the simulator
+    support of its predicted hand contacts (§4.5.2), and ``contact_fusion`` over them all, whose contacts and
+    events go out on ``contacts/fused/<robot>/...`` (what ``wait_event`` with ``sensor: fused`` reads)."""
     from contactflow.embodiments import registry
     from contactflow.fusion.station import hand_links
 
@@ -97,6 +98,9 @@ def contact_modules(robot: str, embodiment: str = "") -> list[dict]:
                   # into the space its trailing side just left
                   {"name": "null", "type": "null_hypotheses", **pace, "inputs": on_model,
                    "params": {"robot": robot, "rate_hz": 20.0, "links": hands, "memory": 0.0}}]
+    if predictor:  # support where the predictor's hands touch what the robot believes, its pose error spread
+        generators.append({"name": "simulator", "type": "simulator_support_hypotheses", **pace,
+                           "params": {"robot": robot, "rate_hz": 20.0, "dilate": 0.02}})
     return [*cues, model, *generators,
             {"name": "contacts", "type": "contact_fusion", **pace,
              "params": {"robot": robot, "sources": f"{robot}/*", "publish_hypotheses": False, "timeout": 0.3,
@@ -160,7 +164,7 @@ def control_node(site: str, robot: str, embodiment: str, task_file: str | Path, 
     name = task or main
     modules = primitive_modules(robot, embodiment, primitive_types(tasks, name), pool)
     if contacts:
-        modules += contact_modules(robot, embodiment)
+        modules += contact_modules(robot, embodiment, predictor=predictor is not None)
     if predictor is not None:
         modules.append({"name": "predictor", "type": "predictor", "robot": robot, "autostart": True,
                         "params": {k: _plain(v) for k, v in predictor.items()}})
@@ -409,14 +413,19 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         stop_nodes(started, watch, processes)
 
 
-def write_cell(path: Path, robot: str, objects: list, bottles: list = ()) -> Path:
-    """A scene file at ``path``: ``robot`` at its own placement, the table, ``objects`` (ObjectSpecs) and ``bottles``
-    (ScrewBottleSpecs)."""
+def write_cell(path: Path, robot: str, objects: list, bottles: list = (), cameras: list = ()) -> Path:
+    """A scene file at ``path``: ``robot`` at its own placement, the table, ``objects`` (ObjectSpecs), ``bottles``
+    (ScrewBottleSpecs) and fixed ``cameras`` (CameraPlacements)."""
+    import dataclasses
+
     from contactflow.embodiments.scene_file import bottle_entry, object_entry
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump({"scene": "table", "robots": [{"name": robot}],
-                                    "objects": [object_entry(o) for o in objects] + [bottle_entry(b) for b in bottles]}))
+    doc = {"scene": "table", "robots": [{"name": robot}],
+           "objects": [object_entry(o) for o in objects] + [bottle_entry(b) for b in bottles]}
+    if cameras:
+        doc["cameras"] = [_plain(dataclasses.asdict(c)) for c in cameras]
+    path.write_text(yaml.safe_dump(doc))
     return path
 
 

@@ -16,9 +16,14 @@ Example::
           - {kind: cylinder, radius: 0.025, length: 0.16, xyz: [0.0, 0.0, 0.08]}
           - {kind: box, size: [0.03, 0.02, 0.03], xyz: [0.01, 0.0, 0.175]}
       - {name: bottle, kind: screw_bottle, xyz: [0.5, 0.0, 0.75], thread_turns: 0.5}  # stands free; static: welded
+    cameras:                     # fixed depth cameras of the cell (a head-like camera no robot carries)
+      - {name: head, eye: [-0.1, 0.1, 1.45], target: [0.56, 0.1, 0.82]}
 
 A ``screw_bottle`` (thesis §3.3.6) takes the fields of ``ScrewBottleSpec`` (``body_radius``, ``thread_turns``, ...;
 ``xyz`` is the centre of its bottom face); it stands free unless ``static``.
+
+A camera looks from ``eye`` at ``target`` (m, world), the image's up toward +z; it takes ``width`` and ``height``
+(px, default 640 x 480, the Kinect's intrinsics scaled) and streams on ``camera/<name>/depth``.
 
 Poses are ``[x, y, z, roll, pitch, yaw]`` (m, rad, world). Errors name the file, line and field.
 """
@@ -30,7 +35,8 @@ from pathlib import Path
 
 from contactflow.nodes.yamldoc import YamlDoc
 
-_TOP = {"scene", "robots", "objects"}
+_TOP = {"scene", "robots", "objects", "cameras"}
+_CAMERA = {"name", "eye", "target", "width", "height"}
 _ROBOT = {"name", "embodiment", "base"}
 _OBJECT = {"name", "kind", "size", "radius", "length", "shapes", "xyz", "rpy", "mass", "friction", "static"}
 _SHAPE = {"kind", "size", "radius", "length", "xyz", "rpy"}
@@ -48,12 +54,22 @@ class RobotPlacement:
 
 
 @dataclass(frozen=True)
+class CameraPlacement:
+    name: str  # the camera's name on the key space (camera/<name>/depth)
+    eye: tuple[float, float, float]  # m, world: where it is
+    target: tuple[float, float, float]  # m, world: what it looks at
+    width: int = 640  # px
+    height: int = 480  # px
+
+
+@dataclass(frozen=True)
 class SceneFile:
     scene: str
     robots: tuple[RobotPlacement, ...]
     objects: tuple  # ObjectSpec
     file: str = "<scene>"
     bottles: tuple = ()  # ScrewBottleSpec
+    cameras: tuple[CameraPlacement, ...] = ()
 
 
 def _floats(doc: YamlDoc, path: tuple, n: int) -> tuple[float, ...]:
@@ -124,7 +140,37 @@ def parse_scene(doc: YamlDoc) -> SceneFile:
         if any(o.name == name for o in objects + bottles):
             raise doc.error(p + ("name",), f"object {name!r} is defined twice")
         objects.append(ObjectSpec(name, shapes, mass, friction, xyz, rpy, static, kind))
-    return SceneFile(scene, tuple(robots), tuple(objects), doc.file, tuple(bottles))
+    return SceneFile(scene, tuple(robots), tuple(objects), doc.file, tuple(bottles), _cameras(doc))
+
+
+def _cameras(doc: YamlDoc) -> tuple[CameraPlacement, ...]:
+    """The fixed cameras of a scene document."""
+    from contactflow.nodes.keys import ANY, KeyExprError, segment
+
+    out: list[CameraPlacement] = []
+    for i, _ in enumerate(doc.get(("cameras",), list, [])):
+        p = ("cameras", i)
+        doc.mapping(p, _CAMERA)
+        name = doc.get(p + ("name",), str)
+        try:
+            if name == ANY:
+                raise KeyExprError("a camera needs a name, not the wildcard '*'")
+            segment(name, "camera")
+        except KeyExprError as exc:
+            raise doc.error(p + ("name",), str(exc)) from None
+        if any(c.name == name for c in out):
+            raise doc.error(p + ("name",), f"camera {name!r} is placed twice")
+        eye, target = _floats(doc, p + ("eye",), 3), _floats(doc, p + ("target",), 3)
+        if sum((a - b) ** 2 for a, b in zip(eye, target, strict=True)) < 1e-6:
+            raise doc.error(p + ("target",), f"the camera looks at its own eye {list(eye)}")
+        size = []
+        for f, default in (("width", 640), ("height", 480)):
+            v = doc.get(p + (f,), int, default)
+            if isinstance(v, bool) or not 8 <= v <= 4096:
+                raise doc.error(p + (f,), f"expected a whole number of pixels in 8..4096, got {v!r}")
+            size.append(v)
+        out.append(CameraPlacement(name, eye, target, *size))  # type: ignore[arg-type]
+    return tuple(out)
 
 
 def _bottle(doc: YamlDoc, p: tuple):

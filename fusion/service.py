@@ -37,6 +37,7 @@ class FusionParams:
     rate_hz: float = 200.0  # Hz, how often the integrator checks for a complete cycle
     robot: str = "site"  # robot segment of the fused keys ("site" for a shared integrator)
     sources: str = "*/*"  # robot/generator pattern of the clouds to fuse
+    generators: tuple[str, ...] = ()  # of those, only the clouds of these generators (e.g. a modality's); (): all
     voxel_size: float = VOXEL_SIZE  # m
     timeout: float = 0.5  # s, hypothesis lifetime
     wait_timeout: float = 0.25  # s, longest wait for a late source
@@ -56,6 +57,9 @@ class FusionParams:
         parts = self.sources.split("/")
         if len(parts) != 2 or not all(parts):
             raise ValueError(f"sources={self.sources!r} must be '<robot>/<generator>' (either may be '*')")
+        if self.generators and parts[1] != "*":
+            raise ValueError(f"generators={list(self.generators)}: give them with sources '<robot>/*', "
+                             f"not {self.sources!r}")
         self.integrator().validate()
         self.condensation().validate()
         self.tracker().validate()
@@ -126,8 +130,11 @@ class ContactFusion(Module):
     def step(self) -> Status:
         assert self.io is not None
         now = self.io.now
+        only = self.params.generators
         for msg in self.io.take("hypotheses"):
             assert isinstance(msg, HypothesisCloud)
+            if only and msg.generator not in only:
+                continue
             try:
                 cloud = self.admit(msg, now)
             except WireError as exc:

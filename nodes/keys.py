@@ -18,6 +18,7 @@ Layout (``docs/protocol.md`` documents it with examples)::
     cf/<site>/robot/<robot>/{state,joints,command,camera,depth,info}
                                                            a world's robot: state per tick, commands in, camera
                                                            frames on request, depth stream, description (queryable)
+    cf/<site>/camera/<camera>/depth                        a world's fixed camera (no robot carries it): depth stream
     cf/<site>/lockstep/[<cell>/]<node>                     lockstep: a node finished a world tick
     cf/<site>/alive/lockstep/[<cell>/]<node>               liveliness: a node the world waits for each tick
     cf/<site>/alive/controller/<robot>/<node>              liveliness: a node commanding a world's robot
@@ -154,6 +155,10 @@ class KeySpace:
         if stream != ANY and stream not in ROBOT_STREAMS:
             raise KeyExprError(f"stream={stream!r}: robot streams are {', '.join(ROBOT_STREAMS)}")
         return f"{self.prefix}/robot/{segment(robot, 'robot')}/{stream}"
+
+    def camera(self, camera: str = ANY) -> str:
+        """The depth stream of a world's fixed camera (a scene file's ``cameras``)."""
+        return f"{self.prefix}/camera/{segment(camera, 'camera')}/depth"
 
     def lockstep(self, node: str = ANY, cell: str = "") -> str:
         """Where a lockstep node says it finished a tick of its cell's world."""

@@ -4,7 +4,9 @@ The module builds the cell of a scene file (robots at their base poses, table, o
 is its robots' hardware: it takes arm, hand, head and camera commands on
 ``robot/<robot>/command``, runs each robot's joint controllers at the control rate, and
 publishes every tick each robot's :class:`RobotState` on ``robot/<robot>/state``, then the
-clock. Object poses and each robot's true contacts with the objects go only to ``eval/``.
+clock. With ``camera_hz`` it streams depth frames of each robot's first camera (``robot/<robot>/depth``) and of
+the scene file's fixed cameras (``camera/<name>/depth``). Object poses and each robot's true contacts with the
+objects go only to ``eval/``.
 Nothing else in the system touches the scene.
 
 Two clocks (``params.clock``):
@@ -168,6 +170,26 @@ class _Robot:
     joints: JointState | None = None  # its joints, on their own for the subscribers that need only them (self filter)
 
 
+@dataclass
+class _FixedCamera:
+    camera: Any  # DepthCamera fixed in the world
+    pub: Any
+    seq: int = 0
+
+
+def fixed_camera(world: Any, c: Any) -> Any:
+    """The DepthCamera of a scene file's camera ``c`` (CameraPlacement) in ``world``: Kinect intrinsics scaled to
+    its image, streaming as fast as it is read."""
+    from contactflow.embodiments.registry import CameraSpec
+    from contactflow.embodiments.sensors.camera import DepthCamera
+    from contactflow.recognition.geometry import look_at
+
+    f = 525.0 * c.width / 640.0
+    spec = CameraSpec(name=c.name, link="", width=c.width, height=c.height, fx=f, fy=f, cx=(c.width - 1) / 2,
+                      cy=(c.height - 1) / 2, rate_hz=1e9)
+    return DepthCamera(world, spec, T_world_cam=look_at(np.asarray(c.eye, float), np.asarray(c.target, float)))
+
+
 class WorldModule(Module):
     """A SAPIEN cell from a scene file; its robots commanded and sensed over ``robot/<robot>/...``."""
 
@@ -188,7 +210,7 @@ class WorldModule(Module):
         slice: float = 0.05  # s of wall time one step may spend on lockstep ticks
         ground_truth_hz: float = 20.0  # Hz of object poses on eval/
         contacts_hz: float = 0.0  # Hz of simulated time, each robot's true contacts with the objects on eval/<r>/true_contacts
-        camera_hz: float = 0.0  # Hz of simulated time, depth frames of each robot's first camera on robot/<r>/depth
+        camera_hz: float = 0.0  # Hz of simulated time, depth frames of each robot's first camera on robot/<r>/depth and of the scene's fixed cameras on camera/<name>/depth
         camera_backend: str = "auto"  # auto | render | raycast
         seed: int = 0  # sensor noise seed of every robot
         cell: str = ""  # the cell's name when a site runs several worlds (its clock and lockstep keys)
@@ -257,6 +279,7 @@ class WorldModule(Module):
         self.ks = ks = io.keyspace
         addr = f"{io.robot}/{io.node}/{self.name}" if hasattr(io, "robot") else self.name
         self.source = addr
+        cameras: tuple = ()
         if self._given is not None:
             world, sims = self.world, [(sim.name, sim) for sim in self._given]
         else:
@@ -268,6 +291,7 @@ class WorldModule(Module):
                 world.add_object(obj)
             for bottle in scene.bottles:
                 world.add_screw_bottle(bottle)
+            cameras = scene.cameras
             sims = []
             for k, rp in enumerate(scene.robots):
                 base = None if rp.base is None else xyz_rpy_to_matrix(rp.base[:3], rp.base[3:])
@@ -286,6 +310,7 @@ class WorldModule(Module):
                                           transport.publisher(ks.robot(rname, "camera")),
                                           transport.publisher(ks.robot(rname, "depth")),
                                           transport.publisher(ks.robot(rname, "joints")))
+        self._fixed = [_FixedCamera(fixed_camera(world, c), transport.publisher(ks.camera(c.name))) for c in cameras]
         for k, text in enumerate(p.pushes):
             name, t0, t1, force = _push(text, f"{where}.pushes[{k}]", world.objects)
             world.add_hook(lambda w, obj=world.objects[name], a=t0, b=t1, f=force:
@@ -541,6 +566,8 @@ class WorldModule(Module):
             for r in self.robots.values():
                 if r.sim.spec.cameras:
                     self._stream_depth(r)
+            for c in self._fixed:
+                self._stream_fixed(c, t)
         if not repeat and self.params.ground_truth_hz > 0 and t >= self._gt_due - 1e-9:
             self._gt_due = t + 1.0 / self.params.ground_truth_hz
             objs = {n: o.pose() for n, o in self.world.objects.items()} | self.world.bottle_poses()
@@ -678,6 +705,16 @@ class WorldModule(Module):
         r.depth_seq += 1
         msg = DepthImage.of(depth, K, Twc, camera)
         r.depth_pub(encode(stamp(msg, f"{self.source}/{r.sim.name}/depth", r.depth_seq, self.world.time)))
+
+    def _stream_fixed(self, c: _FixedCamera, t: float) -> None:
+        name = c.camera.spec.name
+        try:
+            depth, Twc = c.camera.read_depth(t)
+        except Exception as exc:  # as a robot's camera: a lost stream, not a dead world
+            self.log.warning("camera %s: %s", name, exc)
+            return
+        c.seq += 1
+        c.pub(encode(stamp(DepthImage.of(depth, c.camera.K, Twc, name), f"{self.source}/camera/{name}", c.seq, t)))
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:
         frame = r.sim.camera(msg.camera)

@@ -21,13 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from contactflow.embodiments.messages import PointCloud, RobotModel
+from contactflow.embodiments.messages import DepthImage, PointCloud, RobotModel
 from contactflow.fusion.generators.base import GeneratorModule, capsules_of
 from contactflow.fusion.geometry import DistanceFn, distance_fn
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType
 from contactflow.nodes.messages import Vector
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
+from contactflow.nodes.wire import NDArray
 
 P_OCCLUDED = 0.5
 
@@ -52,6 +53,15 @@ class RangeParams:
     # the model's surface lies in likely occupied voxels (objects fixed to the table)
     robot_margin: float = 0.01  # m, depth points this close to the robot model are the robot
     table_margin: float = 0.005  # m, depth points this close above the table are the table
+    roi: tuple[float, ...] = ()  # m, [xlo, ylo, zlo, xhi, yhi, zhi] box around the object, world; the roi input
+    # overrides it; (): the whole view
+    stride: int = 2  # px, decimation of a depth input's image before back-projection
+
+    def validate(self) -> None:
+        if self.roi and (len(self.roi) != 6 or not all(lo < hi for lo, hi in zip(self.roi[:3], self.roi[3:], strict=True))):
+            raise ValueError(f"roi: {list(self.roi)} is not [xlo, ylo, zlo, xhi, yhi, zhi] with lo < hi")
+        if self.stride < 1:
+            raise ValueError(f"stride: {self.stride} must be at least 1")
 
 
 def segment_object(points: np.ndarray, distance: DistanceFn | None, params: RangeParams,
@@ -235,6 +245,7 @@ class RangeHypothesesGenerator(GeneratorModule):
     Params = RangeParams
     inputs = (
         Port("points", PointCloud, "depth points, world frame, with the camera position as origin"),
+        Port("depth", DepthImage, "or a camera's depth frames (a world's depth stream), back-projected here"),
         Port("robot_model", RobotModel, "posed bi-spheres of the observed robot, world"),
         Port("roi", Vector, "[xlo, ylo, zlo, xhi, yhi, zhi] box around the object, world (optional)"),
     )
@@ -249,7 +260,7 @@ class RangeHypothesesGenerator(GeneratorModule):
     def step(self) -> Status:
         assert self.io is not None
         model = capsules_of(self.io.latest("robot_model"), "robot_model", self.name)
-        frames = self.io.take("points")
+        frames = self.io.take("points") + self.io.take("depth")
         if model is None or not frames:
             return Status.RUNNING
         roi = self.io.latest("roi")
@@ -259,8 +270,12 @@ class RangeHypothesesGenerator(GeneratorModule):
             if box.shape != (6,):
                 raise ValueError(f"{self.name}: input 'roi' has {box.size} values, expected 6")
             lo, hi = box[:3], box[3:]
-        dist = distance_fn(model)
-        msg = frames[-1]
+        elif self.params.roi:
+            lo, hi = np.asarray(self.params.roi[:3]), np.asarray(self.params.roi[3:])
+        dist = distance_fn(self.near(model, lo, hi))
+        msg = max(frames, key=lambda m: m.hdr.t_sim)
+        if isinstance(msg, DepthImage):
+            msg = self.back_project(msg)
         assert isinstance(msg, PointCloud)
         if msg.frame != "world":
             raise ValueError(f"{self.name}: input 'points' is in frame {msg.frame!r}, expected 'world'")
@@ -275,3 +290,35 @@ class RangeHypothesesGenerator(GeneratorModule):
         obj = segment_object(pts, dist, self.params, lo, hi)
         self.publish_cloud(self.core.observe(obj, dist, self.stamp_of(msg), camera))
         return Status.RUNNING
+
+    def near(self, caps: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
+        """The robot's bi-spheres that reach the space the generator reads (the roi and the grid): the others
+        change no voxel's class (inside, surface) nor any point's (robot or not), and a robot of sixty links
+        evaluated over every voxel of the grid was most of a frame's cost."""
+        if lo is None or hi is None:  # no roi: every point of the view is read
+            return caps
+        boxes = [(lo, hi)]
+        grid = self.core.grid
+        if grid is not None:
+            boxes.append((grid.lo, grid.lo + np.asarray(grid.shape) * grid.voxel))
+        p = self.params
+        pad = max(p.surface_band, p.robot_margin) + p.ogm_voxel
+        b_lo = np.min([b[0] for b in boxes], axis=0) - pad
+        b_hi = np.max([b[1] for b in boxes], axis=0) + pad
+        r1, r2 = caps[:, 3:4], caps[:, 7:8]
+        c_lo = np.minimum(caps[:, 0:3] - r1, caps[:, 4:7] - r2)
+        c_hi = np.maximum(caps[:, 0:3] + r1, caps[:, 4:7] + r2)
+        return caps[np.all((c_lo <= b_hi) & (c_hi >= b_lo), axis=1)]
+
+    def back_project(self, msg: DepthImage) -> PointCloud:
+        """The world points of a depth frame, with its camera position as origin and its stamp."""
+        from contactflow.recognition.geometry import depth_to_points
+        from contactflow.recognition.messages import depth_arrays
+
+        try:
+            depth, K, T = depth_arrays(msg)
+        except ValueError as exc:
+            raise ValueError(f"{self.name}: input 'depth': {exc}") from None
+        pts = depth_to_points(depth, K, T, self.params.stride)
+        return PointCloud(points=NDArray.of(pts.astype(np.float32)), origin=[float(v) for v in T[:3, 3]],
+                          sensor=msg.camera, hdr=msg.hdr)

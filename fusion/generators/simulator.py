@@ -15,9 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactflow.fusion.generators.base import GeneratorModule, array_of
+from contactflow.embodiments.messages import PredictedState
+from contactflow.fusion.generators.base import GeneratorModule
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType, voxelize
-from contactflow.nodes.messages import Array
+from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 
@@ -65,18 +66,27 @@ def simulator_support(predicted: np.ndarray | Sequence[np.ndarray], stamp: float
 
 
 class SimulatorSupportGenerator(GeneratorModule):
-    """Predicted contacts of a prediction scene to support hypotheses (§4.5.2)."""
+    """A robot's predictor's contacts to support hypotheses (§4.5.2): each predicted state's hand contacts,
+    spread over ``dilate`` (the believed objects' pose error)."""
 
     Params = SimulatorParams
-    inputs = (Port("predicted_contacts", Array, "(k, 3) predicted contact points, world"),)
+    inputs = (Port("predicted", PredictedState, "the robot's predictor's state (predict/<robot>/state): its hands' "
+                   "predicted contact points, world"),)
+
+    @classmethod
+    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: SimulatorParams) -> dict[str, str]:
+        return {"predicted": ks.predict(params.robot, "state")}
 
     def step(self) -> Status:
         assert self.io is not None
-        frames = self.io.take("predicted_contacts")
+        frames = self.io.take("predicted")
         if not frames:
             return Status.RUNNING
         msg = frames[-1]
-        pts = array_of(msg, "predicted_contacts", 3, self.name)
-        assert pts is not None
+        assert isinstance(msg, PredictedState)
+        pts = np.zeros((0, 3)) if msg.contacts is None else msg.contacts.numpy().astype(np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"{self.name}: input 'predicted' ({msg.robot}) has contacts of shape {pts.shape}, "
+                             "expected (m, 3)")
         self.publish_cloud(simulator_support(pts, self.stamp_of(msg), self.params))
         return Status.RUNNING

@@ -84,9 +84,13 @@ def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tm
     assert summary["mismatches"] == [] and all(t["corrections"] == [] for t in summary["tasks"])
     # every fused contact event names the hypothesis clouds it came from
     assert summary["contacts"]
+    # tombatossals' predictor is a cue of its fusion: its predicted hand contacts support the sensed ones
+    assert any("/simulator/" in i for c in summary["contacts"] if c["robot"] == "tombatossals" for i in c["inputs"])
     for c in summary["contacts"]:
         assert c["sources"] and len(c["inputs"]) == len(c["sources"]), c
-        assert all(i.startswith(f"{c['robot']}/") and ("/cues_" in i or "/motion/" in i) for i in c["inputs"]), c
+        # the sensed cues, and the support of where the hands move (motion) and of what the predictor predicts
+        assert all(i.startswith(f"{c['robot']}/") and any(g in i for g in ("/cues_", "/motion/", "/simulator/"))
+                   for i in c["inputs"]), c
         assert any("/cues_" in i for i in c["inputs"]), c  # support alone makes no contact
     for name in ("timeline.png", "contacts.png"):
         assert (tmp_path / name).stat().st_size > 10_000

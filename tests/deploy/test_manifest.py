@@ -73,6 +73,11 @@ def test_default_manifest_runs_the_real_modules_of_the_areas():
         assert [mod["params"]["robot"] for mod in fusion] == [r.name]
         cues = {mod["params"]["arm"] for mod in node.modules if mod["type"] == "contact_cues"}
         assert cues == {a.name for a in registry.get(r.name).arms if a.hand}
+        # and where its predictor runs (tombatossals), the support of the contacts it predicts (thesis §4.5.2)
+        predicts = any(mod["type"] == "predictor" for mod in node.modules)
+        support = [mod["params"]["robot"] for mod in node.modules if mod["type"] == "simulator_support_hypotheses"]
+        assert support == ([r.name] if predicts else []), r.name
+    assert any(mod["type"] == "predictor" for n in m.nodes() for mod in n.modules)
 
 
 def test_default_manifest_wires_tombatossals_detect_objects_to_the_vision3d_objects(tmp_path):

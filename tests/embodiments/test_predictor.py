@@ -72,6 +72,11 @@ def test_the_predictor_follows_an_undisturbed_pick_and_reports_no_mismatch(tmp_p
     assert carried and max(errors) < 0.025, max(errors)  # lifted 10 cm with the hand
     # the predictor predicted the grasp's contacts on the hand, as fusion sensed them
     assert any(s.contact_hands and set(s.contact_hands) == {"right_hand"} for s in states)
+    # and its predicted contacts are a cue of the robot's own fusion (simulator support, thesis §4.5.2): the
+    # grasp's fused contacts were made of the hand's sensed clouds and of the predictor's support
+    made = [e for e in cell.contacts if e.event == "contact_made" and e.robot == ROBOT]
+    fed = {part for e in made for i in e.hdr.inputs for part in i.source.split("/")}
+    assert {"simulator", "cues_right"} <= fed, [i.source for e in made for i in e.hdr.inputs]
 
 
 def test_an_object_heavier_than_believed_is_one_surprise_that_teaches_its_mass_and_the_careful_pick_lets_go(tmp_path):

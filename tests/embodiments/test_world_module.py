@@ -63,6 +63,20 @@ objects:
      r"scene.yaml:3: objects\[0\].thread_turns: expected a non-negative number"),
     ("robots: [{name: melfa}]\nobjects:\n  - {name: b, kind: sphere, radius: 0.1, xyz: [0, 0, 1]}\n"
      "  - {name: b, kind: screw_bottle, xyz: [0, 0, 1]}\n", r"scene.yaml:4: objects\[1\].name: object 'b' is defined twice"),
+    ("robots: [{name: melfa}]\ncameras:\n  - {name: head, eye: [0, 0, 1.5], target: [0.5, 0, 0.8]}\n"
+     "  - {name: head, eye: [0, 1, 1.5], target: [0.5, 0, 0.8]}\n", r"scene.yaml:4: cameras\[1\].name: camera 'head' is placed twice"),
+    ("robots: [{name: melfa}]\ncameras:\n  - {name: 'a/b', eye: [0, 0, 1.5], target: [0.5, 0, 0.8]}\n",
+     r"scene.yaml:3: cameras\[0\].name: camera='a/b' is not a valid key segment"),
+    ("robots: [{name: melfa}]\ncameras:\n  - {name: '*', eye: [0, 0, 1.5], target: [0.5, 0, 0.8]}\n",
+     r"scene.yaml:3: cameras\[0\].name: a camera needs a name"),
+    ("robots: [{name: melfa}]\ncameras:\n  - {name: head, eye: [0, 0], target: [0.5, 0, 0.8]}\n",
+     r"scene.yaml:3: cameras\[0\].eye: expected 3 numbers"),
+    ("robots: [{name: melfa}]\ncameras:\n  - {name: head, eye: [0, 0, 1], target: [0, 0, 1]}\n",
+     r"scene.yaml:3: cameras\[0\].target: the camera looks at its own eye"),
+    ("robots: [{name: melfa}]\ncameras:\n  - {name: head, eye: [0, 0, 1], target: [1, 0, 1], width: 4}\n",
+     r"scene.yaml:3: cameras\[0\].width: expected a whole number of pixels in 8..4096"),
+    ("robots: [{name: melfa}]\ncameras:\n  - {name: head, eye: [0, 0, 1], target: [1, 0, 1], fov: 60}\n",
+     r"scene.yaml:3: cameras\[0\].fov: unknown field"),
 ])
 def test_a_bad_scene_file_names_the_line_and_field(text, where):
     with pytest.raises(ConfigError, match=where):
@@ -359,6 +373,32 @@ def test_the_depth_stream_keeps_its_rate_between_ticks(tmp_path):
         t = np.array(stamps[:40])
         assert np.count_nonzero((t >= t[0]) & (t < t[0] + 1.0 - 1e-9)) == 30
         assert set(np.round(np.diff(t) * 200).astype(int)) <= {6, 7}
+    finally:
+        sub.close()
+        c.close()
+        node.stop()
+
+
+def test_a_fixed_camera_of_the_scene_streams_depth_of_the_cell_on_its_own_key(tmp_path):
+    """A camera no robot carries (a scene file's ``cameras``): its frames on ``camera/<name>/depth``, at camera_hz,
+    seeing the cube from where the scene file puts it."""
+    scene = SCENE + "cameras:\n  - {name: head, eye: [-0.1, 0.2, 1.45], target: [0.5, 0.2, 0.775], width: 160, height: 120}\n"
+    node, c = start_world(tmp_path, scene, "melfa", camera_backend="raycast", camera_hz=10.0)
+    frames: list[DepthImage] = []
+    sub = c.t.subscribe(c.ks.camera("head"), lambda k, p: frames.append(decode(p, DepthImage, k)))
+    try:
+        assert wait_for(lambda: len(frames) >= 5, 60)
+        from contactflow.recognition.geometry import depth_to_points
+        from contactflow.recognition.messages import depth_arrays
+
+        f = frames[-1]
+        depth, K, T = depth_arrays(f)
+        assert f.camera == "head" and depth.shape == (120, 160) and np.allclose(T[:3, 3], [-0.1, 0.2, 1.45])
+        t = np.array([m.hdr.t_sim for m in frames[:5]])
+        assert np.allclose(np.diff(t), 0.1, atol=1e-6)  # 10 Hz of simulated time
+        pts = depth_to_points(depth, K, T)
+        top = pts[(np.abs(pts[:, 0] - 0.5) < 0.015) & (np.abs(pts[:, 1] - 0.2) < 0.015)]
+        assert len(top) and top[:, 2].max() == pytest.approx(0.80, abs=0.01)  # the cube's top face
     finally:
         sub.close()
         c.close()

@@ -50,6 +50,22 @@ def test_two_robots_fused_by_one_integrator():
     assert sorted(e.robot for e in broken) == ["r1", "r2"]
 
 
+def test_a_fusion_of_some_generators_fuses_only_theirs_and_never_waits_for_the_others():
+    import pytest
+
+    fusion = ContactFusion("fusion", FusionParams(sources="r1/*", generators=("tactile", "range")))
+    io = FakeIO()
+    start(fusion, io)
+    for gen, at in (("tactile", A), ("range", A + [0.0, 0.0, 0.01]), ("simulator", B)):
+        io.feed("hypotheses", HypothesisCloud.of(Hypotheses.make(at, 0.9, stamp=0.0), "r1", gen))
+    fusion.step()
+    assert sorted(fusion.integrator.sources) == ["r1/range", "r1/tactile"]  # the simulator's is not one of them
+    (contacts,) = io.published["contacts"]
+    assert len(contacts.contacts) == 1 and np.linalg.norm(np.asarray(contacts.contacts[0].location) - A[0]) < 0.02
+    with pytest.raises(ValueError, match="give them with sources '<robot>/.'"):
+        FusionParams(sources="r1/tactile", generators=("tactile",)).validate()
+
+
 def test_silent_sources_are_unplugged_and_bad_clouds_rejected():
     fusion = ContactFusion("fusion", FusionParams(drop_after=1.0))
     io = FakeIO()

@@ -157,6 +157,49 @@ def test_one_robots_head_camera_publishes_range_hypotheses_about_another_robots_
     assert np.linalg.norm(h.location.mean(axis=0) - [0.55, 0.0, 0.87]) < 0.01
 
 
+def depth_frame(eye, box_top_z=0.87, half=0.03, table_z=0.75, size=120):
+    """A camera at ``eye`` looking straight down: a box top (+-``half`` about x 0.55, y 0) on the table."""
+    from contactflow.embodiments.messages import DepthImage
+    from contactflow.recognition.geometry import intrinsics, look_at
+
+    K = intrinsics(size, size, 60.0)
+    T = look_at(np.asarray(eye, float), np.array([eye[0], eye[1], 0.0]))
+    v, u = np.mgrid[0:size, 0:size]
+    rays = (np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], -1)
+            @ T[:3, :3].T)  # world direction of each pixel, unit optical z
+    depth = (eye[2] - table_z) / -rays[..., 2]
+    hit = eye[:2] + rays[..., :2] * ((eye[2] - box_top_z) / -rays[..., 2])[..., None]
+    on_box = (np.abs(hit[..., 0] - 0.55) <= half) & (np.abs(hit[..., 1]) <= half)
+    depth[on_box] = ((eye[2] - box_top_z) / -rays[..., 2])[on_box]
+    return DepthImage.of(depth, K, T, "head")
+
+
+def test_a_range_generator_reads_a_worlds_depth_stream_within_its_roi():
+    on_top = np.array([[0.55, 0.0, 0.885, 0.015, 0.55, 0.0, 0.95, 0.015]])  # a fingertip on the box
+    away = np.array([[0.9, 0.4, 1.2, 0.01, 0.9, 0.4, 1.25, 0.01]])
+    found = {}
+    for name, roi in (("box", (0.45, -0.1, 0.76, 0.65, 0.1, 1.0)), ("beside", (0.7, 0.2, 0.76, 0.9, 0.4, 1.0))):
+        gen = RangeHypothesesGenerator("range", RangeParams(robot="melfa", require_motion=False, roi=roi))
+        io = started(gen)
+        io.feed("robot_model", robot_model(away, robot="melfa"))
+        io.feed("depth", depth_frame((0.55, 0.0, 1.45)))
+        gen.step()
+        io.feed("robot_model", robot_model(np.vstack([on_top, away]), robot="melfa"))
+        io.feed("depth", depth_frame((0.55, 0.0, 1.45)))
+        gen.step()
+        found[name] = gen.core.camera, clouds(io)[-1]
+        if name == "box":  # the link far from the roi and the grid is left out of the distances: it changes no voxel
+            assert np.array_equal(gen.near(np.vstack([on_top, away]), np.array(roi[:3]), np.array(roi[3:])), on_top)
+    assert found["beside"][0] is None and len(found["beside"][1]) == 0  # nothing in that roi: no grid, no contact
+    camera, h = found["box"]
+    assert np.allclose(camera, [0.55, 0.0, 1.45])  # the grid's rays start at the frame's camera
+    assert len(h) > 0 and np.linalg.norm(h.location.mean(axis=0) - [0.55, 0.0, 0.87]) < 0.01
+    from contactflow.nodes.params import ParamError, replace_params
+
+    with pytest.raises(ParamError, match=r"range.params.roi: \[0.5, 0.0, 0.8\] is not"):
+        replace_params(RangeParams(), {"roi": [0.5, 0.0, 0.8]}, "range.params.")
+
+
 def joint_state(names, q):
     z = NDArray.of(np.zeros(len(q)))
     return JointState(robot="r1", names=list(names), position=NDArray.of(np.asarray(q, dtype=float)), velocity=z,
@@ -198,12 +241,26 @@ def test_motion_shell_extrapolates_the_model():
     assert np.abs(d - 0.02).max() < 0.006  # on the sphere moved one more step
 
 
+def predicted(contacts):
+    from contactflow.embodiments.messages import PredictedState
+
+    return PredictedState(robot="r1", tick=3, t=0.015, names=["j"], position=NDArray.of(np.zeros(1)), joint_error=0.0,
+                          contacts=None if contacts is None else NDArray.of(np.asarray(contacts, dtype=np.float64)))
+
+
 def test_simulator_and_null_shells():
-    sim = SimulatorSupportGenerator("sim")
+    sim = SimulatorSupportGenerator("sim", SimulatorSupportGenerator.Params(robot="r1"))
+    assert sim.default_input_keys(KeySpace("lab"), "r1", "sim", sim.params) == {"predicted": "cf/lab/predict/r1/state"}
     io = started(sim)
-    io.feed("predicted_contacts", arr([[0.5, 0, 0.9]]))
+    io.feed("predicted", predicted([[0.5, 0, 0.9]]))
     sim.step()
-    assert clouds(io)[0].likelihood.tolist() == [0.5]
+    io.feed("predicted", predicted(None))  # the predicted hands touch nothing: an empty cloud, the source stays plugged
+    sim.step()
+    (touch, free) = clouds(io)
+    assert touch.likelihood.tolist() == [0.5] and (touch.kind == HypothesisType.SUPPORT).all() and len(free) == 0
+    io.feed("predicted", predicted([0.5, 0, 0.9]))  # a flat array (non-finite numbers the wire refuses already)
+    with pytest.raises(ValueError, match="input 'predicted' .r1. has contacts of shape"):
+        sim.step()
     null = NullHypothesesGenerator("null")
     io = started(null)
     io.feed("robot_model", robot_model(HAND))
