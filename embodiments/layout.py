@@ -497,22 +497,25 @@ def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping
     ``thesis.yaml``: ``careful_pick_and_place`` corrects what its predictor reports), its grasp watched on its
     fused contacts while it carries the can (and by its predictor, with ``predictor``: its params); with
     ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube; with ``cell_map`` too, melfa
-    runs its contact fusion as well and tombatossals' control node the cell's map of both (:func:`cell_map_module`).
+    runs its contact fusion as well, tombatossals' control node the cell's map of both (:func:`cell_map_module`), and
+    tombatossals' carry watcher reads its grasp from that map (the robot subscribes to its cell's contacts).
 
     Returns the world node (listening on ``endpoint``, waiting for the control nodes before
     tick 1, so a run repeats exactly) and the control nodes (connecting to it, tasks autostarted).
     """
     from contactflow.embodiments.tasks import TASKS_DIR
+    from contactflow.nodes.keys import KeySpace
 
+    cell = "shared_table" if melfa else "pick_place"
+    watcher = {"wait_event": {"contacts": KeySpace(site).fused(cell, "contacts")}} if melfa and cell_map else None
     # the full stack of a control node: its contact fusion too, which watches the grasp while the can is carried
     controls = [control_node(site, "tombatossals", "tombatossals", TASKS_DIR / "thesis.yaml", task,
                              {"target": _pose(PLACE_TARGET), "sensor": "fused"}, connect=(endpoint,), autostart=True,
-                             contacts=True, predictor=predictor)]
+                             contacts=True, predictor=predictor, inputs=watcher)]
     if melfa:
         controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE)},
                                      connect=(endpoint,), autostart=True, contacts=cell_map))
         if cell_map:
-            controls[0]["modules"].append(cell_map_module("shared_table", ("tombatossals", "melfa")))
-    cell = CELLS / ("shared_table.yaml" if melfa else "pick_place.yaml")
-    w = world_node(site, cell, listen=endpoint, wait_for=tuple(c["node"] for c in controls))
+            controls[0]["modules"].append(cell_map_module(cell, ("tombatossals", "melfa")))
+    w = world_node(site, CELLS / f"{cell}.yaml", listen=endpoint, wait_for=tuple(c["node"] for c in controls))
     return w, controls

@@ -22,8 +22,16 @@ def test_two_robots_in_one_cell_each_run_a_task_without_disturbing_the_other(tmp
                     contacts=gt.contacts, refused=[r.refused for r in wm.robots.values()],
                     failed=[r.sim.failed for r in wm.robots.values()])
 
-    run = run_cell(tmp_path, *table_cell("rt2", endpoint, melfa=True, cell_map=True), endpoint, keep=keep)
+    world, controls = table_cell("rt2", endpoint, melfa=True, cell_map=True)
+    # tombatossals' carry watcher (wait_event, sensor fused) reads its grasp from the cell's map, not its own fusion
+    watchers = [m for m in controls[0]["modules"] if m["type"] == "wait_event"]
+    assert watchers and all(m["inputs"] == {"contacts": "cf/rt2/contacts/fused/shared_table/contacts"} for m in watchers)
+    run = run_cell(tmp_path, world, controls, endpoint, keep=keep)
+    # ... and held it through the carry: a watcher that hears no contact list for 1 s fails the task, one that sees
+    # no contact on the hand reports the grasp lost
     assert all(o.event is Event.SUCCESS for o in run.outcomes.values()), run.events
+    assert ("transport", "success") in {(m, e) for _, m, e in run.events} and "grasp_lost" not in {
+        e for _, _, e in run.events}, run.events
     # every cue of both robots (each hand's tactile and F/T, motion support, null) in the one map, nothing refused
     # (its status, as contactflow ls shows it, at the end)
     assert run.statuses["site/control_tombatossals/cell_map"].detail == "sources: tombatossals 6, melfa 4; refused: none"
