@@ -503,14 +503,14 @@ def run_object_runtime(name: str, spec, rig: Rig, dirs: list[np.ndarray], folder
     every = max(generators, key=lambda m: len(generators[m]))
     keys, fusions = {}, []
     for mod, gens in generators.items():
-        fusion = {"name": "fusion_" + "_".join(g.split("_")[0] for g in gens), "type": "contact_fusion",
-                  "params": {"robot": rig.robot, "sources": f"{rig.robot}/*", "generators": list(gens)}}
+        service = {"name": "fusion_" + "_".join(g.split("_")[0] for g in gens), "type": "contact_fusion",
+                   "params": {"robot": rig.robot, "sources": f"{rig.robot}/*", "generators": list(gens)}}
         if mod == every:
             keys[mod] = ks.fused(rig.robot, "contacts")
         else:
-            own = {port: ks.output(rig.robot, fusion_node, fusion["name"], port) for port in ("hypotheses", "contacts", "events")}
-            fusion["outputs"], keys[mod] = own, own["contacts"]
-        fusions.append(fusion)
+            own = {port: ks.output(rig.robot, fusion_node, service["name"], port) for port in ("hypotheses", "contacts", "events")}
+            service["outputs"], keys[mod] = own, own["contacts"]
+        fusions.append(service)
     fusion = {"site": site, "node": fusion_node, "robot": rig.robot, "clock": "lockstep", "zenoh": zenoh(connect=(endpoint,)),
               "modules": fusions}
     w = world_node(site, cell, listen=endpoint, wait_for=(control["node"], fusion_node, vision["node"]),

@@ -293,8 +293,8 @@ class RangeHypothesesGenerator(GeneratorModule):
 
     def near(self, caps: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> np.ndarray:
         """The robot's bi-spheres that reach the space the generator reads (the roi and the grid): the others
-        change no voxel's class (inside, surface) nor any point's (robot or not), and a robot of sixty links
-        evaluated over every voxel of the grid was most of a frame's cost."""
+        change no voxel's class (inside, surface) nor any point's (robot or not), and every link of the robot
+        evaluated over every voxel of the grid was most of a frame's cost (profiled on the contacts bench)."""
         if lo is None or hi is None:  # no roi: every point of the view is read
             return caps
         boxes = [(lo, hi)]
