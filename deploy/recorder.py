@@ -22,6 +22,7 @@ from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.transport import Handle, Transport
 from contactflow.nodes.wire import Message, WireError, decode, decode_any, encode
 
+ASK_AGAIN = 1.0  # s of wall time before a robot's world that did not answer is asked its description again
 log = logging.getLogger("contactflow.record")
 
 
@@ -60,6 +61,7 @@ class Recorder:
         self._handles: list[Handle] = []
         self._thread: threading.Thread | None = None
         self._robots: set[str] = set()
+        self._asked: dict[str, float] = {}  # robot -> monotonic time of the last unanswered description query
         self._t0 = 0.0
         self._count = threading.Lock()
 
@@ -105,23 +107,31 @@ class Recorder:
 
     def _show(self, key: str, msg: Message, t_ns: int) -> None:
         assert self.view is not None
-        if isinstance(msg, RobotState) and msg.robot not in self._robots:
+        if (isinstance(msg, RobotState) and msg.robot not in self._robots
+                and time.monotonic() - self._asked.get(msg.robot, -ASK_AGAIN) >= ASK_AGAIN):
             self._learn(msg.robot, t_ns)
         for topic, vmsg in self.view.translate(key, msg):
             self._writer.write_view(topic, vmsg, t_ns)
             self.stats.view += 1
 
     def _learn(self, robot: str, t_ns: int) -> None:
-        """Ask the robot's world what it is, for its links' frames (once; a robot nobody answers for has none)."""
-        self._robots.add(robot)
+        """Ask the robot's world what it is, for its links' frames: once it answers; a world too busy to answer
+        in time (a loaded machine) is asked again ASK_AGAIN s later, on a later state."""
         assert self.view is not None
         key = self.ks.robot(robot, "info")
         try:
             replies = self.transport.query(key, encode(InfoRequest()), timeout=2.0)
-            for rkey, payload in replies[:1]:
-                for topic, vmsg in self.view.add_robot(decode(payload, RobotInfo, rkey)):
-                    self._writer.write_view(topic, vmsg, t_ns)
         except Exception as exc:  # the view is a convenience: the key-space channels are recorded anyway
+            log.warning("no frames for robot %s yet: %s", robot, exc)
+            replies = []
+        if not replies:
+            self._asked[robot] = time.monotonic()
+            return
+        self._robots.add(robot)
+        try:
+            for topic, vmsg in self.view.add_robot(decode(replies[0][1], RobotInfo, replies[0][0])):
+                self._writer.write_view(topic, vmsg, t_ns)
+        except Exception as exc:  # a description the view cannot load: no frames for that robot, asked once
             log.warning("no frames for robot %s: %s", robot, exc)
 
     def stop(self) -> RecorderStats:

@@ -82,8 +82,10 @@ class FoxgloveView(Module):
             info = link(self.io.transport, self.io.keyspace, robot, self.io.node).info()
             with self._lock:
                 self._learned += self.view.add_robot(info)
-        except Exception as exc:  # the other channels are shown anyway
-            self.io.log(f"no frames for robot {robot}: {exc}")
+        except Exception as exc:  # the other channels are shown anyway, and the robot's next state asks again
+            self.io.log(f"no frames for robot {robot} yet: {exc}")
+            with self._lock:
+                self._asking.discard(robot)
 
     def _send(self, topic: str, msg: object) -> None:
         ch = self.channels.get(topic)

@@ -305,3 +305,73 @@ def test_a_key_that_carries_several_message_types_gets_a_channel_per_type(tmp_pa
     assert rec.channels == {key: {"hand_command", "camera_request"}} and rec.counts == {key: 3}
     got = [s.msg for s in rec.samples()]
     assert [type(m) for m in got] == [type(m) for m in sent] and got[2].preshape == "open" and got[1].request == 1
+
+
+def test_a_world_too_busy_to_describe_its_robot_is_asked_again_and_the_view_gets_the_robot(tmp_path):
+    """The recorder's view asks a robot's world for its description on the robot's first state; a world that does
+    not answer in time (a loaded machine) is asked again a second later, and its robot's URDF is in the recording."""
+    import numpy as np
+
+    from contactflow.embodiments.messages import RobotInfo, RobotState
+    from contactflow.nodes.transport import LocalTransport
+    from contactflow.nodes.wire import NDArray, encode, stamp
+
+    t = LocalTransport()
+    ks = KeySpace("busy")
+    rec = Recorder(t, [ks.robot("m1", "state")], tmp_path / "busy.mcap", "busy").start()
+    put = t.publisher(ks.robot("m1", "state"))
+    asked: list[float] = []
+    answering: list = []
+
+    def state(seq: int) -> bytes:
+        msg = RobotState(robot="m1", tick=seq, t=0.005 * seq, names=[], position=NDArray.of(np.zeros(0)),
+                         velocity=NDArray.of(np.zeros(0)), arms=[], hands=[])
+        return encode(stamp(msg, "m1/world/state", seq, 0.005 * seq))
+
+    def info(key: str, payload: bytes) -> bytes:
+        asked.append(time.monotonic())
+        return encode(stamp(RobotInfo(robot="m1", embodiment="melfa", base=np.eye(4).ravel().tolist()), "w", 1, 0.0))
+
+    try:
+        put(state(1))  # no world answers yet
+        assert wait_for(lambda: rec.stats.recorded == 1, 5)
+        answering.append(t.queryable(ks.robot("m1", "info"), info))
+        start = time.monotonic()
+        for seq in range(2, 40):  # states keep coming, as they do every tick
+            put(state(seq))
+            time.sleep(0.05)
+        assert len(asked) == 1 and asked[0] - start >= 0.9  # asked again once the second had passed, then known
+    finally:
+        for h in answering:
+            h.close()
+        rec.stop()
+    assert "/m1/robot_description" in Recording.open(tmp_path / "busy.mcap").view_topics
+
+
+def test_the_live_view_asks_a_world_that_did_not_answer_again_on_a_later_state():
+    """As the recorder: a robot whose world gave no description is asked again (here on the next call), and its URDF
+    goes to the viewers once it answers."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from contactflow.deploy.view_module import FoxgloveView
+    from contactflow.embodiments.messages import RobotInfo
+    from contactflow.nodes.transport import LocalTransport
+    from contactflow.nodes.wire import encode, stamp
+
+    t, ks = LocalTransport(), KeySpace("viewbusy")
+    view = FoxgloveView("view")
+    logs: list[str] = []
+    view.setup(SimpleNamespace(transport=t, keyspace=ks, node="n", log=logs.append))  # no server: not started
+    view._asking.add("m1")  # a state of m1 came and its world was asked: no world answers (5 s)
+    view._learn("m1")
+    assert "m1" not in view._asking and not view._learned and "no frames for robot m1 yet" in logs[0]
+    reply = encode(stamp(RobotInfo(robot="m1", embodiment="melfa", base=np.eye(4).ravel().tolist()), "w", 1, 0.0))
+    handle = t.queryable(ks.robot("m1", "info"), lambda key, payload: reply)
+    try:
+        view._asking.add("m1")  # the next state asks again
+        view._learn("m1")
+    finally:
+        handle.close()
+    assert [topic for topic, _ in view._learned] == ["/m1/robot_description"] and "m1" in view._asking
