@@ -57,6 +57,7 @@ class _Counters:
         self.steps: dict[str, int] = {}
         self.refused: dict[str, int] = {}
         self.samples: dict[str, bytes] = {}
+        self.fresh: tuple[dict[str, int], dict[str, int], dict[str, int]] | None = None  # counts since the fuzz ended
 
     def on_sample(self, key: str, payload: bytes) -> None:
         with self.lock:
@@ -68,20 +69,32 @@ class _Counters:
         if not isinstance(msg, dict):
             return
         counts = {k: v for k, v in msg.items() if isinstance(v, int) and not isinstance(v, bool)}
-        with self.lock:  # forged ones are overwritten by the real ones, which come every second
-            if msg.get("type") == "status" and isinstance(msg.get("module"), str):
-                self.rejected[msg["module"]] = counts.get("rejected", 0)
-                self.steps[msg["module"]] = counts.get("steps", 0)
-            elif msg.get("type") == "robot_state" and isinstance(msg.get("robot"), str):
-                self.refused[msg["robot"]] = counts.get("refused", 0)
+        with self.lock:
+            targets = [(self.rejected, self.steps, self.refused)] + ([self.fresh] if self.fresh is not None else [])
+            for rejected, steps, refused in targets:
+                if msg.get("type") == "status" and isinstance(msg.get("module"), str):
+                    rejected[msg["module"]] = counts.get("rejected", 0)
+                    steps[msg["module"]] = counts.get("steps", 0)
+                elif msg.get("type") == "robot_state" and isinstance(msg.get("robot"), str):
+                    refused[msg["robot"]] = counts.get("refused", 0)
+
+    def fuzz_ended(self) -> None:
+        """From now on only the nodes publish counts: what comes is real."""
+        with self.lock:
+            self.fresh = ({}, {}, {})
 
     def snapshot(self, known: tuple[dict, dict, dict] | None = None) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
-        """The counts per module and robot; with ``known``, of those names only (not forged ones)."""
+        """The counts per module and robot; with ``known`` (the counts before the fuzz), of those names only, each
+        as its module or robot said it after the fuzz ended, or as before the fuzz when it said nothing since: a
+        forged status (a fuzzed payload on a module's status key) stays the last word of a module that publishes
+        no status meanwhile (a lockstep node whose world is paused), so counts heard during the fuzz are never used."""
         with self.lock:
             now = dict(self.rejected), dict(self.steps), dict(self.refused)
+            fresh = tuple(dict(d) for d in self.fresh) if self.fresh is not None else ({}, {}, {})
         if known is None:
             return now
-        rejected, steps, refused = ({k: v for k, v in d.items() if k in names} for d, names in zip(now, known, strict=True))
+        rejected, steps, refused = ({k: f.get(k, v) for k, v in names.items()}
+                                    for f, names in zip(fresh, known, strict=True))
         return rejected, steps, refused
 
 
@@ -144,7 +157,8 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
                     sent[_kind(ks, key)][kind] += 1
                     sent[_kind(ks, key)]["answered"] += int(bool(answered))
                 bar.advance(task)
-        time.sleep(4.0)  # the modules report their counts at least every second
+        counters.fuzz_ended()
+        time.sleep(4.0)  # the modules report their counts every second while their loops run
         nodes_after = set(tool.alive(ks.alive_node(), timeout=1.0))
         rejected1, steps1, refused1 = counters.snapshot(before)
         exited = {name: p.poll() for name, p in procs.items() if p.poll() is not None}

@@ -17,3 +17,27 @@ def test_hostile_payloads_on_every_key_kill_no_node_and_stall_no_loop(tmp_path):
     assert {"robot/command", "robot/state", "clock", "lockstep", "m/ctl", "m/status", "broker/dispatch"} <= set(kinds)
     assert result["rejected"] > 20  # the nodes counted what they refused
     assert kinds["m/ctl"]["answered"] == kinds["m/ctl"]["bytes"] + kinds["m/ctl"]["msgpack"]  # every query answered
+
+
+def test_a_forged_status_is_never_counted_even_when_its_module_says_nothing_after_the_fuzz():
+    """A module of a paused lockstep node publishes no status for a while: the fuzzed status forged on its key must
+    not stand as its count (CI: the sum of rejects came out as -9.2e18); the counts are the real ones."""
+    import msgpack
+
+    from contactflow.deploy.bench_fuzz import _Counters
+
+    c = _Counters()
+
+    def status(module: str, rejected: int, steps: int) -> bytes:
+        return msgpack.packb({"type": "status", "module": module, "rejected": rejected, "steps": steps})
+
+    c.on_sample("k", status("r/n/quiet", 2, 10))
+    c.on_sample("k", status("r/n/busy", 5, 100))
+    before = c.snapshot()
+    c.on_sample("k", status("r/n/quiet", -(2**63), 2**62))  # forged during the fuzz; quiet says nothing after it
+    c.on_sample("k", status("r/n/forged", 10**9, 0))  # a module that does not exist
+    c.on_sample("k", status("r/n/busy", 9, 140))
+    c.fuzz_ended()
+    c.on_sample("k", status("r/n/busy", 11, 180))
+    rejected, steps, _ = c.snapshot(before)
+    assert rejected == {"r/n/quiet": 2, "r/n/busy": 11} and steps == {"r/n/quiet": 10, "r/n/busy": 180}
