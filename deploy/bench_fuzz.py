@@ -53,11 +53,9 @@ class _Counters:
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.rejected: dict[str, int] = {}
-        self.steps: dict[str, int] = {}
-        self.refused: dict[str, int] = {}
+        self.heard = _Counts()  # the last counts heard of each module and robot
+        self.since_fuzz: _Counts | None = None  # ... and of those heard since the fuzz ended
         self.samples: dict[str, bytes] = {}
-        self.fresh: tuple[dict[str, int], dict[str, int], dict[str, int]] | None = None  # counts since the fuzz ended
 
     def on_sample(self, key: str, payload: bytes) -> None:
         with self.lock:
@@ -68,34 +66,52 @@ class _Counters:
             return
         if not isinstance(msg, dict):
             return
-        counts = {k: v for k, v in msg.items() if isinstance(v, int) and not isinstance(v, bool)}
         with self.lock:
-            targets = [(self.rejected, self.steps, self.refused)] + ([self.fresh] if self.fresh is not None else [])
-            for rejected, steps, refused in targets:
-                if msg.get("type") == "status" and isinstance(msg.get("module"), str):
-                    rejected[msg["module"]] = counts.get("rejected", 0)
-                    steps[msg["module"]] = counts.get("steps", 0)
-                elif msg.get("type") == "robot_state" and isinstance(msg.get("robot"), str):
-                    refused[msg["robot"]] = counts.get("refused", 0)
+            for counts in (self.heard, self.since_fuzz):
+                if counts is not None:
+                    counts.take(msg)
 
     def fuzz_ended(self) -> None:
         """From now on only the nodes publish counts: what comes is real."""
         with self.lock:
-            self.fresh = ({}, {}, {})
+            self.since_fuzz = _Counts()
 
     def snapshot(self, known: tuple[dict, dict, dict] | None = None) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
-        """The counts per module and robot; with ``known`` (the counts before the fuzz), of those names only, each
-        as its module or robot said it after the fuzz ended, or as before the fuzz when it said nothing since: a
-        forged status (a fuzzed payload on a module's status key) stays the last word of a module that publishes
-        no status meanwhile (a lockstep node whose world is paused), so counts heard during the fuzz are never used."""
+        """The counts per module and robot; with ``known`` (the counts before the fuzz), of those names only.
+
+        Rejects and refused commands as each module or robot said them since the fuzz ended, or as before the fuzz
+        when it said nothing since: a forged status (a fuzzed payload on a module's status key) stays the last word
+        of a module that publishes nothing meanwhile (a lockstep node whose world is paused), and summed into the
+        rejects it made them -9.2e18 (CI). Steps as last heard, the fuzz included: a module whose world paused
+        after it stepped is quiet, not stalled, and its real statuses during the fuzz show it stepping."""
         with self.lock:
-            now = dict(self.rejected), dict(self.steps), dict(self.refused)
-            fresh = tuple(dict(d) for d in self.fresh) if self.fresh is not None else ({}, {}, {})
+            heard = self.heard.dicts()
+            fresh = self.since_fuzz.dicts() if self.since_fuzz is not None else ({}, {}, {})
         if known is None:
-            return now
-        rejected, steps, refused = ({k: f.get(k, v) for k, v in names.items()}
-                                    for f, names in zip(fresh, known, strict=True))
-        return rejected, steps, refused
+            return heard
+        (rejected0, steps0, refused0), (rejected, _, refused), steps = known, fresh, heard[1]
+        return ({k: rejected.get(k, v) for k, v in rejected0.items()}, {k: steps.get(k, v) for k, v in steps0.items()},
+                {k: refused.get(k, v) for k, v in refused0.items()})
+
+
+class _Counts:
+    """Counts by module (rejected, steps) and by robot (refused), from status and robot state maps."""
+
+    def __init__(self) -> None:
+        self.rejected: dict[str, int] = {}
+        self.steps: dict[str, int] = {}
+        self.refused: dict[str, int] = {}
+
+    def take(self, msg: dict) -> None:
+        counts = {k: v for k, v in msg.items() if isinstance(v, int) and not isinstance(v, bool)}
+        if msg.get("type") == "status" and isinstance(msg.get("module"), str):
+            self.rejected[msg["module"]] = counts.get("rejected", 0)
+            self.steps[msg["module"]] = counts.get("steps", 0)
+        elif msg.get("type") == "robot_state" and isinstance(msg.get("robot"), str):
+            self.refused[msg["robot"]] = counts.get("refused", 0)
+
+    def dicts(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
+        return dict(self.rejected), dict(self.steps), dict(self.refused)
 
 
 def _command(robot: str) -> bytes:

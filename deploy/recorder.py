@@ -60,8 +60,11 @@ class Recorder:
         self._seqs = SequenceMonitor()
         self._handles: list[Handle] = []
         self._thread: threading.Thread | None = None
-        self._robots: set[str] = set()
+        self._robots: set[str] = set()  # robots whose world described them (or whose description failed to load)
+        self._asking: set[str] = set()  # robots whose description query is under way
         self._asked: dict[str, float] = {}  # robot -> monotonic time of the last unanswered description query
+        self._described: list[tuple[str, object]] = []  # view messages of the answers, for the writer thread
+        self._view_lock = threading.Lock()
         self._t0 = 0.0
         self._count = threading.Lock()
 
@@ -107,15 +110,22 @@ class Recorder:
 
     def _show(self, key: str, msg: Message, t_ns: int) -> None:
         assert self.view is not None
-        if (isinstance(msg, RobotState) and msg.robot not in self._robots
-                and time.monotonic() - self._asked.get(msg.robot, -ASK_AGAIN) >= ASK_AGAIN):
-            self._learn(msg.robot, t_ns)
+        with self._view_lock:
+            ask = (isinstance(msg, RobotState) and msg.robot not in self._robots and msg.robot not in self._asking
+                   and time.monotonic() - self._asked.get(msg.robot, -ASK_AGAIN) >= ASK_AGAIN)
+            if ask:
+                self._asking.add(msg.robot)
+            described, self._described = self._described, []
+        if ask:  # the query waits for the world: off the writer's thread, which keeps recording meanwhile
+            threading.Thread(target=self._learn, args=(msg.robot,), name="recorder-describe", daemon=True).start()
+        for topic, vmsg in described:
+            self._writer.write_view(topic, vmsg, t_ns)
         for topic, vmsg in self.view.translate(key, msg):
             self._writer.write_view(topic, vmsg, t_ns)
             self.stats.view += 1
 
-    def _learn(self, robot: str, t_ns: int) -> None:
-        """Ask the robot's world what it is, for its links' frames: once it answers; a world too busy to answer
+    def _learn(self, robot: str) -> None:
+        """Ask the robot's world what it is, for its links' frames, until it answers: a world too busy to answer
         in time (a loaded machine) is asked again ASK_AGAIN s later, on a later state."""
         assert self.view is not None
         key = self.ks.robot(robot, "info")
@@ -124,15 +134,19 @@ class Recorder:
         except Exception as exc:  # the view is a convenience: the key-space channels are recorded anyway
             log.warning("no frames for robot %s yet: %s", robot, exc)
             replies = []
-        if not replies:
-            self._asked[robot] = time.monotonic()
-            return
-        self._robots.add(robot)
-        try:
-            for topic, vmsg in self.view.add_robot(decode(replies[0][1], RobotInfo, replies[0][0])):
-                self._writer.write_view(topic, vmsg, t_ns)
-        except Exception as exc:  # a description the view cannot load: no frames for that robot, asked once
-            log.warning("no frames for robot %s: %s", robot, exc)
+        described: list[tuple[str, object]] = []
+        if replies:
+            try:
+                described = self.view.add_robot(decode(replies[0][1], RobotInfo, replies[0][0]))
+            except Exception as exc:  # a description the view cannot load: no frames for that robot, asked once
+                log.warning("no frames for robot %s: %s", robot, exc)
+        with self._view_lock:
+            self._asking.discard(robot)
+            if replies:
+                self._robots.add(robot)
+                self._described += described
+            else:
+                self._asked[robot] = time.monotonic()
 
     def stop(self) -> RecorderStats:
         """Unsubscribe, write what is queued and finish the file (a valid MCAP file)."""
@@ -143,6 +157,10 @@ class Recorder:
             self._queue.put(None)
             self._thread.join()
             self._thread = None
+        with self._view_lock:  # an answer that came after the last message
+            described, self._described = self._described, []
+        for topic, vmsg in described:
+            self._writer.write_view(topic, vmsg, time.time_ns())
         self._writer.close()
         self.stats.seconds = time.monotonic() - self._t0
         return self.stats
