@@ -102,7 +102,8 @@ def contact_modules(robot: str, embodiment: str = "", predictor: bool = False) -
         generators.append({"name": "simulator", "type": "simulator_support_hypotheses", **pace,
                            "params": {"robot": robot, "rate_hz": 20.0, "dilate": 0.02}})
     return [*cues, model, *generators,
-            {"name": "contacts", "type": "contact_fusion", **pace,
+            # the posed model tells where on the hand each contact lies (finger, palm, held object)
+            {"name": "contacts", "type": "contact_fusion", **pace, "inputs": on_model,
              "params": {"robot": robot, "sources": f"{robot}/*", "publish_hypotheses": False, "timeout": 0.3,
                         "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3}}]
 

@@ -103,6 +103,7 @@ class RobotModel(Message, tag="robot_model"):
     r1: NDArray  # (m,) float64, m
     c2: NDArray  # (m, 3) float64, m
     r2: NDArray  # (m,) float64, m
+    regions: list[str] = []  # per link, the hand part it is: "finger", "palm" or "" (none given: no hand parts known)
     frames: list[str] = []  # named frames (sensor links) posed in ``poses``
     poses: NDArray | None = None  # (k, 4, 4) float64, world pose of each of ``frames``
 

@@ -130,14 +130,16 @@ class ContactInfo(msgspec.Struct, frozen=True, kw_only=True):
     voxels: int  # voxels condensed into it
     sources: list[str]  # the sources (robot/generator) behind it
     robot: str = ""  # the robot it touches
-    link: str = ""  # the link it lies on, when known
+    link: str = ""  # the link it lies on, when known (the hand a hand's cues name)
+    region: str = ""  # where on the hand: finger | palm | held_object ("": not told, no posed model of the robot)
+    part: str = ""  # the hand link nearest to it, with a region
 
     @classmethod
-    def of(cls, c: Contact, columns: list[str]) -> ContactInfo:
+    def of(cls, c: Contact, columns: list[str], region: tuple[str, str] = ("", "")) -> ContactInfo:
         names = [n for i, n in enumerate(columns) if n and (c.sources >> i) & 1]
         return cls(location=[float(v) for v in c.location], likelihood=c.likelihood, sigma=c.sigma, force=c.force,
                    direction=[float(v) for v in c.direction], voxels=c.voxels, sources=names, robot=c.robot,
-                   link=c.link)
+                   link=c.link, region=region[0], part=region[1])
 
 
 class ContactList(Message, tag="contact_list"):
@@ -158,15 +160,18 @@ class ContactEventMsg(Message, tag="contact_event"):
     likelihood: float  # in [0, 1]
     t: float  # s, when it was made or broken
     sources: list[str] = []  # the sources (robot/generator) behind the contact; hdr.inputs names their clouds
+    region: str = ""  # where on the hand: finger | palm | held_object ("": not told)
+    part: str = ""  # the hand link nearest to it, with a region
 
     def __post_init__(self) -> None:
         if self.event not in (Event.CONTACT_MADE, Event.CONTACT_BROKEN):
             raise ValueError(f"ContactEventMsg.event: {self.event!r} is not contact_made or contact_broken")
 
     @classmethod
-    def of(cls, e: ContactEvent) -> ContactEventMsg:
+    def of(cls, e: ContactEvent, region: tuple[str, str] = ("", "")) -> ContactEventMsg:
         return cls(event=e.event, contact_id=e.id, robot=e.robot, link=e.link,
-                   location=[float(v) for v in e.location], likelihood=e.likelihood, t=e.t, sources=list(e.sources))
+                   location=[float(v) for v in e.location], likelihood=e.likelihood, t=e.t, sources=list(e.sources),
+                   region=region[0], part=region[1])
 
 
 __all__ = ["ContactEventMsg", "ContactInfo", "ContactList", "FusedCloud", "HypothesisCloud", "HypothesisType"]

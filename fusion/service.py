@@ -14,8 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contactflow.embodiments.messages import RobotModel
 from contactflow.fusion.condensation import CondensationParams, Method, backend
 from contactflow.fusion.events import ContactTracker, TrackerParams
+from contactflow.fusion.generators.base import capsules_of
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses
 from contactflow.fusion.integrator import Integrator, IntegratorParams
 from contactflow.fusion.loop import FusionLoop
@@ -26,6 +28,7 @@ from contactflow.fusion.messages import (
     FusedCloud,
     HypothesisCloud,
 )
+from contactflow.fusion.regions import RegionParams, classify
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Event, Status
@@ -52,6 +55,8 @@ class FusionParams:
     confirm: int = 1  # cycles before a contact is made
     hold: float = 0.1  # s, unseen time before a contact is broken
     publish_hypotheses: bool = True
+    region_margin: float = 0.015  # m, a contact this close to a hand link of the robot's posed model lies on it (fusion.regions)
+    region_reach: float = 0.12  # m, farther out but this close to the hand: on what the hand holds
 
     def validate(self) -> None:
         parts = self.sources.split("/")
@@ -63,6 +68,10 @@ class FusionParams:
         self.integrator().validate()
         self.condensation().validate()
         self.tracker().validate()
+        self.regions().validate()
+
+    def regions(self) -> RegionParams:
+        return RegionParams(self.region_margin, self.region_reach)
 
     def integrator(self) -> IntegratorParams:
         return IntegratorParams(self.voxel_size, self.timeout, self.wait_timeout, self.source_timeout)
@@ -80,7 +89,8 @@ class ContactFusion(Module):
 
     layer = Layer.SERVICE
     Params = FusionParams
-    inputs = (Port("hypotheses", HypothesisCloud, "clouds of any set of generators, world frame"),)
+    inputs = (Port("hypotheses", HypothesisCloud, "clouds of any set of generators, world frame"),
+              Port("robot_model", RobotModel, "the robot's posed model: where on the hand each contact lies (optional)"))
     outputs = (
         Port("hypotheses", FusedCloud, "fused hypotheses H(x)"),
         Port("contacts", ContactList, "condensed contacts"),
@@ -108,6 +118,8 @@ class ContactFusion(Module):
         p = self.params
         self.loop = FusionLoop(p.integrator(), p.condensation(), p.tracker(), drop_after=p.drop_after)
         self.rejected = 0
+        self._model_msg: object = None  # the RobotModel last read, and its (robot, bi-spheres, links, regions)
+        self._model: tuple[str, np.ndarray, list[str], list[str]] | None = None
 
     @property
     def integrator(self) -> Integrator:
@@ -149,11 +161,46 @@ class ContactFusion(Module):
         fused, contacts = cycle.fused, cycle.contacts
         if self.params.publish_hypotheses:
             self.io.publish("hypotheses", FusedCloud.of(fused))
-        self.io.publish("contacts", ContactList(stamp=now, contacts=[ContactInfo.of(c, fused.columns) for c in contacts]),
+        where = self._regions([c.location for c in contacts] + [e.location for e in cycle.events],
+                              [c.robot for c in contacts] + [e.robot for e in cycle.events])
+        self.io.publish("contacts", ContactList(stamp=now, contacts=[ContactInfo.of(c, fused.columns, r)
+                                                                     for c, r in zip(contacts, where[:len(contacts)], strict=True)]),
                         inputs=self.loop.inputs(fused.columns))
-        for e in cycle.events:
-            self.io.publish("events", ContactEventMsg.of(e), inputs=self.loop.inputs(e.sources))
+        for e, (region, part) in zip(cycle.events, where[len(contacts):], strict=True):
+            self.io.publish("events", ContactEventMsg.of(e, (region, part)), inputs=self.loop.inputs(e.sources))
             x, y, z = (float(v) for v in np.asarray(e.location))
-            self.io.emit(e.event, f"{e.robot}/{e.link}" if e.link else e.robot,
+            on = f"{e.robot}/{e.link}" if e.link else e.robot
+            self.io.emit(e.event, f"{on} {region} ({part})" if region else on,
                          {"id": float(e.id), "x": x, "y": y, "z": z, "likelihood": float(e.likelihood)})
         return Status.RUNNING
+
+    def _regions(self, locations: list[np.ndarray], robots: list[str]) -> list[tuple[str, str]]:
+        """Where on the hand each location of ``robots`` lies, by the latest posed model (none bound or heard, a
+        model of another robot, or a malformed one: untold, ``("", "")``; the first of a run of malformed ones is logged)."""
+        assert self.io is not None
+        untold = [("", "")] * len(locations)
+        model = self.io.latest("robot_model")
+        if model is None or not locations:
+            return untold
+        if model is not self._model_msg:
+            told_bad = self._model_msg is not None and self._model is None
+            self._model_msg, self._model = model, None
+            try:
+                caps = capsules_of(model, "robot_model", self.name)
+                if len(model.regions) != len(model.links):
+                    raise ValueError(f"{self.name}: input 'robot_model' ({model.robot}): {len(model.regions)} "
+                                     f"regions for {len(model.links)} links")
+                self._model = (model.robot, caps, list(model.links), list(model.regions))
+            except (TypeError, ValueError) as exc:
+                if not told_bad:
+                    self.io.log(f"no contact regions: {exc}")
+        if self._model is None:
+            return untold
+        robot, caps, links, regions = self._model
+        mine = [k for k, r in enumerate(robots) if r == robot]
+        if not mine:
+            return untold
+        told = classify(np.array([locations[k] for k in mine]), caps, links, regions, self.params.regions())
+        for k, r in zip(mine, told, strict=True):
+            untold[k] = r
+        return untold

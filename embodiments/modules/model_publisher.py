@@ -36,6 +36,31 @@ def pad_taxels(pad: PadSpec) -> tuple[np.ndarray, np.ndarray]:
     return local, normals
 
 
+def hand_regions(kin: Kinematics, spec: RobotSpec, links: tuple[str, ...] | list[str]) -> list[str]:
+    """Per link of ``links``, the hand part it is: ``finger`` (moved by a hand joint), ``palm`` (the palm link or a
+    link fixed to it), else ``""`` (fusion.regions reads these to tell where on the hand a contact lies)."""
+    from contactflow.fusion.regions import Region
+
+    model = kin.model
+    moved = {n for h in spec.hands for n in (*h.joints, *(m[0] for m in h.mimic))}
+    palms = {kin.frame_id(h.palm_link) for h in spec.hands if h.palm_link}
+
+    def region(link: str) -> str:
+        i = kin.frame_id(link)
+        if model.names[model.frames[i].parentJoint] in moved:
+            return str(Region.FINGER)
+        joint = model.frames[i].parentJoint
+        while True:  # up the fixed joints to the palm, or to a frame moved by another joint
+            if i in palms:
+                return str(Region.PALM)
+            parent = model.frames[i].parentFrame
+            if parent == i or model.frames[parent].parentJoint != joint:
+                return ""
+            i = parent
+
+    return [region(link) for link in links]
+
+
 def sensor_frames(spec: RobotSpec) -> tuple[str, ...]:
     """Links carrying a sensor of ``spec``: every wrist F/T link and every tactile pad link."""
     out = [f.link for f in spec.fts] + [p.link for h in spec.hands for p in h.pads]
@@ -89,6 +114,7 @@ class RobotModelPublisher(Module):
         self.spec, self.base = spec, base
         self.kin = Kinematics(spec.urdf(), base)
         self.model = SphericalModel.from_urdf(self.kin, str(spec.urdf()))
+        self.regions = hand_regions(self.kin, spec, self.model.links)
         self.frames = tuple(dict.fromkeys((*sensor_frames(spec), *self.params.frames)))
         for f in self.frames:
             self.kin.frame_id(f)
@@ -126,7 +152,7 @@ class RobotModelPublisher(Module):
         self.io.publish("robot_model", RobotModel(
             robot=self.robot, t=t, links=list(self.model.links), c1=NDArray.of(self.model.C1),
             r1=NDArray.of(self.model.r1), c2=NDArray.of(self.model.C2), r2=NDArray.of(self.model.r2),
-            frames=list(self.frames), poses=NDArray.of(poses) if self.frames else None))
+            regions=self.regions, frames=list(self.frames), poses=NDArray.of(poses) if self.frames else None))
         for hand, pads, links, local, normals in self.hands:
             T = np.stack([self.kin.frame_pose(link) for link in links])
             pos = np.einsum("kij,kabj->kabi", T[:, :3, :3], local) + T[:, None, None, :3, 3]

@@ -8,6 +8,7 @@ import numpy as np
 
 from contactflow.embodiments.primitives.base import Primitive, low_pass
 from contactflow.fusion.messages import ContactList
+from contactflow.fusion.regions import Region
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Event
@@ -42,10 +43,16 @@ class WaitEvent(Primitive):
         min_contacts: int = 1  # pads in contact for a hand or tactile grasp
         filter_hz: float = 0.0  # Hz, low-pass cut-off of the wrist load (0: none; for noisy estimated wrenches)
         fused_timeout: float = 1.0  # s; sensor fused: a contact list this old says nothing, and none this long fails the wait
+        region: str = ""  # sensor fused: count only the contacts on this region of the hand (finger | palm | held_object); "": all
 
         def validate(self) -> None:
             if self.sensor not in SENSORS:
                 raise ValueError(f"sensor: {self.sensor!r} is not one of {list(SENSORS)}")
+            if self.region and self.region not in set(Region):
+                raise ValueError(f"region: {self.region!r} is not one of {[str(r) for r in Region]}")
+            if self.region and self.sensor != "fused":
+                raise ValueError(f"region: {self.region!r} needs sensor fused (the fused contacts tell the region), "
+                                 f"not {self.sensor!r}")
 
     @classmethod
     def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Params) -> dict[str, str]:
@@ -78,7 +85,9 @@ class WaitEvent(Primitive):
             return None
         self.heard = self.r.time
         self.evidence = f"{msg.hdr.source}#{msg.hdr.seq}"
-        return sum(1 for c in msg.contacts if c.robot == self.r.name and c.link == self.hand_name)
+        region = self.params.region
+        return sum(1 for c in msg.contacts
+                   if c.robot == self.r.name and c.link == self.hand_name and (not region or c.region == region))
 
     def grasped(self) -> bool:
         """The grasp holds, as this robot senses it (``sensor``)."""

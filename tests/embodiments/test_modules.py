@@ -126,6 +126,10 @@ def test_robot_model_publisher_poses_the_spherical_model_sensor_frames_and_taxel
     sph = robot.spherical
     assert model.links == sph.links
     assert np.allclose(model.c1.numpy(), sph.C1, atol=1e-6) and np.allclose(model.r2.numpy(), sph.r2)
+    # the hand's parts: its palm and the fingers its joints move; the arm's links are none
+    parts = dict(zip(model.links, model.regions, strict=True))
+    assert parts["panda_hand"] == "palm" and parts["panda_leftfinger"] == parts["panda_rightfinger"] == "finger"
+    assert {k for k, r in parts.items() if r} == {"panda_hand", "panda_leftfinger", "panda_rightfinger"}
     ft_link = robot.spec.ft(robot.spec.arm("arm").ft).link
     T_ft = model.poses.numpy()[model.frames.index(ft_link)]
     assert np.allclose(T_ft, pose_to_matrix(robot.art.links[ft_link].get_entity_pose()), atol=1e-4)
@@ -148,3 +152,24 @@ def test_robot_model_publisher_poses_the_spherical_model_sensor_frames_and_taxel
                                       velocity=NDArray.of(np.zeros(1)), effort=NDArray.of(np.zeros(1))))
     with pytest.raises(ValueError, match="input 'joint_state'.*nope"):
         pub.step()
+
+
+@pytest.mark.parametrize("name", ["tombatossals", "baxter"])
+def test_every_hand_link_is_a_finger_or_the_palm_and_no_arm_link_is(name):
+    from contactflow.embodiments import registry
+    from contactflow.embodiments.control.kinematics import Kinematics
+    from contactflow.embodiments.modules.model_publisher import hand_regions
+    from contactflow.embodiments.spherical import SphericalModel
+
+    spec = registry.home(name).spec
+    kin = Kinematics(spec.urdf())
+    links = SphericalModel.from_urdf(kin, str(spec.urdf())).links
+    parts = dict(zip(links, hand_regions(kin, spec, links), strict=True))
+    palms = {k for k, r in parts.items() if r == "palm"}
+    assert palms == {h.palm_link for h in spec.hands}
+    for hand in spec.hands:  # every fingertip is a finger link
+        assert all(parts[t] == "finger" for t in hand.fingertips)
+    fingers = {k for k, r in parts.items() if r == "finger"}
+    # allegro: 4 fingers of 4 links and a tip, twice; baxter: 2 fingers and their tips, twice
+    assert len(fingers) == (40 if name == "tombatossals" else 8), sorted(fingers)
+    assert not any("panda_link" in k or "forearm" in k or "wrist" in k for k in fingers | palms)

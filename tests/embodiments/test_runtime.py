@@ -173,7 +173,7 @@ tasks:
           target: ["${detect.x}", "${detect.y}", "${detect.z}", "${detect.roll}", "${detect.pitch}", "${detect.yaw}"]
       grasp: {primitive: robust_grasp, params: {arm: "${params.arm}", pregrasp_type: open}}
       lift: {primitive: lift, params: {arm: "${params.arm}", distance: 0.05}}
-      held: {primitive: wait_event, params: {arm: "${params.arm}", event: grasp_stable, sensor: fused, min_contacts: 2}}
+      held: {primitive: wait_event, params: {arm: "${params.arm}", event: grasp_stable, sensor: fused, min_contacts: 2, region: finger}}
       open: {primitive: release, params: {arm: "${params.arm}", velocity: 0.005}}
       retreat: {primitive: transport, params: {arm: "${params.arm}", target: [0, 0, 0.08, 0, 0, 0], relative: true}}
       gone: {primitive: wait_event, params: {arm: "${params.arm}", event: grasp_lost, sensor: fused}}
@@ -225,6 +225,12 @@ def test_a_task_transitions_on_the_robots_fused_contacts(tmp_path):
     # on the key space, every fused event names the clouds it came from: the hand's cues, and the motion support
     # of the hands where they moved
     assert run.contacts and all(c.robot == ROBOT and c.link.endswith("_hand") for c in run.contacts)
+    # each says where on the hand it lies (the fusion reads the posed model): the grasp held on the fingers'
+    # contacts (the wait counts only region finger), and the palm and the can were touched too
+    assert {c.region for c in run.contacts} == {"finger", "palm", "held_object"}, run.contacts
+    assert all(c.part.startswith("right_") for c in run.contacts)
+    fingers = [i for i, c in enumerate(run.contacts) if c.event is Event.CONTACT_MADE and c.region == "finger"]
+    assert fingers and all(c.part.startswith("right_link_") for c in run.contacts if c.region == "finger")
     for c in run.contacts:
         assert c.sources and len(c.hdr.inputs) == len(c.sources), c
         cues, motion = f"/control_{ROBOT}/cues_", f"/control_{ROBOT}/motion/"

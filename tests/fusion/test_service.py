@@ -94,3 +94,38 @@ def test_tactile_shell_publishes_cloud():
     assert (msg.robot, msg.generator) == ("r1", "tactile")
     h = msg.hypotheses()
     assert len(h) == 1 and h.likelihood[0] == 1.0
+
+
+def test_contacts_and_events_say_where_on_the_hand_they_lie_by_the_robots_posed_model():
+    from contactflow.embodiments.messages import RobotModel
+    from contactflow.nodes.wire import NDArray
+
+    def model(regions: list[str], robot: str = "r1") -> RobotModel:
+        # a palm sphere at A and a fingertip capsule 6-10 cm along +x from it
+        c1 = np.array([A[0], A[0] + [0.06, 0.0, 0.0]])
+        c2 = np.array([A[0], A[0] + [0.10, 0.0, 0.0]])
+        return RobotModel(robot=robot, t=0.0, links=["palm_link", "tip"], c1=NDArray.of(c1), r1=NDArray.of(np.array([0.04, 0.01])),
+                          c2=NDArray.of(c2), r2=NDArray.of(np.array([0.04, 0.01])), regions=regions)
+
+    fusion = ContactFusion("fusion", FusionParams(sources="r1/*", hold=0.05))
+    io = FakeIO()
+    start(fusion, io)
+    on_tip, under = A[0] + [0.08, 0.0, 0.012], A[0] + [0.08, 0.0, -0.08]
+    io.feed("robot_model", model(["palm", "finger"]))
+    io.feed("hypotheses", HypothesisCloud.of(Hypotheses.make(np.array([on_tip, under]), 0.9, stamp=0.0), "r1", "tactile", "hand"))
+    fusion.step()
+    (contacts,) = io.published["contacts"]
+    told = sorted((c.region, c.part, c.link) for c in contacts.contacts)
+    assert told == [("finger", "tip", "hand"), ("held_object", "tip", "hand")]
+    assert sorted((e.region, e.part) for e in io.published["events"]) == [("finger", "tip"), ("held_object", "tip")]
+    assert any("finger (tip)" in e.detail for e in io.events)
+    # a model that does not match its links, or one of another robot, tells nothing (and the first is logged)
+    for bad in (model(["palm"]), model(["palm", "finger"], robot="r2")):
+        io.published.clear()
+        io.t += 0.05
+        io.feed("robot_model", bad)
+        io.feed("hypotheses", HypothesisCloud.of(Hypotheses.make(np.array([on_tip]), 0.9, stamp=io.t), "r1", "tactile", "hand"))
+        fusion.step()
+        told = {(c.region, c.part) for c in io.published["contacts"][-1].contacts}
+        assert told == {("", "")}
+    assert sum("no contact regions: fusion: input 'robot_model' (r1): 1 regions for 2 links" in m for m in io.logs) == 1

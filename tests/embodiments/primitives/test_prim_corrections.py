@@ -357,6 +357,10 @@ def test_the_factories_grasp_detectors_reach_wait_event_and_hold_squeezes_with_t
     assert not stable({"sensor": "gripper_effort", "threshold": 1e4})
     with pytest.raises(ValueError, match="sensor: 'skin' is not one of"):
         runner.create("bad", "wait_event", {"sensor": "skin"})
+    with pytest.raises(ValueError, match="region: 'thumbnail' is not one of \\['finger', 'palm', 'held_object'\\]"):
+        runner.create("bad", "wait_event", {"sensor": "fused", "region": "thumbnail"})
+    with pytest.raises(ValueError, match="region: 'palm' needs sensor fused"):
+        runner.create("bad", "wait_event", {"sensor": "tactile", "region": "palm"})
     force = 5.0
     events, _ = drive(runner, "h", "hold", {"arm": "arm", "force": force, "duration": 0.3}, **MELFA)
     limit = robot.spec.hand("gripper").force_limit
