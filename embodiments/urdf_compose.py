@@ -99,7 +99,9 @@ class Composition:
     extras: tuple[ExtraLink, ...] = field(default_factory=tuple)
 
     def digest(self) -> str:
-        return hashlib.sha1(f"{_FORMAT}:{self!r}".encode()).hexdigest()[:10]
+        # the URDF holds absolute mesh paths into one installation's example-robot-data: another checkout's (a
+        # removed CI clone's venv) sharing the cache wrote paths that no longer exist, and no robot loaded
+        return hashlib.sha1(f"{_FORMAT}:{erd_robots_dir()}:{self!r}".encode()).hexdigest()[:10]
 
 
 def _fmt(v: tuple[float, ...]) -> str:

@@ -108,3 +108,21 @@ def test_composition_errors_name_the_part():
     orphan = Composition("y", parts=(Part("panda_description/urdf/panda.urdf", mount=Mount("ghost")),))
     with pytest.raises(UrdfError, match="unknown link 'ghost'"):
         compose(orphan)
+
+
+def test_a_composed_urdf_of_another_installation_is_not_reused(tmp_path, monkeypatch):
+    """The cache is shared by every checkout, and a composed URDF names meshes by absolute path: one written by
+    another installation (a CI clone's venv, since removed) must not be read as this one's."""
+    from contactflow.embodiments import urdf_compose
+
+    spec = registry.get("melfa")
+    mine = spec.urdf(tmp_path)
+    erd = urdf_compose.erd_robots_dir()
+    other = tmp_path / "other" / "robots"
+    other.parent.mkdir()
+    other.symlink_to(erd)
+    monkeypatch.setattr(urdf_compose, "erd_robots_dir", lambda: other)
+    theirs = spec.urdf(tmp_path)
+    assert theirs != mine and str(other) in theirs.read_text() and str(other) not in mine.read_text()
+    monkeypatch.undo()
+    assert spec.urdf(tmp_path) == mine
