@@ -176,11 +176,12 @@ class ContactFusion(Module):
 
     def _regions(self, locations: list[np.ndarray], robots: list[str]) -> list[tuple[str, str]]:
         """Where on the hand each location of ``robots`` lies, by the latest posed model (none bound or heard, a
-        model of another robot, or a malformed one: untold, ``("", "")``; the first of a run of malformed ones is logged)."""
+        model of another robot, one naming no hand parts, or a malformed one: untold, ``("", "")``; the first of a
+        run of malformed ones is logged)."""
         assert self.io is not None
         untold = [("", "")] * len(locations)
         model = self.io.latest("robot_model")
-        if model is None or not locations:
+        if model is None or not locations or not getattr(model, "regions", True):
             return untold
         if model is not self._model_msg:
             told_bad = self._model_msg is not None and self._model is None

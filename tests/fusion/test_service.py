@@ -119,8 +119,9 @@ def test_contacts_and_events_say_where_on_the_hand_they_lie_by_the_robots_posed_
     assert told == [("finger", "tip", "hand"), ("held_object", "tip", "hand")]
     assert sorted((e.region, e.part) for e in io.published["events"]) == [("finger", "tip"), ("held_object", "tip")]
     assert any("finger (tip)" in e.detail for e in io.events)
-    # a model that does not match its links, or one of another robot, tells nothing (and the first is logged)
-    for bad in (model(["palm"]), model(["palm", "finger"], robot="r2")):
+    # a model that does not match its links, one of another robot, or one naming no hand parts tells nothing (the
+    # first is logged)
+    for bad in (model(["palm"]), model(["palm", "finger"], robot="r2"), model([])):
         io.published.clear()
         io.t += 0.05
         io.feed("robot_model", bad)
