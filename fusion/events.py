@@ -46,6 +46,7 @@ class Track:
     last_seen: float = 0.0
     made: bool = False
     sources: tuple[str, ...] = ()  # the fusion sources behind it when last seen
+    sigma: float = 0.0  # m, its voxels' spread when last seen
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,7 @@ class ContactEvent:
     likelihood: float
     t: float
     sources: tuple[str, ...] = ()  # the fusion sources (robot/generator) behind the contact
+    sigma: float = 0.0  # m, the contact's voxels' spread when last seen
 
 
 @dataclass
@@ -90,7 +92,7 @@ class ContactTracker:
             sources = tuple(n for i, n in enumerate(columns) if n and (c.sources >> i) & 1)
             if best < 0:
                 self.tracks.append(Track(self._next_id, np.array(c.location, dtype=float), c.robot, c.link,
-                                         c.likelihood, last_seen=now, sources=sources))
+                                         c.likelihood, last_seen=now, sources=sources, sigma=c.sigma))
                 self._next_id += 1
                 track = self.tracks[-1]
             else:
@@ -100,7 +102,7 @@ class ContactTracker:
                 track.seen += 1
                 track.last_seen, track.likelihood = now, c.likelihood
                 track.robot, track.link = c.robot or track.robot, c.link or track.link
-                track.sources = sources or track.sources
+                track.sources, track.sigma = sources or track.sources, c.sigma
             if not track.made and track.seen >= p.confirm:
                 track.made = True
                 events.append(self._event(Event.CONTACT_MADE, track, now))
@@ -124,4 +126,4 @@ class ContactTracker:
 
     @staticmethod
     def _event(kind: Event, t: Track, now: float) -> ContactEvent:
-        return ContactEvent(kind, t.id, t.robot, t.link, t.location.copy(), t.likelihood, now, t.sources)
+        return ContactEvent(kind, t.id, t.robot, t.link, t.location.copy(), t.likelihood, now, t.sources, t.sigma)

@@ -3,7 +3,9 @@
 The robot's posed model (``RobotModel``) gives each link a bi-sphere and, for a hand's links, the
 part it is (``regions``: finger or palm). A contact within ``margin`` of a hand link's surface lies
 on that link; one farther out but within ``reach`` of the hand lies on something the hand carries
-or pushes (a held object meeting the table); one beyond ``reach`` is on no part of the hand.
+or pushes (a held object meeting the table); one beyond ``reach`` is on no part of the hand. A
+contact is the centroid of its voxels: one spread over two fingertips has it between them, off both
+surfaces, so the margin grows by the contact's spread (its sigma).
 """
 
 from __future__ import annotations
@@ -48,10 +50,12 @@ def surface_distance(points: np.ndarray, caps: np.ndarray) -> np.ndarray:
 
 
 def classify(points: np.ndarray, caps: np.ndarray, links: list[str], regions: list[str],
-             params: RegionParams = RegionParams()) -> list[tuple[str, str]]:
+             params: RegionParams = RegionParams(), spread: np.ndarray | None = None) -> list[tuple[str, str]]:
     """Per point (n, 3), ``(region, link)``: the hand part it lies on and its link, ``held_object`` and the
-    nearest hand link, or ``("", "")`` (on no hand, or the model names no hand part)."""
+    nearest hand link, or ``("", "")`` (on no hand, or the model names no hand part). ``spread`` (n,), m: each
+    contact's sigma, added to the margin."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    extra = np.zeros(points.shape[0]) if spread is None else np.asarray(spread, dtype=np.float64).ravel()
     hand = np.flatnonzero([r in HAND_PARTS for r in regions])
     if hand.size == 0 or points.shape[0] == 0:
         return [("", "")] * points.shape[0]
@@ -60,7 +64,7 @@ def classify(points: np.ndarray, caps: np.ndarray, links: list[str], regions: li
     out = []
     for k, i in enumerate(best):
         link = links[hand[i]]
-        if d[k, i] <= params.margin:
+        if d[k, i] <= params.margin + extra[k]:
             out.append((str(regions[hand[i]]), link))
         elif d[k, i] <= params.reach:
             out.append((str(Region.HELD_OBJECT), link))

@@ -162,7 +162,8 @@ class ContactFusion(Module):
         if self.params.publish_hypotheses:
             self.io.publish("hypotheses", FusedCloud.of(fused))
         where = self._regions([c.location for c in contacts] + [e.location for e in cycle.events],
-                              [c.robot for c in contacts] + [e.robot for e in cycle.events])
+                              [c.robot for c in contacts] + [e.robot for e in cycle.events],
+                              [c.sigma for c in contacts] + [e.sigma for e in cycle.events])
         self.io.publish("contacts", ContactList(stamp=now, contacts=[ContactInfo.of(c, fused.columns, r)
                                                                      for c, r in zip(contacts, where[:len(contacts)], strict=True)]),
                         inputs=self.loop.inputs(fused.columns))
@@ -174,8 +175,8 @@ class ContactFusion(Module):
                          {"id": float(e.id), "x": x, "y": y, "z": z, "likelihood": float(e.likelihood)})
         return Status.RUNNING
 
-    def _regions(self, locations: list[np.ndarray], robots: list[str]) -> list[tuple[str, str]]:
-        """Where on the hand each location of ``robots`` lies, by the latest posed model (none bound or heard, a
+    def _regions(self, locations: list[np.ndarray], robots: list[str], spread: list[float]) -> list[tuple[str, str]]:
+        """Where on the hand each location of ``robots``, spread over ``spread`` (m), lies, by the latest posed model (none bound or heard, a
         model of another robot, one naming no hand parts, or a malformed one: untold, ``("", "")``; the first of a
         run of malformed ones is logged)."""
         assert self.io is not None
@@ -201,7 +202,8 @@ class ContactFusion(Module):
         mine = [k for k, r in enumerate(robots) if r == robot]
         if not mine:
             return untold
-        told = classify(np.array([locations[k] for k in mine]), caps, links, regions, self.params.regions())
+        told = classify(np.array([locations[k] for k in mine]), caps, links, regions, self.params.regions(),
+                        np.array([spread[k] for k in mine]))
         for k, r in zip(mine, told, strict=True):
             untold[k] = r
         return untold

@@ -14,7 +14,7 @@ def contact(x, lik=0.9, link="palm"):
 def test_made_then_broken_after_hold():
     tr = ContactTracker(TrackerParams(hold=0.1))
     (e,) = tr.update([contact(0.5)], 0.0)
-    assert (e.event, e.robot, e.link, e.id) == (Event.CONTACT_MADE, "r1", "palm", 1)
+    assert (e.event, e.robot, e.link, e.id, e.sigma) == (Event.CONTACT_MADE, "r1", "palm", 1, 0.005)
     assert tr.update([contact(0.505)], 0.05) == []  # same contact, moved a little
     assert tr.update([], 0.1) == []  # unseen, but within hold
     (b,) = tr.update([], 0.16)

@@ -38,6 +38,17 @@ def test_a_contact_is_told_on_the_finger_the_palm_what_the_hand_holds_or_nothing
     assert classify(points[2:3], CAPS, LINKS, REGIONS, RegionParams(reach=0.05)) == [("", "")]
 
 
+def test_a_contact_spread_between_two_fingers_is_on_a_finger_not_on_what_the_hand_holds() -> None:
+    # two fingertips 6 cm apart: a cluster over both has its centroid midway, 2 cm off either surface
+    caps = np.array([[0.0, 0.03, 0.0, 0.01, 0.0, 0.03, 0.0, 0.01], [0.0, -0.03, 0.0, 0.01, 0.0, -0.03, 0.0, 0.01]])
+    links, regions = ["index_tip", "thumb_tip"], ["finger", "finger"]
+    mid = np.array([[0.0, 0.0, 0.0]])
+    assert classify(mid, caps, links, regions)[0][0] == "held_object"  # a point there, told alone
+    assert classify(mid, caps, links, regions, spread=np.array([0.03]))[0][0] == "finger"  # voxels over both tips
+    # a tight cluster 4 cm under the fingers (a held object set down) stays on the held object
+    assert classify(np.array([[0.0, 0.0, -0.05]]), caps, links, regions, spread=np.array([0.005]))[0][0] == "held_object"
+
+
 @pytest.mark.parametrize("margin, reach", [(0.0, 0.1), (0.02, 0.01), (-0.01, 0.1)])
 def test_region_params_need_a_margin_inside_the_reach(margin, reach) -> None:
     with pytest.raises(ValueError, match="need 0 < margin < reach"):
