@@ -59,8 +59,8 @@ class PlanProfile:
     ends: float = 0.0  # checking the start and goal states
     search: float = 0.0  # OMPL's solve, over every search
     simplify: float = 0.0  # shortcutting the found path, over every search
-    validate: float = 0.0  # the found path checked waypoint by waypoint at the fine step
-    searches: int = 0  # 2: the coarse search's path failed the fine check and was searched again at the fine step
+    validate: float = 0.0  # the found paths checked waypoint by waypoint at the fine step
+    searches: int = 0  # over 1: the coarse search's path failed the fine check and was searched again at the fine step
     search_checks: int = 0  # states checked while searching and shortcutting
     path_checks: int = 0  # states checked at the ends and along found paths
 
@@ -263,6 +263,8 @@ class PlannerParams:
     search_step: float = 0.05  # rad, distance between checks along motions while searching and shortcutting
     simplify: bool = True  # shortcut the found path (OMPL's vertex reduction, then rope shortcutting)
     range_: float = 0.0  # planner range (0 = OMPL default)
+    fine_searches: int = 3  # searches at check_step before giving up: a motion checked at points check_step apart
+    # can still clip an obstacle's corner between them, which the waypoint check then catches
 
 
 class ArmPlanner:
@@ -270,8 +272,8 @@ class ArmPlanner:
 
     ``valid`` is the whole collision check. The search and the shortcutting check motions every
     ``search_step``; the path found is then checked at every ``check_step`` (lazy validation),
-    and only a path that fails is searched again at ``check_step`` (each search has the whole
-    ``timeout``). Every returned path is free under ``valid`` at ``check_step``.
+    and only a path that fails is searched again at ``check_step``, up to ``fine_searches`` times
+    (each search has the whole ``timeout``). Every returned path is free under ``valid`` at ``check_step``.
     """
 
     def __init__(self, kin: Kinematics, joints: tuple[str, ...], valid: Callable[[np.ndarray], bool], q_fixed: np.ndarray,
@@ -318,20 +320,27 @@ class ArmPlanner:
         prof.ends = time.perf_counter() - t0
         if seed is not None:
             seed_ompl(seed)
-        step = self.params.search_step
-        dense = self._search(start, goal, planner, timeout, step, checks)
-        if dense is not None:
+        step, fine = self.params.search_step, 0
+        while True:
+            dense = self._search(start, goal, planner, timeout, step, checks)
+            if dense is None:
+                fail.why_not = f"{planner} found no path in {f'{checks} state checks' if checks > 0 else f'{timeout} s'}"
+                fail.timed_out = True
+                break
             t = time.perf_counter()
             free = self._path_free(dense)
-            prof.validate = time.perf_counter() - t
-            if not free and step > self.params.check_step:
-                dense = self._search(start, goal, planner, timeout, self.params.check_step, checks)
-        if dense is None:
-            fail.why_not = f"{planner} found no path in {f'{checks} state checks' if checks > 0 else f'{timeout} s'}"
-            fail.timed_out = True
-            fail.planning_time = time.perf_counter() - t0
-            return fail
-        return Plan(self.joints, dense, planner, time.perf_counter() - t0, True, profile=prof)
+            prof.validate += time.perf_counter() - t
+            if free:
+                return Plan(self.joints, dense, planner, time.perf_counter() - t0, True, profile=prof)
+            if step <= self.params.check_step:
+                fine += 1
+            if fine >= self.params.fine_searches:
+                fail.why_not = (f"{planner}'s {prof.searches} paths each failed the check every "
+                                f"{self.params.check_step} rad")
+                break
+            step = self.params.check_step
+        fail.planning_time = time.perf_counter() - t0
+        return fail
 
     def _search(self, start: np.ndarray, goal: np.ndarray, planner: str, timeout: float, step: float,
                 checks: int = 0) -> np.ndarray | None:

@@ -142,11 +142,24 @@ def test_a_path_found_at_the_search_step_is_searched_again_at_the_check_step_whe
         return not (abs(q[idx][0] - start[0] - 0.2) < 0.015 and abs(q[idx][1] - start[1]) < 0.3)
 
     planner = ArmPlanner(kin, joints, wall, kin.q, PlannerParams(search_step=0.5))
-    plan = planner.plan(start, goal, planner="RRTConnect", timeout=5.0)
-    assert plan.success and plan.profile.searches == 2 and plan.profile.search_checks > 0 and plan.profile.validate > 0
-    assert all(wall(planner.full(w)) for w in plan.waypoints)
-    assert np.abs(plan.waypoints[:, 1] - start[1]).max() >= 0.3  # went round the wall
-    assert np.abs(np.diff(plan.waypoints, axis=0)).max() <= PlannerParams().check_step + 1e-12
+    searches = []
+    for _ in range(40):  # a fine search checks motions at points check_step apart, which can clip the wall's corner
+        plan = planner.plan(start, goal, planner="RRTConnect", timeout=5.0)
+        assert plan.success and plan.profile.search_checks > 0 and plan.profile.validate > 0
+        assert all(wall(planner.full(w)) for w in plan.waypoints)
+        assert np.abs(plan.waypoints[:, 1] - start[1]).max() >= 0.3  # went round the wall
+        assert np.abs(np.diff(plan.waypoints, axis=0)).max() <= PlannerParams().check_step + 1e-12
+        searches.append(plan.profile.searches)
+    assert min(searches) == 2 and searches.count(2) >= 34, searches  # 2 % of fine searches clipped a corner
+
+    class RefusingEveryPath(ArmPlanner):
+        def _path_free(self, waypoints) -> bool:
+            return len(waypoints) == 1 and super()._path_free(waypoints)  # the ends pass
+
+    refused = RefusingEveryPath(kin, joints, wall, kin.q, PlannerParams(search_step=0.5, fine_searches=2))
+    plan = refused.plan(start, goal, planner="RRTConnect", timeout=5.0)
+    assert not plan.success and plan.profile.searches == 3 and not plan.timed_out
+    assert plan.why_not == "RRTConnect's 3 paths each failed the check every 0.02 rad"
     free = ArmPlanner(kin, joints, lambda q: True, kin.q)
     clear = free.plan(start, goal, planner="RRTConnect", timeout=5.0)
     assert clear.success and clear.profile.searches == 1 and clear.profile.path_checks == 2 + len(clear.waypoints)
