@@ -27,23 +27,25 @@ def check_capsules(caps: np.ndarray, where: str = "capsules") -> np.ndarray:
     return caps
 
 
+def part_distances(points: np.ndarray, caps: np.ndarray) -> np.ndarray:
+    """(n, m) signed distance of each of ``points`` (n, 3) to each bi-sphere of ``caps`` (m, 8; eq. B.3 then B.2)."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 1, 3)
+    c1, r1, c2, r2 = caps[:, 0:3], caps[:, 3], caps[:, 4:7], caps[:, 7]
+    axis = c2 - c1
+    len2 = np.einsum("ij,ij->i", axis, axis)
+    lam = np.clip(np.einsum("nmk,mk->nm", p - c1, axis) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
+    return np.linalg.norm(p - (c1 + lam[..., None] * axis), axis=2) - (r1 + lam * (r2 - r1))
+
+
 def capsule_distance(points: np.ndarray, caps: np.ndarray, chunk: int = 65536) -> np.ndarray:
     """Signed distance of each point to the union of bi-spheres (eq. B.3 then B.2), min over parts."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     caps = check_capsules(caps)
     if caps.shape[0] == 0:
         return np.full(pts.shape[0], np.inf)
-    c1, r1, c2, r2 = caps[:, 0:3], caps[:, 3], caps[:, 4:7], caps[:, 7]
-    axis = c2 - c1
-    len2 = np.einsum("ij,ij->i", axis, axis)
     out = np.empty(pts.shape[0])
     for s in range(0, pts.shape[0], chunk):
-        p = pts[s:s + chunk, None, :]
-        lam = np.einsum("nmk,mk->nm", p - c1, axis) / np.where(len2 > 0, len2, 1.0)
-        lam = np.clip(lam, 0.0, 1.0)
-        cmin = c1 + lam[..., None] * axis
-        rmin = r1 + lam * (r2 - r1)
-        out[s:s + chunk] = (np.linalg.norm(p - cmin, axis=2) - rmin).min(axis=1)
+        out[s:s + chunk] = part_distances(pts[s:s + chunk], caps).min(axis=1)
     return out
 
 

@@ -15,6 +15,8 @@ from enum import StrEnum
 
 import numpy as np
 
+from contactflow.fusion.geometry import part_distances
+
 
 class Region(StrEnum):
     FINGER = "finger"
@@ -36,19 +38,6 @@ class RegionParams:
             raise ValueError(f"region margin={self.margin} and reach={self.reach}: need 0 < margin < reach")
 
 
-def surface_distance(points: np.ndarray, caps: np.ndarray) -> np.ndarray:
-    """(n, m) signed distance of each of ``points`` (n, 3) to the surface of each bi-sphere of ``caps``
-    (m, 8: ``[c1, r1, c2, r2]``): the distance to the segment c1-c2 less the radius interpolated along it."""
-    c1, r1, c2, r2 = caps[:, 0:3], caps[:, 3], caps[:, 4:7], caps[:, 7]
-    axis = c2 - c1
-    length2 = np.einsum("ij,ij->i", axis, axis)
-    rel = points[:, None, :] - c1[None, :, :]
-    s = np.where(length2 > 0.0, np.einsum("nmj,mj->nm", rel, axis) / np.where(length2 > 0.0, length2, 1.0), 0.0)
-    s = np.clip(s, 0.0, 1.0)
-    nearest = c1[None] + s[..., None] * axis[None]
-    return np.linalg.norm(points[:, None, :] - nearest, axis=-1) - (r1 + s * (r2 - r1))
-
-
 def classify(points: np.ndarray, caps: np.ndarray, links: list[str], regions: list[str],
              params: RegionParams = RegionParams(), spread: np.ndarray | None = None) -> list[tuple[str, str]]:
     """Per point (n, 3), ``(region, link)``: the hand part it lies on and its link, ``held_object`` and the
@@ -59,7 +48,7 @@ def classify(points: np.ndarray, caps: np.ndarray, links: list[str], regions: li
     hand = np.flatnonzero([r in HAND_PARTS for r in regions])
     if hand.size == 0 or points.shape[0] == 0:
         return [("", "")] * points.shape[0]
-    d = surface_distance(points, caps[hand])
+    d = part_distances(points, caps[hand])
     best = d.argmin(axis=1)
     out = []
     for k, i in enumerate(best):

@@ -176,13 +176,13 @@ class ContactFusion(Module):
         return Status.RUNNING
 
     def _regions(self, locations: list[np.ndarray], robots: list[str], spread: list[float]) -> list[tuple[str, str]]:
-        """Where on the hand each location of ``robots``, spread over ``spread`` (m), lies, by the latest posed model (none bound or heard, a
-        model of another robot, one naming no hand parts, or a malformed one: untold, ``("", "")``; the first of a
-        run of malformed ones is logged)."""
+        """Where on the hand each contact (location, robot, spread in m) lies, by the latest posed model. Untold,
+        ``("", "")``: no model bound or heard, a model of another robot, one naming no hand parts, or a malformed
+        one (the first of a run of those is logged)."""
         assert self.io is not None
         untold = [("", "")] * len(locations)
         model = self.io.latest("robot_model")
-        if model is None or not locations or not getattr(model, "regions", True):
+        if model is None or not locations or (isinstance(model, RobotModel) and not model.regions):
             return untold
         if model is not self._model_msg:
             told_bad = self._model_msg is not None and self._model is None

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from contactflow.fusion.regions import Region, RegionParams, classify, surface_distance
+from contactflow.fusion.geometry import part_distances
+from contactflow.fusion.regions import Region, RegionParams, classify
 
 # a palm sphere of 4 cm at the origin and one finger capsule of 1 cm from (0.06, 0, 0) to (0.10, 0, 0)
 CAPS = np.array([[0.0, 0.0, 0.0, 0.04, 0.0, 0.0, 0.0, 0.04],
@@ -14,11 +15,11 @@ REGIONS = ["palm", "finger", ""]
 
 
 def test_the_distance_to_a_bi_sphere_is_to_its_surface_with_the_radius_along_it() -> None:
-    d = surface_distance(np.array([[0.08, 0.02, 0.0], [0.0, 0.0, 0.05], [0.2, 0.0, 0.0]]), CAPS[:2])
+    d = part_distances(np.array([[0.08, 0.02, 0.0], [0.0, 0.0, 0.05], [0.2, 0.0, 0.0]]), CAPS[:2])
     assert d[0, 1] == pytest.approx(0.01) and d[1, 0] == pytest.approx(0.01)
     assert d[2, 1] == pytest.approx(0.09)  # past the segment's end: from the end sphere
     tapered = np.array([[0.0, 0.0, 0.0, 0.02, 0.1, 0.0, 0.0, 0.0]])
-    assert surface_distance(np.array([[0.05, 0.03, 0.0]]), tapered)[0, 0] == pytest.approx(0.02)
+    assert part_distances(np.array([[0.05, 0.03, 0.0]]), tapered)[0, 0] == pytest.approx(0.02)
 
 
 def test_a_contact_is_told_on_the_finger_the_palm_what_the_hand_holds_or_nothing() -> None:
