@@ -18,6 +18,7 @@ import numpy as np
 
 from contactflow.embodiments.parallel import run_all
 from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+from contactflow.embodiments.primitives.fused import CONTACT_SENSORS
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import (
@@ -230,7 +231,9 @@ def vec6(T: np.ndarray) -> list[float]:
     return [v[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")]
 
 
-def task_params(strategy: str, seed: int) -> dict:
+def task_params(strategy: str, seed: int, sensor: str = "own") -> dict:
+    """The strategy task's params; ``sensor`` (exploration): its guarded moves stop on the wrist and pads (own) or on
+    the robot's fused contacts (fused)."""
     cx, cy = BOX_CENTER
     walls = [cx - INNER[0] / 2, cy - INNER[1] / 2, cx + INNER[0] / 2, cy + INNER[1] / 2]
     target_at = (TARGET_XY[0], TARGET_XY[1], TABLE_Z + 0.2)
@@ -257,7 +260,7 @@ def task_params(strategy: str, seed: int) -> dict:
             "sweep": sweep_points(footprint, edge=edge, edge_lift=EDGE_LIFT, yaw=YAW),
             "alternate": sweep_points(footprint, edge=edge, edge_lift=EDGE_LIFT, reverse=True, yaw=YAW),
             "footprint": list(footprint), "height": approach_z - BOTTOM, "target": vec6(top_grasp_pose(target_at, YAW)),
-            "seed": seed, "walls": walls, "yaw": YAW}
+            "seed": seed, "walls": walls, "yaw": YAW, "sensor": sensor}
 
 
 def box_scene(objects: list[ObjectSpec]) -> SimRobot:
@@ -272,7 +275,7 @@ def box_scene(objects: list[ObjectSpec]) -> SimRobot:
     return robot
 
 
-def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
+def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float, sensor: str = "own") -> dict:
     """One run; it repeats exactly in a process of its own (``run_all(fresh=True)``): OMPL is seeded once per process."""
     from contactflow.embodiments.control.planning import seed_ompl
     from contactflow.embodiments.tasks import load
@@ -284,6 +287,8 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
     tasks, _ = load()
     attempts = 0
     runner = LocalPrimitiveRunner(robot)
+    if sensor == "fused":
+        runner.host_contacts()
     stop = {"now": False}
 
     def count(p: Progress) -> None:
@@ -294,12 +299,12 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
                 stop["now"] = True
 
     t0 = robot.time
-    res, _, emptied = _run_until(tasks, f"empty_box_{strategy}", robot, task_params(strategy, seed), runner, count,
-                                 stop, max_time, names)
+    res, _, emptied = _run_until(tasks, f"empty_box_{strategy}", robot, task_params(strategy, seed, sensor), runner,
+                                 count, stop, max_time, names)
     left = in_box(robot, names)
     end = emptied if left == 0 and emptied is not None else robot.time
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts, "time": end - t0,
-            "left": left, "success": left == 0, "result": str(res), "executor": "local"}
+            "left": left, "success": left == 0, "result": str(res), "executor": "local", "sensor": sensor}
 
 
 def _in_box_poses(names: list[str], msg) -> int:
@@ -307,7 +312,8 @@ def _in_box_poses(names: list[str], msg) -> int:
     return count_in_box(dict(zip(msg.names, msg.poses.numpy(), strict=True)), names)
 
 
-def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
+def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float,
+                     sensor: str = "own") -> dict:
     """One run on the runtime (world and control node in this worker process, a zenoh session each).
 
     The supervisor is the bench: it counts grasp attempts from the task's progress stream and
@@ -325,7 +331,8 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
     names = [o.name for o in objs]
     with tempfile.TemporaryDirectory(prefix="empty-box-") as d, \
             CellSession(pathlib.Path(d), [container(), *objs], ROBOT, TASKS_DIR / "thesis.yaml",
-                        f"empty_box_{strategy}", task_params(strategy, seed), seed=seed) as cell:
+                        f"empty_box_{strategy}", task_params(strategy, seed, sensor), seed=seed,
+                        contacts=sensor == "fused") as cell:
         emptied: float | None = None
         why = ""
         while not why:
@@ -347,7 +354,7 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
         left = _in_box_poses(names, poses[-1]) if emptied is None else 0
     end = emptied if emptied is not None else min(now, max_time)
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": min(attempts, max_attempts + 1),
-            "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime"}
+            "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime", "sensor": sensor}
 
 
 def _attempt(m) -> bool:
@@ -389,15 +396,19 @@ def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, 
 EXECUTORS = ("local", "runtime", "both")
 
 
-def _run_once(executor: str, strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
-    return (run_once if executor == "local" else run_once_runtime)(strategy, seed, n_objects, max_attempts, max_time)
+def _run_once(executor: str, strategy: str, seed: int, n_objects: int, max_attempts: int, max_time: float,
+              sensor: str) -> dict:
+    return (run_once if executor == "local" else run_once_runtime)(strategy, seed, n_objects, max_attempts, max_time,
+                                                                   sensor)
 
 
 def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, jobs: int = 1,
         max_time: float | None = None, max_attempts: int | None = None, strategy: list[str] | None = None,
-        first_seed: int = 100, executor: str = "local") -> dict:
+        first_seed: int = 100, executor: str = "local", sensor: list[str] | None = None) -> dict:
     """Each of ``strategy`` (default: all) ``runs`` times (seeds ``first_seed``, +1, ...) on ``jobs`` processes;
-    caps per run in simulated s and attempts; ``executor``: local, runtime or both (each seed on both)."""
+    caps per run in simulated s and attempts; ``executor``: local, runtime or both (each seed on both); ``sensor``:
+    what the exploration's guarded moves stop on, own or fused or both side by side (default own; the other
+    strategies have no guarded moves and run once)."""
     from rich.console import Console
     from rich.progress import Progress as Bar
     from rich.table import Table
@@ -407,6 +418,10 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     if executor not in EXECUTORS:
         raise ParamError(f"bench empty-box: --executor {executor!r} is not one of {list(EXECUTORS)}")
     executors = ("local", "runtime") if executor == "both" else (executor,)
+    sensors = tuple(sensor) if sensor else ("own",)
+    for s in sensors:
+        if s not in CONTACT_SENSORS:
+            raise ParamError(f"bench empty-box: --sensor {s!r} is not one of {list(CONTACT_SENSORS)}")
     chosen = tuple(strategy) if strategy else STRATEGIES
     for s in chosen:
         if s not in STRATEGIES:
@@ -418,8 +433,9 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     max_attempts = max_attempts if max_attempts is not None else (2 if quick else MAX_ATTEMPTS)
     max_time = max_time if max_time is not None else (30.0 if quick else MAX_TIME)
     t_start = time.perf_counter()
-    plan = [(ex, s, first_seed + k, n_objects, max_attempts, max_time)
-            for ex in executors for s in chosen for k in range(n_runs)]
+    variants = [(s, sn) for s in chosen for sn in (sensors if s == "exploration" else sensors[:1])]
+    plan = [(ex, s, first_seed + k, n_objects, max_attempts, max_time, sn)
+            for ex in executors for s, sn in variants for k in range(n_runs)]
     partial = out_dir / "empty_box_runs.jsonl"  # one line per finished run, for long benchmarks
     partial.write_text("")
     with Bar(transient=True) as bar:
@@ -433,9 +449,9 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
         results = run_all(_run_once, plan, jobs, done, fresh=True)
     rows = []
     for ex in executors:
-        for s in chosen:
-            rs = [r for r in results if r["strategy"] == s and r["executor"] == ex]
-            rows.append({"method": s, "executor": ex, "attempts": float(np.mean([r["attempts"] for r in rs])),
+        for s, sn in variants:
+            rs = [r for r in results if r["strategy"] == s and r["executor"] == ex and r["sensor"] == sn]
+            rows.append({"method": s, "executor": ex, "sensor": sn, "attempts": float(np.mean([r["attempts"] for r in rs])),
                          "time": float(np.mean([r["time"] for r in rs])),
                          "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs),
                          "emptied": rate(sum(r["success"] for r in rs), len(rs)),
@@ -449,7 +465,7 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
           " | thesis time | thesis success |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         t = THESIS[r["method"]]
-        md.append(f"| {r['method']} | {r['executor']} | {r['attempts']:.1f} | {r['time']:.1f} | "
+        md.append(f"| {_label(r)} | {r['executor']} | {r['attempts']:.1f} | {r['time']:.1f} | "
                   f"{rate_text(r['emptied']['successes'], r['runs'])} | "
                   f"{r['attempts_max']} | {r['time_max']:.0f} | {t['attempts']} | {t['time']} s | {100 * t['success']:.0f}% |")
     caps = f"a run ends after {max_time:g} s of simulated time or {max_attempts} grasp attempt{'s' if max_attempts != 1 else ''}"
@@ -463,13 +479,18 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
         table.add_column(col)
     for r in rows:
         t = THESIS[r["method"]]
-        table.add_row(r["method"], r["executor"], f"{r['attempts']:.1f}", f"{r['time']:.1f}",
+        table.add_row(_label(r), r["executor"], f"{r['attempts']:.1f}", f"{r['time']:.1f}",
                       rate_text(r["emptied"]["successes"], r["runs"]),
                       str(r["attempts_max"]), f"{r['time_max']:.0f}",
                       f"{t['attempts']} / {t['time']} s / {100 * t['success']:.0f}%")
     Console().print(table)
     _plot(rows, out_dir / "empty_box.png")
     return summary
+
+
+def _label(row: dict) -> str:
+    """A row's method, and what its guarded moves stopped on when that was the fused contacts."""
+    return row["method"] + (" (fused contacts)" if row["sensor"] == "fused" else "")
 
 
 def _plot(rows: list[dict], path: pathlib.Path) -> None:
@@ -482,7 +503,7 @@ def _plot(rows: list[dict], path: pathlib.Path) -> None:
     x = np.arange(len(rows))
     names = [r["method"] for r in rows]
     several = len({r["executor"] for r in rows}) > 1
-    ticks = [f"{r['method']}\n{r['executor']}" if several else r["method"] for r in rows]
+    ticks = [f"{_label(r)}\n{r['executor']}" if several else _label(r) for r in rows]
     for ax, key, label in zip(axes, ("attempts", "time", "success"), ("attempts", "time (s)", "success"), strict=True):
         scale = 100.0 if key == "success" else 1.0
         ax.bar(x - 0.2, [scale * r[key] for r in rows], 0.4, label="simulation")

@@ -440,8 +440,9 @@ class CellSession:
     """
 
     def __init__(self, folder: Path, objects: list, robot: str, task_file: str | Path, task: str,
-                 plan: Mapping[str, Any], seed: int = 0, ground_truth_hz: float = 4.0) -> None:
+                 plan: Mapping[str, Any], seed: int = 0, ground_truth_hz: float = 4.0, contacts: bool = False) -> None:
         self.folder = Path(folder)
+        self.contacts = contacts  # the control node runs the robot's contact fusion (contact_modules)
         self.robot, self.objects = robot, list(objects)
         self.task_file, self.task, self.plan = task_file, task, dict(plan)
         self.seed, self.ground_truth_hz = seed, ground_truth_hz
@@ -454,7 +455,7 @@ class CellSession:
         cell = write_cell(self.folder / "cell.yaml", self.robot, self.objects)
         endpoint, site = f"tcp/127.0.0.1:{free_port()}", f"cell{free_port()}"
         control = control_node(site, self.robot, self.robot, self.task_file, self.task, self.plan,
-                               connect=(endpoint,), autostart=True)
+                               connect=(endpoint,), autostart=True, contacts=self.contacts)
         world = world_node(site, cell, listen=endpoint, wait_for=(control["node"],), seed=self.seed,
                            ground_truth_hz=self.ground_truth_hz)
         self._nodes, self.watch = start_nodes(self.folder, [world, control], site, endpoint)
@@ -498,7 +499,7 @@ def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping
     ``thesis.yaml``: ``careful_pick_and_place`` corrects what its predictor reports), its grasp watched on its
     fused contacts while it carries the can (and by its predictor, with ``predictor``: its params); with
     ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube; with ``cell_map`` too, melfa
-    runs its contact fusion as well, tombatossals' control node the cell's map of both (:func:`cell_map_module`), and
+    runs its contact fusion as well (its touch stops on its fused contacts), tombatossals' control node the cell's map of both (:func:`cell_map_module`), and
     tombatossals' carry watcher reads its grasp from that map (the robot subscribes to its cell's contacts).
 
     Returns the world node (listening on ``endpoint``, waiting for the control nodes before
@@ -514,7 +515,7 @@ def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping
                              {"target": _pose(PLACE_TARGET), "sensor": "fused"}, connect=(endpoint,), autostart=True,
                              contacts=True, predictor=predictor, inputs=watcher)]
     if melfa:
-        controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE)},
+        controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE), "sensor": "fused" if cell_map else "own"},
                                      connect=(endpoint,), autostart=True, contacts=cell_map))
         if cell_map:
             controls[0]["modules"].append(cell_map_module(cell, ("tombatossals", "melfa")))

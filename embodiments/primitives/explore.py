@@ -7,10 +7,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive, hand_pose_for, pose6
+from contactflow.embodiments.primitives.fused import ContactSensorParams, SensesFusedContacts
 from contactflow.nodes.status import Event
 
 
-class Explore(Primitive):
+class Explore(SensesFusedContacts, Primitive):
     """Guarded sweep: straight along ``direction`` (world) or through ``sweep`` points until a contact.
 
     With ``alternate`` points, a coin flip (``seed`` and the start time) picks which of the two
@@ -24,14 +25,16 @@ class Explore(Primitive):
     where it leaves the hand's ``footprint`` through the side leading the motion, or without a
     footprint its point nearest the controlled frame; a contact sensed by the pads alone is at
     the touching pads. A contact on the support or a finished sweep ends with OBJECT_NOT_FOUND
-    (FAILURE).
+    (FAILURE). With ``sensor: fused`` the sweep stops on a new contact the robot's fusion places on
+    the hand instead of on its own reading of the wrist and pads (and reports where the fusion puts
+    it, ``fused_x``, ``_y``, ``_z``); the contact is located as above.
     """
 
     requires = Capability(ft=True)
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.CONTACT, Event.OBJECT_DETECTED, Event.OBJECT_NOT_FOUND)
 
     @dataclass(frozen=True)
-    class Params(Primitive.Params):
+    class Params(ContactSensorParams, Primitive.Params):
         direction: tuple[float, ...] = (0.0, 0.0, -1.0)  # world, used when no sweep is given
         sweep: tuple[float, ...] = ()  # flat [x, y, z, ...] points (world) to visit in order
         force_threshold: float = 2.0  # N, contact threshold
@@ -67,6 +70,8 @@ class Explore(Primitive):
         self._ready = not (p.preshape and self.hand_name)
         self.k = 0
         self._dir: np.ndarray | None = None
+        if p.sensor == "fused":
+            self.start_fused()
 
     def update(self) -> None:
         p = self.params
@@ -78,12 +83,13 @@ class Explore(Primitive):
             self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
         T = self.r.frame_pose(self.ee_frame)
         pos = T[:3, 3]
-        f = self.wrench_in("world")[:3]
-        if np.linalg.norm(f) > p.force_threshold or self.pads_in_contact():
+        told = self.sensed_contact("fused")
+        if told is not None:
             self.halt()
             moving = self._dir if self._dir is not None else self.d
             on_floor = bool(pos[2] <= p.floor_z + p.floor_margin) and abs(float(moving[2])) > 0.7
-            self.emit_once(Event.CONTACT, "explored into a contact", {"on_floor": float(on_floor)})
+            by = f" (fused contacts {self.evidence})" if p.sensor == "fused" else ""
+            self.emit_once(Event.CONTACT, f"explored into a contact{by}", {"on_floor": float(on_floor)})
             at = self.locate(T, moving)
             # approach pose: the hand's grasp centre over the object, ``lead`` beyond the contact
             there = T.copy()
@@ -94,7 +100,7 @@ class Explore(Primitive):
             vals = pose6(hand_pose_for(self.r.spec.name, there))
             vals.update(contact_x=float(at[0]), contact_y=float(at[1]), contact_z=float(at[2]),
                         object_x=float(there[0, 3]), object_y=float(there[1, 3]),  # the grasp centre's spot
-                        on_floor=float(on_floor), waypoint=float(self.k), alternate=float(self.flipped))
+                        on_floor=float(on_floor), waypoint=float(self.k), alternate=float(self.flipped), **told)
             if on_floor:
                 self.fail("touched the support, no object here", event=Event.OBJECT_NOT_FOUND, **vals)
             else:
@@ -122,6 +128,9 @@ class Explore(Primitive):
         if self._dir is None or float(d @ self._dir) < 0.95 or abs(speed - self._speed) > 0.3 * self._speed:
             self._dir, self._speed = d, speed
             self.twist(np.concatenate([d * speed, np.zeros(3)]))
+        if p.sensor == "fused" and self.unheard:
+            self.halt()
+            self.fail_unheard()
 
     def locate(self, T: np.ndarray, moving: np.ndarray) -> np.ndarray:
         """Where the hand touched (world): on the wrench's line of action, else at the touching pads."""

@@ -1,4 +1,4 @@
-"""Touch (§6.3.6): move the arm forward (hand frame) until a contact is sensed by the F/T or the tactile pads."""
+"""Touch (§6.3.6): move the arm forward (hand frame) until a contact is sensed: by the F/T or the pads, or by the fusion."""
 
 from __future__ import annotations
 
@@ -7,17 +7,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Capability, Primitive, pose6
+from contactflow.embodiments.primitives.fused import ContactSensorParams, SensesFusedContacts
 from contactflow.nodes.status import Event
 
 
-class Touch(Primitive):
-    """Guarded motion along ``direction`` until contact; reports the contact pose."""
+class Touch(SensesFusedContacts, Primitive):
+    """Guarded motion along ``direction`` until contact; reports the contact pose.
+
+    ``sensor: own`` stops on the wrist's force over ``force_threshold`` or a pad in contact;
+    ``sensor: fused`` on a contact the robot's fusion places on the hand (of ``region``) that was
+    not there when the motion began, and reports where it lies (``contact_x``, ``_y``, ``_z``).
+    """
 
     requires = Capability(ft=True)
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.CONTACT)
 
     @dataclass(frozen=True)
-    class Params(Primitive.Params):
+    class Params(ContactSensorParams, Primitive.Params):
         direction: tuple[float, ...] = (0.0, 0.0, 1.0)  # unit vector in ``frame``
         frame: str = "hand"  # "hand" (controlled frame) or "world"
         force_threshold: float = 2.0  # N
@@ -39,18 +45,22 @@ class Touch(Primitive):
         self.d = self.direction_world()
         self.r.tare_ft(self.arm_name)
         self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
-
-    def contact(self) -> bool:
-        f = self.wrench_in("world")[:3]
-        return bool(np.linalg.norm(f) > self.params.force_threshold) or bool(self.pads_in_contact())
+        if self.params.sensor == "fused":
+            self.start_fused()
 
     def update(self) -> None:
         p = self.params
         T = self.r.frame_pose(self.ee_frame)
         travelled = float((T[:3, 3] - self.p0) @ self.d)
-        if self.contact():
-            self.emit_once(Event.CONTACT, "touched")
-            self.succeed(travelled=travelled, **pose6(T))
+        at = self.sensed_contact("contact")
+        if at is not None:
+            by = f" (fused contacts {self.evidence})" if p.sensor == "fused" else ""
+            self.emit_once(Event.CONTACT, f"touched{by}", at)
+            self.succeed(travelled=travelled, **pose6(T), **at)
+            return
+        if p.sensor == "fused" and self.unheard:
+            self.halt()
+            self.fail_unheard()
             return
         if travelled >= p.max_distance:
             self.fail(f"no contact within {p.max_distance} m", travelled=travelled)

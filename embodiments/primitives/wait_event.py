@@ -7,10 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.primitives.base import Primitive, low_pass
-from contactflow.fusion.messages import ContactList
-from contactflow.fusion.regions import Region
-from contactflow.nodes.keys import KeySpace
-from contactflow.nodes.module import Port
+from contactflow.embodiments.primitives.fused import FusedParams, SensesFusedContacts
 from contactflow.nodes.status import Event
 
 SENSORS = ("hand", "tactile", "gripper_effort", "wrist_ft", "fused")
@@ -19,7 +16,7 @@ configuration (§3.3.1), tactile pad pressure, the gripper's motor effort, the l
 robot's fused contacts (thesis ch. 4: every cue of the robot fused into contacts on its links)."""
 
 
-class WaitEvent(Primitive):
+class WaitEvent(SensesFusedContacts, Primitive):
     """Emits ``event`` when its condition holds: grasp_lost / grasp_stable (by ``sensor``), contact (F/T), or after ``delay``.
 
     Used as a helper next to another primitive (e.g. watch for GRASP_LOST while transporting)
@@ -29,10 +26,9 @@ class WaitEvent(Primitive):
 
     events = (Event.SUCCESS, Event.FAILURE, Event.ERROR, Event.GRASP_LOST, Event.GRASP_STABLE, Event.CONTACT)
     commands_arm = False
-    inputs = (Port("contacts", ContactList, "the robot's fused contacts (sensor: fused)"),)
 
     @dataclass(frozen=True)
-    class Params(Primitive.Params):
+    class Params(FusedParams, Primitive.Params):
         event: str = "success"  # grasp_lost | grasp_stable | contact | success (= plain delay)
         delay: float = 0.0  # s before the condition is checked (the whole wait for "success")
         force_threshold: float = 5.0  # N, for "contact"
@@ -42,22 +38,11 @@ class WaitEvent(Primitive):
         threshold: float = 0.0  # N, a grasp holds at this total pad pressure, grip force or wrist load (not "hand")
         min_contacts: int = 1  # pads in contact for a hand or tactile grasp
         filter_hz: float = 0.0  # Hz, low-pass cut-off of the wrist load (0: none; for noisy estimated wrenches)
-        fused_timeout: float = 1.0  # s; sensor fused: a contact list this old says nothing, and none this long fails the wait
-        region: str = ""  # sensor fused: count only the contacts on this region of the hand (finger | palm | held_object); "": all
 
         def validate(self) -> None:
             if self.sensor not in SENSORS:
                 raise ValueError(f"sensor: {self.sensor!r} is not one of {list(SENSORS)}")
-            if self.region and self.region not in set(Region):
-                raise ValueError(f"region: {self.region!r} is not one of {[str(r) for r in Region]}")
-            if self.region and self.sensor != "fused":
-                raise ValueError(f"region: {self.region!r} needs sensor fused (the fused contacts tell the region), "
-                                 f"not {self.sensor!r}")
-
-    @classmethod
-    def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: Params) -> dict[str, str]:
-        """The fused contacts of the robot the module is hosted for (a ``contact_fusion`` module with ``robot`` set)."""
-        return {"contacts": ks.fused(robot, "contacts")}
+            self.check_region(self.sensor == "fused", self.sensor)
 
     def begin(self) -> None:
         try:
@@ -68,26 +53,13 @@ class WaitEvent(Primitive):
             raise ValueError(f"{self.name}: cannot wait for {self.event} (grasp_lost, grasp_stable, contact, success)")
         fused = self.params.sensor == "fused"
         self.f0 = self.wrench_in("world")[:3] if self.event is Event.CONTACT and not fused else np.zeros(3)
-        self.heard = self.r.time  # sensor fused: when a fresh contact list was last read
-        self.evidence = ""  # ... and which one (source#seq), named in the event it fires
         self.since: float | None = None
         self.fired = False
         self.load: float | None = None  # N, the low-passed wrist load
         if self.params.sensor == "wrist_ft" and not self.r.spec.arm(self.arm_name).ft:
             raise ValueError(f"{self.name}: params.sensor wrist_ft: arm {self.arm_name!r} has no wrist F/T")
-        if fused and not self.hand_name:
-            raise ValueError(f"{self.name}: params.sensor fused: arm {self.arm_name!r} has no hand to hold contacts")
-
-    def fused_contacts(self) -> int | None:
-        """Contacts the robot's fusion places on this arm's hand now; None without a fresh contact list."""
-        msg = self.io.latest("contacts") if self.io is not None else None
-        if not isinstance(msg, ContactList) or msg.stamp < self.r.time - self.params.fused_timeout:
-            return None
-        self.heard = self.r.time
-        self.evidence = f"{msg.hdr.source}#{msg.hdr.seq}"
-        region = self.params.region
-        return sum(1 for c in msg.contacts
-                   if c.robot == self.r.name and c.link == self.hand_name and (not region or c.region == region))
+        if fused:
+            self.start_fused()
 
     def grasped(self) -> bool:
         """The grasp holds, as this robot senses it (``sensor``)."""
@@ -106,9 +78,10 @@ class WaitEvent(Primitive):
         if self.event is Event.SUCCESS:
             return True
         if self.params.sensor == "fused":
-            n = self.fused_contacts()
-            if n is None:  # no fused contacts: neither a grasp nor its loss is sensed
+            found = self.fused_on_hand()
+            if found is None:  # no fused contacts: neither a grasp nor its loss is sensed
                 return False
+            n = len(found)
             if self.event is Event.CONTACT:
                 return n > 0
             held = n >= self.params.min_contacts
@@ -133,6 +106,5 @@ class WaitEvent(Primitive):
                     self.succeed(waited=self.elapsed)
         else:
             self.since = None
-        if p.sensor == "fused" and self.r.time - self.heard > p.fused_timeout:
-            self.fail(f"no fused contacts of {self.r.name} for {p.fused_timeout:g} s: is a contact_fusion module "
-                      f"running for the robot?")
+        if p.sensor == "fused" and self.unheard:
+            self.fail_unheard()

@@ -12,17 +12,22 @@ from contactflow.embodiments.primitives.base import matrix6
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import World, WorldParams, box
+from contactflow.nodes.params import ParamError
 from contactflow.nodes.status import Event
 
 
 def test_bench_empty_box_quick_and_the_vision_strategy_on_the_runtime_as_in_process(tmp_path) -> None:
-    summary = bench_empty_box.run(tmp_path, quick=True, jobs=2)  # runs on two worker processes
-    assert [r["method"] for r in summary["rows"]] == ["random", "exploration", "vision"]
+    # runs on two worker processes; the exploration twice, its guarded moves on the wrist and pads, then on the
+    # robot's fused contacts
+    summary = bench_empty_box.run(tmp_path, quick=True, jobs=2, sensor=["own", "fused"])
+    assert [(r["method"], r["sensor"]) for r in summary["rows"]] == [
+        ("random", "own"), ("exploration", "own"), ("exploration", "fused"), ("vision", "own")]
     assert all(r["runs"] == 1 for r in summary["rows"])
     assert all(run["attempts"] >= 1 for run in summary["runs"])  # every strategy found something to try
     saved = json.loads((tmp_path / "empty_box.json").read_text())
-    assert saved["benchmark"] == "empty_box" and len(saved["runs"]) == 3
-    assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [(s, 100) for s in bench_empty_box.STRATEGIES]
+    assert saved["benchmark"] == "empty_box" and len(saved["runs"]) == 4
+    assert [(r["strategy"], r["seed"]) for r in saved["runs"]] == [
+        ("random", 100), ("exploration", 100), ("exploration", 100), ("vision", 100)]
     assert all(r["time"] <= saved["max_time"] + 1.0 for r in saved["runs"])
     local = next(r for r in saved["runs"] if r["strategy"] == "vision")
     assert local["success"] and local["left"] == 0, local  # one object in view: seen, grasped and put out
@@ -31,6 +36,9 @@ def test_bench_empty_box_quick_and_the_vision_strategy_on_the_runtime_as_in_proc
         assert (row["attempts_max"], row["time_max"]) == (one["attempts"], one["time"])
     assert (tmp_path / "empty_box.png").stat().st_size > 0
     assert "| most attempts | longest (sim s) |" in (tmp_path / "empty_box.md").read_text()
+    assert "| exploration (fused contacts) | local |" in (tmp_path / "empty_box.md").read_text()
+    with pytest.raises(ParamError, match="--sensor 'tactile' is not one of"):
+        bench_empty_box.run(tmp_path, quick=True, sensor=["tactile"])
 
     # the same seeded vision run as a world node and a control node over zenoh: the supervisor reads eval/ and progress
     on_runtime = bench_empty_box.run(tmp_path / "runtime", quick=True, strategy=["vision"], executor="runtime")

@@ -38,8 +38,13 @@ def test_two_robots_in_one_cell_each_run_a_task_without_disturbing_the_other(tmp
     cell = [c for c in run.contacts if c.hdr.source == "site/control_tombatossals/cell_map/events"]
     assert [(c.robot, c.link, str(c.event)) for c in cell][:1] == [(ROBOT, "right_hand", "contact_made")], cell
     own = [c for c in run.contacts if c.hdr.source.startswith(f"{ROBOT}/")]  # tombatossals' own fusion
-    assert {(c.robot, str(c.event)) for c in own} == {(c.robot, str(c.event)) for c in cell}
+    assert {(c.robot, str(c.event)) for c in own} == {(c.robot, str(c.event)) for c in cell if c.robot == ROBOT}
+    # ... and melfa's touch on the cube, made and broken, is in the cell's map too
+    assert {("melfa", "contact_made"), ("melfa", "contact_broken")} <= {(c.robot, str(c.event)) for c in cell}
     assert ("touch", "success") in {(m, e) for _, m, e in run.events}
+    # melfa's touch stopped on its own fused contacts (its gripper's pads and wrist fused), not the wrist alone
+    touched = [m for m in run.messages if m.module.endswith("melfa/touch") and m.event is Event.CONTACT]
+    assert len(touched) == 1 and "fused contacts melfa/" in touched[0].detail, touched
     # the can was moved by tombatossals; melfa touched down at the cube and left it standing there
     cyl = kept["can"]
     assert np.hypot(cyl[0] - 0.55, cyl[1] + 0.3) > 0.1 and cyl[2] == pytest.approx(0.81, abs=0.015)

@@ -42,6 +42,65 @@ def test_transport_stops_on_unexpected_contact() -> None:
     assert Event.CONTACT in labels(ev) and outcome(ev).event is Event.FAILURE  # eq. 3.3 F/T stop at the table
 
 
+def test_a_touch_told_by_the_fusion_stops_on_the_table_where_the_touch_s_own_sensors_stop() -> None:
+    """The guarded move of §6.3.6 on the robot's fused contacts (its pads' and wrist's clouds fused, ch. 4)
+    instead of its own reading of the wrist: it stops on the first contact the fusion places on the hand."""
+    travelled = {}
+    for sensor in ("own", "fused"):
+        robot, runner = scene(with_object=False)
+        if sensor == "fused":
+            runner.host_contacts()
+        run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.3, 0.85)))})
+        ev = run_primitive(runner, "touch", {"arm": ARM, "direction": [0, 0, -1], "frame": "world", "sensor": sensor})
+        end = outcome(ev)
+        assert end.event is Event.SUCCESS, ev
+        travelled[sensor] = end.values["travelled"]
+        # stopped on a real touch: a finger of the hand on the table
+        assert any("table" in (c.body_a, c.body_b) and f"tombatossals/{ARM}_link" in c.body_a + c.body_b
+                   for c in robot.ground_truth().contacts)
+    touched = [e for e in ev if e.event is Event.CONTACT]
+    assert len(touched) == 1 and "fused contacts" in touched[0].detail and "/contacts/" in touched[0].detail
+    assert {"contact_x", "contact_y", "contact_z"} <= set(end.values)  # where the fusion places the contact
+    # a cue cycle and a fusion cycle (<= 0.05 s each) after the wrist's own reading at 3 cm/s: <= 3 mm further
+    assert 0.05 < travelled["own"] <= travelled["fused"] <= travelled["own"] + 0.003, travelled
+
+
+def test_an_exploration_told_by_the_fusion_finds_the_can_where_its_own_sensors_find_it() -> None:
+    """Empty-box exploration's guarded sweep (Fig. 3.26) stopping on the fused contacts: the can below the hand
+    is an object (its contact above the table), found a fusion cycle after the wrist's own reading finds it."""
+    found = {}
+    for sensor in ("own", "fused"):
+        robot, runner = scene()
+        if sensor == "fused":
+            runner.host_contacts()
+        run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.3, 0.97)))})
+        ev = run_primitive(runner, "explore", {"arm": ARM, "direction": [0, 0, -1], "floor_z": 0.75, "sensor": sensor})
+        end = outcome(ev)
+        assert end.event is Event.SUCCESS and Event.OBJECT_DETECTED in labels(ev), ev
+        found[sensor] = end.values
+    touched = [e for e in ev if e.event is Event.CONTACT]
+    assert len(touched) == 1 and "fused contacts" in touched[0].detail
+    assert {"fused_x", "fused_y", "fused_z"} <= set(found["fused"])
+    # a cue cycle and a fusion cycle (<= 0.05 s each) later at 3 cm/s: <= 3 mm further down
+    assert 0.0 <= found["own"]["z"] - found["fused"]["z"] <= 0.003, found
+    for v in found.values():
+        assert np.hypot(v["contact_x"] - 0.55, v["contact_y"] + 0.3) < 0.05 and v["contact_z"] > 0.8  # the can's top
+
+
+def test_a_touch_told_by_the_fusion_fails_when_no_fusion_runs_for_the_robot() -> None:
+    robot, runner = scene(with_object=False)
+    run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.3, 0.95)))})
+    t0 = robot.time
+    end = outcome(run_primitive(runner, "touch", {"arm": ARM, "direction": [0, 0, -1], "frame": "world",
+                                                  "sensor": "fused", "fused_timeout": 0.5}))
+    assert end.event is Event.FAILURE and "contact_fusion" in end.detail
+    assert robot.time - t0 == pytest.approx(0.5, abs=0.05)
+    with pytest.raises(ValueError, match="sensor: 'wrist' is not one of"):
+        runner.create("bad", "touch", {"sensor": "wrist"})
+    with pytest.raises(ValueError, match="region: 'palm' needs sensor fused"):
+        runner.create("bad", "touch", {"region": "palm"})
+
+
 def test_release_backs_off_when_fingers_hit_the_table() -> None:
     robot, runner = scene(with_object=False)
     run_primitive(runner, "move_to", {"arm": ARM, "target": vec(top_grasp_pose((0.55, -0.3, 0.9)))})
