@@ -83,10 +83,10 @@ class Explore(SensesFusedContacts, Primitive):
             self.p0 = self.r.frame_pose(self.ee_frame)[:3, 3].copy()
         T = self.r.frame_pose(self.ee_frame)
         pos = T[:3, 3]
-        told = self.sensed_contact("fused")
+        moving = self._dir if self._dir is not None else self.d
+        told = self.sensed_contact("fused", moving)
         if told is not None:
             self.halt()
-            moving = self._dir if self._dir is not None else self.d
             on_floor = bool(pos[2] <= p.floor_z + p.floor_margin) and abs(float(moving[2])) > 0.7
             by = f" (fused contacts {self.evidence})" if p.sensor == "fused" else ""
             self.emit_once(Event.CONTACT, f"explored into a contact{by}", {"on_floor": float(on_floor)})

@@ -31,6 +31,7 @@ class FusedParams:
 
 
 CONTACT_SENSORS = ("own", "fused")
+LIKELY = 0.9  # of the most likely new contact's likelihood: as likely, for telling the leading one
 
 
 @dataclass(frozen=True)
@@ -77,24 +78,30 @@ class SensesFusedContacts:
         self.evidence = ""
         self._before: int | None = None  # the contacts on the hand in the first list heard
 
-    def new_fused_contact(self) -> ContactInfo | None:
-        """A contact the fusion places on the hand that was not there when the primitive began (more
-        contacts than in the first list heard): the most likely of them."""
+    def new_fused_contact(self, moving: np.ndarray) -> ContactInfo | None:
+        """A contact the fusion places on the hand that was not there when the primitive began (more contacts
+        than in the first list heard). Of the most likely ones, the one furthest along ``moving`` (world): a
+        wrist wrench alone is told at every surface its line of action crosses, and a hand moving into
+        something meets it with its leading surface (a thumb tip on the table, not the palm above it)."""
         found = self.fused_on_hand()
         if found is None:
             return None
         if self._before is None:
             self._before = len(found)
-        return max(found, key=lambda c: c.likelihood) if len(found) > self._before else None
+        if len(found) <= self._before:
+            return None
+        best = max(c.likelihood for c in found)
+        return max((c for c in found if c.likelihood >= LIKELY * best), key=lambda c: float(np.dot(c.location, moving)))
 
-    def sensed_contact(self, prefix: str) -> dict[str, float] | None:
-        """A contact sensed now by ``params.sensor``: own (the wrist's force over ``params.force_threshold``,
-        or a pad), no values; fused (:meth:`new_fused_contact`), where the fusion places it (``<prefix>_x``...)."""
+    def sensed_contact(self, prefix: str, moving: np.ndarray) -> dict[str, float] | None:
+        """A contact sensed now, moving along ``moving`` (world), by ``params.sensor``: own (the wrist's force
+        over ``params.force_threshold``, or a pad), no values; fused (:meth:`new_fused_contact`), where the fusion
+        places it (``<prefix>_x``...)."""
         p = self.params
         if p.sensor == "own":
             f = self.wrench_in("world")[:3]
             return {} if np.linalg.norm(f) > p.force_threshold or self.pads_in_contact() else None
-        c = self.new_fused_contact()
+        c = self.new_fused_contact(moving)
         return None if c is None else {f"{prefix}_{k}": v for k, v in zip("xyz", c.location, strict=True)}
 
     @property

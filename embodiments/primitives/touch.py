@@ -52,7 +52,7 @@ class Touch(SensesFusedContacts, Primitive):
         p = self.params
         T = self.r.frame_pose(self.ee_frame)
         travelled = float((T[:3, 3] - self.p0) @ self.d)
-        at = self.sensed_contact("contact")
+        at = self.sensed_contact("contact", self.d)
         if at is not None:
             by = f" (fused contacts {self.evidence})" if p.sensor == "fused" else ""
             self.emit_once(Event.CONTACT, f"touched{by}", at)
