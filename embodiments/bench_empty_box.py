@@ -408,7 +408,7 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     """Each of ``strategy`` (default: all) ``runs`` times (seeds ``first_seed``, +1, ...) on ``jobs`` processes;
     caps per run in simulated s and attempts; ``executor``: local, runtime or both (each seed on both); ``sensor``:
     what the exploration's guarded moves stop on, own or fused or both side by side (default own; the other
-    strategies have no guarded moves and run once)."""
+    strategies do not explore, and run once)."""
     from rich.console import Console
     from rich.progress import Progress as Bar
     from rich.table import Table

@@ -499,8 +499,9 @@ def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping
     ``thesis.yaml``: ``careful_pick_and_place`` corrects what its predictor reports), its grasp watched on its
     fused contacts while it carries the can (and by its predictor, with ``predictor``: its params); with
     ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube; with ``cell_map`` too, melfa
-    runs its contact fusion as well (its touch stops on its fused contacts), tombatossals' control node the cell's map of both (:func:`cell_map_module`), and
-    tombatossals' carry watcher reads its grasp from that map (the robot subscribes to its cell's contacts).
+    runs its contact fusion as well (its touch stops on its fused contacts), tombatossals' control node the
+    cell's map of both (:func:`cell_map_module`), and tombatossals' carry watcher reads its grasp from that map
+    (the robot subscribes to its cell's contacts).
 
     Returns the world node (listening on ``endpoint``, waiting for the control nodes before
     tick 1, so a run repeats exactly) and the control nodes (connecting to it, tasks autostarted).
@@ -515,7 +516,8 @@ def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping
                              {"target": _pose(PLACE_TARGET), "sensor": "fused"}, connect=(endpoint,), autostart=True,
                              contacts=True, predictor=predictor, inputs=watcher)]
     if melfa:
-        controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", {"above": _pose(TAP_ABOVE), "sensor": "fused" if cell_map else "own"},
+        tap = {"above": _pose(TAP_ABOVE), "sensor": "fused" if cell_map else "own"}
+        controls.append(control_node(site, "melfa", "melfa", TASKS_DIR / "tap.yaml", "tap", tap,
                                      connect=(endpoint,), autostart=True, contacts=cell_map))
         if cell_map:
             controls[0]["modules"].append(cell_map_module(cell, ("tombatossals", "melfa")))
