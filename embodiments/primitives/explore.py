@@ -107,6 +107,9 @@ class Explore(SensesFusedContacts, Primitive):
                 self.emit_once(Event.OBJECT_DETECTED, "contact above the support", vals)
                 self.succeed(**vals)
             return
+        if p.sensor == "fused" and self.unheard:
+            self.fail_unheard()  # ends the sweep: finishing holds the arm where it is
+            return
         if self.points:
             goal = self.points[self.k]
             err = goal - pos
@@ -128,9 +131,6 @@ class Explore(SensesFusedContacts, Primitive):
         if self._dir is None or float(d @ self._dir) < 0.95 or abs(speed - self._speed) > 0.3 * self._speed:
             self._dir, self._speed = d, speed
             self.twist(np.concatenate([d * speed, np.zeros(3)]))
-        if p.sensor == "fused" and self.unheard:
-            self.halt()
-            self.fail_unheard()
 
     def locate(self, T: np.ndarray, moving: np.ndarray) -> np.ndarray:
         """Where the hand touched (world): on the wrench's line of action, else at the touching pads."""

@@ -20,7 +20,8 @@ class FusedParams:
     fused_timeout: float = 1.0  # s; sensor fused: a contact list this old says nothing, and none this long fails
     region: str = ""  # sensor fused: count only the contacts on this region of the hand (finger | palm | held_object); "": all
 
-    def check_region(self, fused: bool, sensor: str) -> None:
+    def check_fused(self, fused: bool, sensor: str) -> None:
+        """Refuse a region that is not one, a region without the fused sensor, a timeout that is not positive."""
         if self.region and self.region not in set(Region):
             raise ValueError(f"region: {self.region!r} is not one of {[str(r) for r in Region]}")
         if self.region and not fused:
@@ -43,7 +44,7 @@ class ContactSensorParams(FusedParams):
     def validate(self) -> None:
         if self.sensor not in CONTACT_SENSORS:
             raise ValueError(f"sensor: {self.sensor!r} is not one of {list(CONTACT_SENSORS)}")
-        self.check_region(self.sensor == "fused", self.sensor)
+        self.check_fused(self.sensor == "fused", self.sensor)
 
 
 class SensesFusedContacts:

@@ -59,7 +59,6 @@ class Touch(SensesFusedContacts, Primitive):
             self.succeed(travelled=travelled, **pose6(T), **at)
             return
         if p.sensor == "fused" and self.unheard:
-            self.halt()
             self.fail_unheard()
             return
         if travelled >= p.max_distance:

@@ -42,7 +42,7 @@ class WaitEvent(SensesFusedContacts, Primitive):
         def validate(self) -> None:
             if self.sensor not in SENSORS:
                 raise ValueError(f"sensor: {self.sensor!r} is not one of {list(SENSORS)}")
-            self.check_region(self.sensor == "fused", self.sensor)
+            self.check_fused(self.sensor == "fused", self.sensor)
 
     def begin(self) -> None:
         try:

@@ -102,6 +102,11 @@ def test_a_touch_told_by_the_fusion_fails_when_no_fusion_runs_for_the_robot() ->
                                                   "sensor": "fused", "fused_timeout": 0.5}))
     assert end.event is Event.FAILURE and "contact_fusion" in end.detail
     assert robot.time - t0 == pytest.approx(0.5, abs=0.05)
+    t0 = robot.time
+    end = outcome(run_primitive(runner, "explore", {"arm": ARM, "direction": [0, 0, -1], "sensor": "fused",
+                                                    "fused_timeout": 0.5}))
+    assert end.event is Event.FAILURE and "contact_fusion" in end.detail
+    assert robot.time - t0 == pytest.approx(0.5, abs=0.05)
     with pytest.raises(ValueError, match="sensor: 'wrist' is not one of"):
         runner.create("bad", "touch", {"sensor": "wrist"})
     with pytest.raises(ValueError, match="region: 'palm' needs sensor fused"):
