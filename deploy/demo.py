@@ -362,8 +362,11 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
             corrections = [{"robot": m.robot, "transition": m.transition, "t_sim": m.hdr.t_sim, "detail": m.detail}
                            for m in follow.progress
                            if m.kind == "edge" and m.event == AbstractEvent.PREDICTION_MISMATCH.value]
+            # a robot that did not succeed: the last thing it said of its task (a fault names the joint)
+            why = {r: next((m.detail for m in reversed(follow.progress) if m.robot == r and m.detail), "")
+                   for r, o in outcomes.items() if o != "success"}
             tasks.append({"atd": name, "t_dispatch": t_dispatch, "dispatched": True, "robots": follow.reply.robots,
-                          "outcomes": outcomes, "finished": follow.final is not None, "physical": physical,
+                          "outcomes": outcomes, "why": why, "finished": follow.final is not None, "physical": physical,
                           "corrections": corrections, "ok": ok})
         code = 0 if len(tasks) == len(ATDS) and all(t.get("ok") for t in tasks) else 1
     finally:
@@ -387,6 +390,8 @@ def run(out: Path, quick: bool = False, console: Console | None = None, site: st
         colour = "green" if t.get("ok") else "red"
         console.print(f"[{colour}]{t['atd']}[/]: "
                       + ", ".join(f"{r}: {o}" for r, o in sorted(t.get("outcomes", {}).items())))
+        for r, detail in sorted(t.get("why", {}).items()):
+            console.print(f"  {r}: {detail}")
         for c in t.get("corrections", ()):
             console.print(f"  {c['robot']} corrected on its predictor's mismatch: {c['transition']} "
                           f"(t={c['t_sim']:.2f} s)")

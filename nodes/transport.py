@@ -40,6 +40,7 @@ class Transport(Protocol):
 
 
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
+ZENOH_LOG = "warn,zenoh::net::runtime::orchestrator=error"  # unless RUST_LOG says otherwise
 
 
 @dataclass(frozen=True)
@@ -91,7 +92,10 @@ class ZenohTransport:
         self._guard = guard
 
     def open(self) -> ZenohTransport:
-        zenoh.init_log_from_env_or("error")
+        # warnings too: a transport zenoh closes (a peer that stopped reading for 5 s, a lease that
+        # expired) loses messages and liveliness, and the node's log must say so; the scouting
+        # warning is not one (nodes connect by endpoints)
+        zenoh.init_log_from_env_or(ZENOH_LOG)
         self.session = zenoh.open(self.settings.to_config())
         if self._guard and self.settings.config_file:
             self.rules = AccessRules.load(self.settings.config_file)

@@ -358,8 +358,9 @@ class Primitive(Module):
         if self._outcome is not Status.RUNNING:
             return self._outcome
         if self.r.failed:
-            self.emit_once(Event.HARDWARE_FAILURE, "robot stopped by a hardware fault")
-            return self.fail("hardware failure")
+            why = self.r.failure or "a hardware fault"
+            self.emit_once(Event.HARDWARE_FAILURE, f"robot stopped by {why}")
+            return self.fail(f"hardware failure: {why}")
         if self._wound_up():
             self.relax()
             self.emit_once(Event.CONTACT, "the arm is blocked")

@@ -100,3 +100,28 @@ def test_a_one_tick_speed_spike_is_chatter_a_sustained_one_an_explosion():
     assert m.check(0.015, q, spike, q) is None
     fault = m.check(0.035, q, spike, q)  # still that fast after explosion_time
     assert fault is not None and fault.kind == "explosion" and "finger" in fault.detail
+
+
+def test_a_primitive_running_when_the_robot_faults_fails_naming_the_fault():
+    from contactflow.embodiments.primitives.base import pose6
+    from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome
+
+    robot = make_robot("melfa", table=False)
+    runner = LocalPrimitiveRunner(robot)
+    T = robot.arm("arm").ee_pose()
+    T[2, 3] -= 0.15
+    runner.start("m", "move_to", {"arm": "arm", "target": list(pose6(T).values())})
+    events: list = []
+    for tick in range(400):
+        if tick == 40:
+            robot.inject_fault("explode", joint="elbow_joint")
+        runner.advance()
+        robot.step(0.005)
+        events += runner.poll()
+        if any(e.event in (Event.SUCCESS, Event.FAILURE) for e in events):
+            break
+    # what a task's progress and the demo's report show: which joint, not only "a hardware fault"
+    fault = [e.detail for e in events if e.event is Event.HARDWARE_FAILURE]
+    assert fault and "explosion: joint elbow_joint" in fault[0], events
+    end = outcome(events)
+    assert end.event is Event.FAILURE and "explosion: joint elbow_joint" in end.detail, end
