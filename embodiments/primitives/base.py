@@ -358,8 +358,8 @@ class Primitive(Module):
         if self._outcome is not Status.RUNNING:
             return self._outcome
         if self.r.failed:
-            why = self.r.failure or "a hardware fault"
-            self.emit_once(Event.HARDWARE_FAILURE, f"robot stopped by {why}")
+            why = self.r.failure or "hardware fault"
+            self.emit_once(Event.HARDWARE_FAILURE, f"robot stopped: {why}")
             return self.fail(f"hardware failure: {why}")
         if self._wound_up():
             self.relax()
