@@ -90,9 +90,9 @@ class PointCloud(Message, tag="point_cloud"):
 class RobotModel(Message, tag="robot_model"):
     """The spherical robot model (App. B) posed from one joint state, world frame.
 
-    One bi-sphere per link (``c1``, ``r1``, ``c2``, ``r2``; a sphere has ``c1 == c2``) and the
-    world poses of named frames (sensor links) at the same joint state; ``t`` is the time of
-    that joint state.
+    Bi-spheres (``c1``, ``r1``, ``c2``, ``r2``; a sphere has ``c1 == c2``), one per link or a few for
+    a flat one (``links`` names each one's link), and the world poses of named frames (sensor
+    links) at the same joint state; ``t`` is the time of that joint state.
     """
 
     max_bytes = 4 << 20

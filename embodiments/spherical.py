@@ -1,10 +1,12 @@
-"""Spherical robot model (thesis App. B): one bi-sphere (or sphere) per link, fitted to its collision geometry.
+"""Spherical robot model (thesis App. B): bi-spheres (or spheres) per link, fitted to its collision geometry.
 
 A bi-sphere is the convex hull of two spheres ``(c1, r1)``, ``(c2, r2)``; a single sphere has
 ``c1 == c2``. Each s-tope is attached to the joint frame of its link and posed from the
 joint state through pinocchio. The distance of a point to the robot is the minimum over
 the s-topes of eq. B.3 (closest sphere on the segment) followed by eq. B.2 (distance to a
-sphere), computed for N points at once.
+sphere), computed for N points at once. A link is one bi-sphere, or a few side by side where its
+boxes are flat (the robot is "a combination of s-topes"; one around the allegro palm was a 7 cm
+ball about a 4 cm thick plate).
 """
 
 from __future__ import annotations
@@ -16,6 +18,9 @@ import numpy as np
 import pinocchio as pin
 
 from contactflow.embodiments.control.kinematics import Kinematics
+
+MAX_EXCESS = 0.015  # m, a box link whose one bi-sphere stands further off its thinnest side is cut in slabs
+MAX_SLABS = 3  # bi-spheres per such link at most
 
 
 @dataclass(frozen=True)
@@ -79,6 +84,33 @@ def fit_bisphere(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, flo
     return c1, c2, r1, r2
 
 
+def slab_bispheres(corners: np.ndarray, max_slabs: int = MAX_SLABS) -> list[tuple[np.ndarray, np.ndarray, float, float]]:
+    """Bi-spheres containing the oriented box of ``corners`` (K, 3; its principal axes): the box cut
+    across its middle side into slabs about as thick as its thinnest side, one bi-sphere along each
+    slab's length (end centres on its end faces, radius its cross-section's half diagonal).
+
+    A flat box (a palm, a gripper finger) in one bi-sphere is a ball or a fat capsule around it
+    whose surface stands several cm off its broad faces; the slabs' stand off at most 0.41 of the
+    thinnest half side (at most ``max_slabs`` of them).
+    """
+    mean = corners.mean(0)
+    axes = np.linalg.svd(corners - mean, full_matrices=False)[2]
+    local = (corners - mean) @ axes.T
+    lo, hi = local.min(0), local.max(0)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    thin, middle, long = np.argsort(half)
+    n = int(min(max_slabs, max(1, np.ceil(half[middle] / max(half[thin], 1e-9) - 1e-9))))
+    r = float(np.hypot(half[thin], half[middle] / n))
+    out = []
+    for k in range(n):
+        c = centre.copy()
+        c[middle] = lo[middle] + (2 * k + 1) * half[middle] / n
+        c1, c2 = c.copy(), c.copy()
+        c1[long], c2[long] = lo[long], hi[long]
+        out.append((mean + c1 @ axes, mean + c2 @ axes, r, r))
+    return out
+
+
 def stope_distance(P: np.ndarray, C1: np.ndarray, C2: np.ndarray, R1: np.ndarray, R2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. B.2-B.3, broadcast: signed distance of points ``P (..., 3)`` to s-topes ``C1, C2 (..., 3)``, ``R1, R2 (...)``,
     and the s-tope's radius at the closest axis point."""
@@ -114,9 +146,9 @@ class SphericalModel:
 
     @classmethod
     def from_urdf(cls, kin: Kinematics, urdf: str, skip_links: tuple[str, ...] = ()) -> SphericalModel:
-        """Fit one bi-sphere per link to the collision geometry of ``urdf`` (same model as ``kin``)."""
+        """Fit a bi-sphere per link (slabs of them for a flat box link) to the collision geometry of ``urdf``."""
         geom = pin.buildGeomFromUrdf(kin.model, str(urdf), pin.GeometryType.COLLISION)
-        by_link: dict[str, tuple[int, list[np.ndarray]]] = {}
+        by_link: dict[str, tuple[int, list[np.ndarray], list[float]]] = {}
         for go in geom.geometryObjects:
             link = kin.model.frames[go.parentFrame].name
             if link in skip_links:
@@ -125,11 +157,17 @@ class SphericalModel:
             if pts is None:
                 continue
             M = go.placement.homogeneous
-            by_link.setdefault(link, (go.parentJoint, []))[1].append(pts @ M[:3, :3].T + M[:3, 3])
+            entry = by_link.setdefault(link, (go.parentJoint, [], []))
+            entry[1].append(pts @ M[:3, :3].T + M[:3, 3])
+            # only boxes are known flat; a mesh or a cylinder keeps its one bi-sphere
+            entry[2].append(float(np.min(go.geometry.halfSide)) if isinstance(go.geometry, coal.Box) else np.inf)
         stopes = []
-        for link, (joint, parts) in by_link.items():
-            c1, c2, r1, r2 = fit_bisphere(np.vstack(parts))
-            stopes.append(Stope(link, int(joint), c1, c2, r1, r2))
+        for link, (joint, parts, thin) in by_link.items():
+            pts = np.vstack(parts)
+            fits = [fit_bisphere(pts)]
+            if max(fits[0][2:]) - max(thin) > MAX_EXCESS:
+                fits = slab_bispheres(pts)
+            stopes += [Stope(link, int(joint), c1, c2, r1, r2) for c1, c2, r1, r2 in fits]
         model = cls(stopes, kin.base)
         model.update(kin)
         return model

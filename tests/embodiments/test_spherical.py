@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from contactflow.embodiments.spherical import SphericalModel, Stope, fit_bisphere
+from contactflow.embodiments.spherical import SphericalModel, Stope, fit_bisphere, slab_bispheres
 from contactflow.embodiments.testing import make_robot
 
 
@@ -34,6 +34,27 @@ def test_fit_contains_every_point():
     m = _model(c1, c2, r1, r2)
     assert m.distance(pts).max() <= 1e-9
     assert max(r1, r2) < 0.06  # not a single big sphere
+
+
+def test_a_flat_box_is_slabs_that_hug_its_broad_faces_where_one_bisphere_is_a_ball_around_it():
+    half = np.array([0.0205, 0.0565, 0.0475])  # the allegro palm: a 4 cm plate
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
+    slabs = slab_bispheres(corners)
+    assert len(slabs) == 3 and all(r1 == r2 <= half[0] * np.sqrt(2) for _, _, r1, r2 in slabs)
+    model = SphericalModel([Stope("palm", 0, c1, c2, r1, r2) for c1, c2, r1, r2 in slabs], np.eye(4))
+    inside = np.random.default_rng(0).uniform(-half, half, (2000, 3))
+    assert model.distance(np.vstack([inside, corners])).max() <= 1e-9  # the box is covered
+    off_face = np.array([[half[0] + 0.01, y, z] for y in (-0.03, 0.0, 0.03) for z in (-0.03, 0.0, 0.03)])
+    assert model.distance(off_face).min() > 0.0  # 1 cm off its broad face is outside
+    ball = _model(*fit_bisphere(corners))
+    assert ball.distance(off_face).max() < -0.02  # one bi-sphere: 2 cm and more inside
+
+
+def test_the_allegro_palm_is_three_slabs_and_its_fingers_one_bisphere_a_link():
+    robot = make_robot("tombatossals")
+    links = robot.spherical.links
+    assert links.count("right_palm_link") == 3 and links.count("right_link_2.0") == 1
+    assert robot.spherical.r1[links.index("right_palm_link")] < 0.03  # the ball around the palm had 7.3 cm
 
 
 @pytest.mark.parametrize("name", ["tombatossals", "melfa"])
