@@ -38,7 +38,9 @@ def test_the_thesis_s_allegro_hand_touches_the_fixed_box_from_above_and_the_touc
     # the palm meets the fixed box (no finger passes through it): a true contact, and the wrist felt it
     assert touch.truth is not None and len(touch.clouds["force"]) > 0
     rows = bench_contacts.evaluate([touch], CondensationParams())
-    assert rows["all"]["detected"] == rows["force"]["detected"] == 1 and 0.0 < rows["force"]["eps_cm"] < 6.0
+    # within the 2 cm: the palm's model is slabs hugging its plate (one ball around it: 5.2 cm off, range blind)
+    assert rows["all"]["detected"] == rows["force"]["detected"] == rows["range"]["detected"] == 1
+    assert 0.0 < rows["force"]["eps_cm"] < 2.0 and 0.0 < rows["all"]["eps_cm"] < 2.0
 
 
 def test_on_the_runtime_a_planned_rig_plans_its_moves_to_the_start_around_the_object_it_sees():

@@ -85,9 +85,11 @@ def test_an_exploration_told_by_the_fusion_finds_the_can_where_its_own_sensors_f
     touched = [e for e in ev if e.event is Event.CONTACT]
     assert len(touched) == 1 and "fused contacts" in touched[0].detail
     # where the fusion places it: over the spot the wrench's line of action locates (the thumb's root on the can's
-    # rim, pushing it over a little), 1 mm from it; not its height, which a vertical line of action leaves open
+    # rim, pushing it over a little), 1 mm from it, and at the can's top (0.87 m), where the line of action meets
+    # the hand's model (a ball around the palm put it 4.5 cm lower)
     f = found["fused"]
     assert np.hypot(f["fused_x"] - f["contact_x"], f["fused_y"] - f["contact_y"]) < 0.01, f
+    assert abs(f["fused_z"] - 0.87) < 0.01, f
     # a cue cycle and a fusion cycle (<= 0.05 s each) later at 3 cm/s: <= 3 mm further down
     assert 0.0 <= found["own"]["z"] - found["fused"]["z"] <= 0.003, found
     for v in found.values():
