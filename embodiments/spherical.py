@@ -84,8 +84,8 @@ def fit_bisphere(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, flo
     return c1, c2, r1, r2
 
 
-def slab_bispheres(corners: np.ndarray, max_slabs: int = MAX_SLABS) -> list[tuple[np.ndarray, np.ndarray, float, float]]:
-    """Bi-spheres containing the oriented box of ``corners`` (K, 3; its principal axes): the box cut
+def slab_bispheres(points: np.ndarray, max_slabs: int = MAX_SLABS) -> list[tuple[np.ndarray, np.ndarray, float, float]]:
+    """Bi-spheres containing the oriented box of ``points`` (K, 3; their principal axes): the box cut
     across its middle side into slabs about as thick as its thinnest side, one bi-sphere along each
     slab's length (end centres on its end faces, radius its cross-section's half diagonal).
 
@@ -93,9 +93,9 @@ def slab_bispheres(corners: np.ndarray, max_slabs: int = MAX_SLABS) -> list[tupl
     whose surface stands several cm off its broad faces; the slabs' stand off at most 0.41 of the
     thinnest half side (at most ``max_slabs`` of them).
     """
-    mean = corners.mean(0)
-    axes = np.linalg.svd(corners - mean, full_matrices=False)[2]
-    local = (corners - mean) @ axes.T
+    mean = points.mean(0)
+    axes = np.linalg.svd(points - mean, full_matrices=False)[2]
+    local = (points - mean) @ axes.T
     lo, hi = local.min(0), local.max(0)
     centre, half = (lo + hi) / 2, (hi - lo) / 2
     thin, middle, long = np.argsort(half)

@@ -56,6 +56,7 @@ class Robot(Protocol):
 
     spec: Any
     failed: bool
+    failure: str  # what stopped a failed robot (a fault, or the world holding it)
     head: Any  # HeadHandle of a robot with a pan-tilt head, else None
 
     @property

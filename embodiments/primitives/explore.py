@@ -88,8 +88,7 @@ class Explore(SensesFusedContacts, Primitive):
         if told is not None:
             self.halt()
             on_floor = bool(pos[2] <= p.floor_z + p.floor_margin) and abs(float(moving[2])) > 0.7
-            by = f" (fused contacts {self.evidence})" if p.sensor == "fused" else ""
-            self.emit_once(Event.CONTACT, f"explored into a contact{by}", {"on_floor": float(on_floor)})
+            self.emit_once(Event.CONTACT, f"explored into a contact{self.told_by()}", {"on_floor": float(on_floor)})
             at = self.locate(T, moving)
             # approach pose: the hand's grasp centre over the object, ``lead`` beyond the contact
             there = T.copy()
@@ -107,8 +106,7 @@ class Explore(SensesFusedContacts, Primitive):
                 self.emit_once(Event.OBJECT_DETECTED, "contact above the support", vals)
                 self.succeed(**vals)
             return
-        if p.sensor == "fused" and self.unheard:
-            self.fail_unheard()  # ends the sweep: finishing holds the arm where it is
+        if self.fusion_silent():  # ends the sweep: finishing holds the arm where it is
             return
         if self.points:
             goal = self.points[self.k]

@@ -20,11 +20,11 @@ class FusedParams:
     fused_timeout: float = 1.0  # s; sensor fused: a contact list this old says nothing, and none this long fails
     region: str = ""  # sensor fused: count only the contacts on this region of the hand (finger | palm | held_object); "": all
 
-    def check_fused(self, fused: bool, sensor: str) -> None:
+    def check_fused(self, sensor: str) -> None:
         """Refuse a region that is not one, a region without the fused sensor, a timeout that is not positive."""
         if self.region and self.region not in set(Region):
             raise ValueError(f"region: {self.region!r} is not one of {[str(r) for r in Region]}")
-        if self.region and not fused:
+        if self.region and sensor != "fused":
             raise ValueError(f"region: {self.region!r} needs sensor fused (the fused contacts tell the region), "
                              f"not {sensor!r}")
         if self.fused_timeout <= 0:
@@ -44,7 +44,7 @@ class ContactSensorParams(FusedParams):
     def validate(self) -> None:
         if self.sensor not in CONTACT_SENSORS:
             raise ValueError(f"sensor: {self.sensor!r} is not one of {list(CONTACT_SENSORS)}")
-        self.check_fused(self.sensor == "fused", self.sensor)
+        self.check_fused(self.sensor)
 
 
 class SensesFusedContacts:
@@ -61,7 +61,7 @@ class SensesFusedContacts:
     def fused_on_hand(self) -> list[ContactInfo] | None:
         """The contacts the robot's fusion places on this arm's hand now (of ``params.region``, if set), and
         ``self.evidence`` the list they came in (``source#seq``); None without a list fresher than
-        ``params.fused_timeout``, and after that long without one ``self.unheard`` is True."""
+        ``params.fused_timeout`` (:meth:`fusion_silent` tells when that lasted too long)."""
         p = self.params
         msg = self.io.latest("contacts") if self.io is not None else None
         if not isinstance(msg, ContactList) or msg.stamp < self.r.time - p.fused_timeout:
@@ -105,11 +105,16 @@ class SensesFusedContacts:
         c = self.new_fused_contact(moving)
         return None if c is None else {f"{prefix}_{k}": v for k, v in zip("xyz", c.location, strict=True)}
 
-    @property
-    def unheard(self) -> bool:
-        """No fresh contact list for ``params.fused_timeout``: no fusion runs for the robot."""
-        return self.r.time - self.heard > self.params.fused_timeout
+    def told_by(self) -> str:
+        """What told a contact, for an event's detail: the fused contact list it came in, or nothing (own)."""
+        return f" (fused contacts {self.evidence})" if self.params.sensor == "fused" else ""
 
-    def fail_unheard(self) -> None:
-        self.fail(f"no fused contacts of {self.r.name} for {self.params.fused_timeout:g} s: is a contact_fusion "
+    def fusion_silent(self) -> bool:
+        """With ``sensor: fused``, no fresh contact list for ``params.fused_timeout`` (no fusion runs for the
+        robot): the primitive fails saying so, and this is True."""
+        p = self.params
+        if p.sensor != "fused" or self.r.time - self.heard <= p.fused_timeout:
+            return False
+        self.fail(f"no fused contacts of {self.r.name} for {p.fused_timeout:g} s: is a contact_fusion "
                   f"module running for the robot?")
+        return True

@@ -54,12 +54,10 @@ class Touch(SensesFusedContacts, Primitive):
         travelled = float((T[:3, 3] - self.p0) @ self.d)
         at = self.sensed_contact("contact", self.d)
         if at is not None:
-            by = f" (fused contacts {self.evidence})" if p.sensor == "fused" else ""
-            self.emit_once(Event.CONTACT, f"touched{by}", at)
+            self.emit_once(Event.CONTACT, f"touched{self.told_by()}", at)
             self.succeed(travelled=travelled, **pose6(T), **at)
             return
-        if p.sensor == "fused" and self.unheard:
-            self.fail_unheard()
+        if self.fusion_silent():
             return
         if travelled >= p.max_distance:
             self.fail(f"no contact within {p.max_distance} m", travelled=travelled)

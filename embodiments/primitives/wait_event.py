@@ -42,7 +42,7 @@ class WaitEvent(SensesFusedContacts, Primitive):
         def validate(self) -> None:
             if self.sensor not in SENSORS:
                 raise ValueError(f"sensor: {self.sensor!r} is not one of {list(SENSORS)}")
-            self.check_fused(self.sensor == "fused", self.sensor)
+            self.check_fused(self.sensor)
 
     def begin(self) -> None:
         try:
@@ -100,11 +100,9 @@ class WaitEvent(SensesFusedContacts, Primitive):
             if self.r.time - self.since >= (0.0 if self.event in (Event.SUCCESS, Event.CONTACT) else p.grace):
                 self.fired = True
                 if self.event is not Event.SUCCESS:
-                    by = f" (fused contacts {self.evidence})" if p.sensor == "fused" else ""
-                    self.emit_once(self.event, f"{self.event} observed{by}")
+                    self.emit_once(self.event, f"{self.event} observed{self.told_by()}")
                 if p.finish:
                     self.succeed(waited=self.elapsed)
         else:
             self.since = None
-        if p.sensor == "fused" and self.unheard:
-            self.fail_unheard()
+        self.fusion_silent()
