@@ -12,9 +12,9 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 
 from contactflow.recognition.geometry import (
     EMPTY,
@@ -31,8 +31,14 @@ from contactflow.recognition.geometry import (
 DistanceFn = Callable[[np.ndarray], np.ndarray]
 """Signed distance (m) from each of (N, 3) world points to the robot surface, (N,)."""
 
+if TYPE_CHECKING:
+    import open3d as o3d
+
 
 def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
+    # open3d on first use: it takes 1.2 s to import, and a process that only reads this module's messages never fits
+    import open3d as o3d
+
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
 
 

@@ -174,6 +174,11 @@ class DetectObjects(Primitive):
         min_observed: float = 0.0  # fraction of the region's ground (1 cm cells) seen before "no object" is believed
         top_band: float = 0.0  # m, a top grasp is centred on the object's points this close to its top (0: on all its points; the camera sees one side of an object, which pulls their centroid toward it)
 
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        # the clustering and the grasp synthesis load open3d (1.2 s): at setup, not in the control loop's first detect
+        import contactflow.recognition.grasp_synthesis  # noqa: F401
+
     def begin(self) -> None:
         p = self.params
         if p.select not in ("largest", "leftmost", "nearest", "random"):

@@ -12,14 +12,17 @@ differ where link collision meshes are convex hulls). Depth is the optical-axis 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 import sapien
 
 from contactflow.embodiments.registry import CameraSpec
 from contactflow.embodiments.sensors.render_camera import RenderDepth
 from contactflow.embodiments.transforms import pose_to_matrix
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,8 @@ def intrinsics(spec: CameraSpec) -> np.ndarray:
 
 
 def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    import open3d as o3d
+
     m = o3d.geometry.TriangleMesh.create_box(*(2 * half))
     v = np.asarray(m.vertices) - half
     return v, np.asarray(m.triangles)
@@ -53,6 +58,9 @@ def _along_x(m: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.ndarray]:
 
 def shape_mesh(shape) -> tuple[np.ndarray, np.ndarray] | None:
     """Vertices and triangles of one PhysX collision shape in its own local frame."""
+    # open3d on first use: it takes 1.2 s to import, and the processes that read frames (control nodes) never mesh
+    import open3d as o3d
+
     P = sapien.physx
     if isinstance(shape, P.PhysxCollisionShapeBox):
         return _box(np.asarray(shape.get_half_size(), dtype=np.float64))
@@ -124,6 +132,8 @@ class Raycaster:
     def shoot(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
         """Depth (H, W) along the optical axis (0 = none), world points of the depth > 0 pixels in
         row-major order (N, 3), labels (H, W) and label names."""
+        import open3d as o3d
+
         s = self.spec
         V, F, tri_label, names = self._geometry()
         scene = o3d.t.geometry.RaycastingScene()
