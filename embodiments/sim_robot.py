@@ -22,7 +22,7 @@ from contactflow.embodiments.faults import Fault, FaultMonitor, FaultParams
 from contactflow.embodiments.registry import ArmSpec, HandSpec, RobotSpec
 from contactflow.embodiments.sensors.camera import DepthCamera, DepthFrame
 from contactflow.embodiments.sensors.encoders import Encoders
-from contactflow.embodiments.sensors.ft import WrenchReading, WristFT
+from contactflow.embodiments.sensors.ft import RobotDynamics, WrenchReading, WristFT
 from contactflow.embodiments.sensors.ground_truth import GroundTruth, read_ground_truth
 from contactflow.embodiments.sensors.tactile import TactileSensor
 from contactflow.embodiments.world import World
@@ -246,11 +246,12 @@ class SimRobot(RobotFacade):
         self._hands = {h.name: HandHandle(self, h) for h in self.spec.hands}
         self.head = HeadHandle(self, self.spec.head_joints) if self.spec.head_joints else None
         self._ft_of_arm: dict[str, WristFT] = {}
+        dynamics = RobotDynamics(self.art, self.kin)  # one Newton-Euler pass a physics step for both wrists
         for a in self.spec.arms:
             if a.ft:
                 f = self.spec.ft(a.ft)
                 self._ft_of_arm[a.name] = WristFT(self.art, f, seed=self.params.seed + len(self._ft_of_arm),
-                                                  kin=self.kin, arm_joints=a.joints)
+                                                  kin=self.kin, arm_joints=a.joints, dynamics=dynamics)
         self._tactile = {h.name: TactileSensor(self.art, h) for h in self.spec.hands}
         self._cameras: dict[str, DepthCamera] = {}
         watched = np.zeros(len(self.art.joint_names), bool)

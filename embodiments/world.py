@@ -198,6 +198,7 @@ class SimArticulation:
         self.joints = self.articulation.get_active_joints()
         self.joint_names = [j.get_name() for j in self.joints]
         self.index = {n: i for i, n in enumerate(self.joint_names)}
+        self._forces, self._forces_step = np.zeros((0, 6)), -1
         self.lower = np.array([j.get_limits()[0][0] for j in self.joints])
         self.upper = np.array([j.get_limits()[0][1] for j in self.joints])
         self.kp = np.zeros(len(self.joints))
@@ -297,6 +298,13 @@ class SimArticulation:
 
     def qvel(self) -> np.ndarray:
         return np.asarray(self.articulation.get_qvel(), dtype=np.float64)
+
+    def incoming_joint_forces(self) -> np.ndarray:
+        """Each link's incoming joint wrench (n_links, 6), read once a physics step (every wrist F/T reads it)."""
+        if self._forces_step != self.world.steps:
+            self._forces = np.asarray(self.articulation.get_link_incoming_joint_forces(), dtype=np.float64)
+            self._forces_step = self.world.steps
+        return self._forces
 
     def set_targets(self, idx: np.ndarray, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         """Position (and velocity) drive targets of joints ``idx``."""

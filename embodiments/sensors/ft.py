@@ -54,7 +54,10 @@ def _rotate(R: np.ndarray, wrench: np.ndarray) -> np.ndarray:
 class WristFT:
     """Sample-and-hold F/T at ``spec.rate_hz`` with Gaussian noise and a constant bias."""
 
-    def __init__(self, art, spec: FTSpec, seed: int = 0, kin=None, arm_joints: tuple[str, ...] = ()) -> None:
+    def __init__(self, art, spec: FTSpec, seed: int = 0, kin=None, arm_joints: tuple[str, ...] = (),
+                 dynamics: RobotDynamics | None = None) -> None:
+        """``dynamics``: the robot's, shared by its sensors (one Newton-Euler pass a physics step); one of its own
+        when not given."""
         self.art, self.spec = art, spec
         self.link = art.links[spec.link]
         self.rng = np.random.default_rng(seed)
@@ -69,7 +72,8 @@ class WristFT:
                 raise ValueError(f"F/T {spec.name}: estimated sensors need the kinematics and the arm joints")
             self._sidx = art.indices(arm_joints)
             self._kidx = kin.q_index(arm_joints)
-        self._hand_model = None if spec.estimated or kin is None else HandLoad(art, kin, spec.link)
+        self._hand_model = None if spec.estimated or kin is None else \
+            HandLoad(dynamics or RobotDynamics(art, kin), spec.link)
 
     def _raw(self) -> np.ndarray:
         if self.spec.estimated:
@@ -77,7 +81,7 @@ class WristFT:
             J = self.kin.jacobian(self.spec.link)[:, self._kidx]
             # drives balance the external wrench: tau = -J^T w
             return -np.linalg.lstsq(J.T, tau, rcond=None)[0]
-        fw = np.asarray(self.art.articulation.get_link_incoming_joint_forces()[self.link.get_index()], dtype=np.float64)
+        fw = self.art.incoming_joint_forces()[self.link.get_index()]
         # the constraint acts on the hand; the load on the sensor is its opposite
         return -_rotate(pose_to_matrix(self.link.get_joint().get_global_pose())[:3, :3], fw)
 
@@ -121,6 +125,32 @@ class WristFT:
         return self._last
 
 
+class RobotDynamics:
+    """Recursive Newton-Euler on the robot's model at the simulator's joint positions, velocities and
+    accelerations, run at most once a physics step: every F/T sensor of the robot reads the same pass."""
+
+    def __init__(self, art, kin) -> None:
+        self.art = art
+        self.model = pin.Model(kin.model)
+        R_base = kin.base[:3, :3]
+        self.model.gravity.linear = R_base.T @ np.asarray(art.world.params.gravity, dtype=np.float64)
+        self.data = self.model.createData()
+        self._q, self._v, self._acc = (np.zeros(self.model.nq) for _ in range(3))  # filled at each pass
+        self._kidx = kin.q_index(art.joint_names)
+        self._step = -1
+
+    def solved(self) -> pin.Data:
+        """The data of this physics step's pass (``f``, ``v``, ``a_gf``, ``liMi`` of every joint)."""
+        steps = self.art.world.steps
+        if steps != self._step:
+            a = self.art.articulation
+            q, v, acc = self._q, self._v, self._acc
+            q[self._kidx], v[self._kidx], acc[self._kidx] = a.get_qpos(), a.get_qvel(), a.get_qacc()
+            pin.rnea(self.model, self.data, q, v, acc)
+            self._step = steps
+        return self.data
+
+
 class HandLoad:
     """The wrench the hand's links (every link past the sensor) press on the sensor, from the
     robot's model: their weight and the force that accelerates them (recursive Newton-Euler on the
@@ -128,36 +158,27 @@ class HandLoad:
     computes from its encoders and its hand's identified inertia; the rest of the reading is
     external: the environment's and a held load's."""
 
-    def __init__(self, art, kin, sensor_link: str) -> None:
-        self.art = art
-        self.model = pin.Model(kin.model)
-        R_base = kin.base[:3, :3]
-        self.model.gravity.linear = R_base.T @ np.asarray(art.world.params.gravity, dtype=np.float64)
-        self.data = self.model.createData()
-        self._q, self._v, self._acc = (np.zeros(self.model.nq) for _ in range(3))  # filled at each wrench()
-        self._kidx = kin.q_index(art.joint_names)
-        hand_joints = {lk.get_joint().get_name() for lk in link_subtree(art.links[sensor_link])}
-        fid = self.model.getFrameId(sensor_link)
-        if fid >= len(self.model.frames):
+    def __init__(self, dynamics: RobotDynamics, sensor_link: str) -> None:
+        self.dynamics = dynamics
+        model = dynamics.model
+        hand_joints = {lk.get_joint().get_name() for lk in link_subtree(dynamics.art.links[sensor_link])}
+        fid = model.getFrameId(sensor_link)
+        if fid >= len(model.frames):
             raise ValueError(f"F/T on {sensor_link!r}: the robot's model has no such link")
-        self.joint = self.model.frames[fid].parentJoint
+        self.joint = model.frames[fid].parentJoint
         # the hand's links fixed to the sensor's body (their inertia sits on the fixed joint
         # frames that hang them), and the hand's moving joints whose subtrees are fingers
         self.fixed = pin.Inertia.Zero()
-        for f in self.model.frames:
+        for f in model.frames:
             if f.parentJoint == self.joint and f.type == pin.FrameType.FIXED_JOINT and f.name in hand_joints:
                 self.fixed += f.placement.act(f.inertia)
-        self.roots = [i for i in range(1, self.model.njoints)
-                      if self.model.parents[i] == self.joint and self.model.names[i] in hand_joints]
-        self.origin = self.model.frames[fid].placement  # the sensor's origin on its body
+        self.roots = [i for i in range(1, model.njoints)
+                      if model.parents[i] == self.joint and model.names[i] in hand_joints]
+        self.origin = model.frames[fid].placement  # the sensor's origin on its body
 
     def wrench(self) -> np.ndarray:
         """The load on the sensor, in its link's frame."""
-        a = self.art.articulation
-        q, v, acc = self._q, self._v, self._acc
-        q[self._kidx], v[self._kidx], acc[self._kidx] = a.get_qpos(), a.get_qvel(), a.get_qacc()
-        d = self.data
-        pin.rnea(self.model, d, q, v, acc)
+        d = self.dynamics.solved()
         j = self.joint
         # the support the sensor's body gives the hand: fixed links plus each finger subtree
         support = self.fixed * d.a_gf[j] + d.v[j].cross(self.fixed * d.v[j])

