@@ -35,10 +35,17 @@ if TYPE_CHECKING:
     import open3d as o3d
 
 
-def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
-    # open3d on first use: it takes 1.2 s to import, and a process that only reads this module's messages never fits
-    import open3d as o3d
+def backend():  # type: ignore[no-untyped-def]
+    """open3d, imported on first use: a process that only reads the vision messages (a world, a control node's
+    state, the CLI) does not load it (1.2 s); a module that fits planes or clusters loads it at setup, not in its
+    first step."""
+    import open3d
 
+    return open3d
+
+
+def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
+    o3d = backend()
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
 
 

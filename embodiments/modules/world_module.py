@@ -159,6 +159,7 @@ class _Robot:
     hand_seq: dict[str, int] = field(default_factory=dict)
     controllers: set[str] = field(default_factory=set)  # nodes holding alive/controller/<robot>/<node>
     gone: set[str] = field(default_factory=set)  # controller nodes whose token dropped (until it is back)
+    orphaned: float | None = None  # wall time the last controller's token dropped (held after gone_grace)
     held: bool = False
     held_at: int = -1
     refused: int = 0
@@ -207,6 +208,7 @@ class WorldModule(Module):
         settle: float = 0.3  # s of physics before the first tick (objects come to rest)
         deadline: float = 10.0  # s of wall time a lockstep node has to answer a tick, or to say it is still working on it
         max_step: float = 120.0  # s of wall time a lockstep node that keeps saying it is working may take over one tick
+        gone_grace: float = 1.0  # s of wall time a robot may be without a controller token before it is held (zenoh drops and re-learns a live peer's tokens when it re-routes)
         slice: float = 0.05  # s of wall time one step may spend on lockstep ticks
         ground_truth_hz: float = 20.0  # Hz of object poses on eval/
         contacts_hz: float = 0.0  # Hz of simulated time, each robot's true contacts with the objects on eval/<r>/true_contacts
@@ -391,9 +393,10 @@ class WorldModule(Module):
             if alive:
                 self._lockstep.add(node)
             else:
+                # not waited for while its token is gone; its last answer and busy state stay: a token that
+                # zenoh drops and re-learns (the node never left) must not have the world wait for an answer the
+                # node already gave, or stay paused on a busy node it took for idle (a demo stalled 10 s so)
                 self._lockstep.discard(node)
-                self._acks.pop(node, None)
-                self._busy.pop(node, None)
                 self._working.pop(node, None)
             self._cond.notify_all()
 
@@ -406,11 +409,12 @@ class WorldModule(Module):
             if alive:
                 r.controllers.add(node)
                 r.gone.discard(node)
+                r.orphaned = None
             elif node in r.controllers:
                 r.controllers.discard(node)
                 r.gone.add(node)
                 if not r.controllers:
-                    self._holds.append((robot, f"its controller node {node!r} is gone"))
+                    r.orphaned = time.monotonic()  # held once gone_grace passed without a controller back
             self._cond.notify_all()
 
     # -- lifecycle ----------------------------------------------------------------------------
@@ -547,6 +551,11 @@ class WorldModule(Module):
 
     def _apply_holds(self) -> None:
         with self._cond:
+            now = time.monotonic()
+            for name, r in self.robots.items():
+                if r.orphaned is not None and now - r.orphaned >= self.params.gone_grace:
+                    r.orphaned = None
+                    self._holds.append((name, f"its controller node(s) {sorted(r.gone)} gone"))
             holds, self._holds = self._holds, deque()
         for robot, why in holds:
             self._hold(robot, why)

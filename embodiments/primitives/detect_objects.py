@@ -178,6 +178,9 @@ class DetectObjects(Primitive):
         super().setup(io)
         # the clustering and the grasp synthesis load open3d (1.2 s): at setup, not in the control loop's first detect
         import contactflow.recognition.grasp_synthesis  # noqa: F401
+        from contactflow.recognition.pipeline import backend
+
+        backend()
 
     def begin(self) -> None:
         p = self.params

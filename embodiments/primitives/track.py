@@ -41,6 +41,12 @@ class Track(Primitive):
         lost_after: float = 1.0  # s without seeing the object: OBJECT_LOST
         duration: float = 0.0  # s, succeed after tracking this long (0: until stopped)
 
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        from contactflow.recognition.pipeline import backend
+
+        backend()  # the plane fit and the clustering load open3d (1.2 s): at setup, not in the first look
+
     def begin(self) -> None:
         p = self.params
         if self.r.head is None:

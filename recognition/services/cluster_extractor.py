@@ -8,7 +8,7 @@ from contactflow.nodes.module import Layer, Port
 from contactflow.nodes.status import Status
 from contactflow.recognition.backlog import StreamStage
 from contactflow.recognition.messages import PlaneMsg, PointCloud, SegmentedObjects, provenance
-from contactflow.recognition.pipeline import extract_clusters
+from contactflow.recognition.pipeline import backend, extract_clusters
 
 
 class ClusterExtractor(StreamStage):
@@ -25,6 +25,10 @@ class ClusterExtractor(StreamStage):
         min_points: int = 4  # DBSCAN core density
         min_size: int = 25  # points per object
         max_size: int = 50_000  # points per object
+
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        backend()  # open3d loads now, not in the first step (the stream would queue behind its import)
 
     def step(self) -> Status:
         cloud = self.pending.next(self.io.take("cloud"))

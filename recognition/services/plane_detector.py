@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Status
 from contactflow.recognition.messages import PlaneMsg, PointCloud, RoiMsg, provenance
-from contactflow.recognition.pipeline import detect_plane, roi_from_plane
+from contactflow.recognition.pipeline import backend, detect_plane, roi_from_plane
 
 
 class PlaneDetector(Module):
@@ -28,6 +28,10 @@ class PlaneDetector(Module):
         min_height: float = 0.012  # m, ROI starts this far above the plane
         max_height: float = 0.40  # m, ROI height
         margin: float = 0.0  # m, grows the ROI footprint
+
+    def setup(self, io) -> None:  # type: ignore[no-untyped-def]
+        super().setup(io)
+        backend()  # open3d loads now, not in the first step (the stream would queue behind its import)
 
     def step(self) -> Status:
         cloud = self.io.latest("cloud")
