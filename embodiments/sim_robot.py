@@ -246,10 +246,12 @@ class SimRobot(RobotFacade):
         self._hands = {h.name: HandHandle(self, h) for h in self.spec.hands}
         self.head = HeadHandle(self, self.spec.head_joints) if self.spec.head_joints else None
         self._ft_of_arm: dict[str, WristFT] = {}
-        dynamics = RobotDynamics(self.art, self.kin)  # one Newton-Euler pass a physics step for both wrists
+        dynamics = None  # one Newton-Euler pass a physics step for the robot's measuring wrists (none if estimated)
         for a in self.spec.arms:
             if a.ft:
                 f = self.spec.ft(a.ft)
+                if not f.estimated:
+                    dynamics = dynamics or RobotDynamics(self.art, self.kin)
                 self._ft_of_arm[a.name] = WristFT(self.art, f, seed=self.params.seed + len(self._ft_of_arm),
                                                   kin=self.kin, arm_joints=a.joints, dynamics=dynamics)
         self._tactile = {h.name: TactileSensor(self.art, h) for h in self.spec.hands}

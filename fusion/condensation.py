@@ -18,6 +18,7 @@ import numpy as np
 
 from contactflow.fusion.hypotheses import normalise
 from contactflow.fusion.integrator import Fused
+from contactflow.recognition import open3d_backend
 
 
 class Method(StrEnum):
@@ -107,19 +108,11 @@ def condense(fused: Fused, params: CondensationParams | None = None) -> list[Con
     return out
 
 
-def backend():
-    """open3d, imported on first use: a process that only reads fusion messages (a world, a probe, the CLI) does not
-    load it (1-2 s); a fusion loop loads it when it is set up, not in its first cycle."""
-    import open3d
-
-    return open3d
-
-
 def clusters(points: np.ndarray, eps: float, min_points: int = 1) -> list[np.ndarray]:
     """Euclidean clusters (open3d DBSCAN); indices into ``points``, noise left out."""
     if points.shape[0] == 0:
         return []
-    o3d = backend()
+    o3d = open3d_backend.load()
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
     labels = np.asarray(pcd.cluster_dbscan(eps=eps, min_points=min_points, print_progress=False))
     if labels.size == 0 or labels.max() < 0:

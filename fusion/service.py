@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from contactflow.embodiments.messages import RobotModel
-from contactflow.fusion.condensation import CondensationParams, Method, backend
+from contactflow.fusion.condensation import CondensationParams, Method
 from contactflow.fusion.events import ContactTracker, TrackerParams
 from contactflow.fusion.generators.base import capsules_of
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses
@@ -33,6 +33,7 @@ from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.wire import WireError
+from contactflow.recognition import open3d_backend
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,7 @@ class ContactFusion(Module):
         super().setup(io)
         self.params.validate()
         # the clustering's library loads now: in the first cycle its import would hold the loop while clouds queue
-        backend()
+        open3d_backend.load()
         self.reset()
 
     def reset(self) -> None:

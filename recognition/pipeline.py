@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from contactflow.recognition import open3d_backend
 from contactflow.recognition.geometry import (
     EMPTY,
     Box,
@@ -35,17 +36,8 @@ if TYPE_CHECKING:
     import open3d as o3d
 
 
-def backend():  # type: ignore[no-untyped-def]
-    """open3d, imported on first use: a process that only reads the vision messages (a world, a control node's
-    state, the CLI) does not load it (1.2 s); a module that fits planes or clusters loads it at setup, not in its
-    first step."""
-    import open3d
-
-    return open3d
-
-
 def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
-    o3d = backend()
+    o3d = open3d_backend.load()
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
 
 

@@ -176,11 +176,9 @@ class DetectObjects(Primitive):
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
-        # the clustering and the grasp synthesis load open3d (1.2 s): at setup, not in the control loop's first detect
-        import contactflow.recognition.grasp_synthesis  # noqa: F401
-        from contactflow.recognition.pipeline import backend
+        from contactflow.recognition import open3d_backend
 
-        backend()
+        open3d_backend.load()  # the clustering and the grasp synthesis: at setup, not in the control loop's first detect
 
     def begin(self) -> None:
         p = self.params

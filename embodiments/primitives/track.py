@@ -43,9 +43,9 @@ class Track(Primitive):
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
-        from contactflow.recognition.pipeline import backend
+        from contactflow.recognition import open3d_backend
 
-        backend()  # the plane fit and the clustering load open3d (1.2 s): at setup, not in the first look
+        open3d_backend.load()  # the plane fit and the clustering load open3d (1.2 s): at setup, not in the first look
 
     def begin(self) -> None:
         p = self.params

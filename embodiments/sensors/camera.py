@@ -20,6 +20,7 @@ import sapien
 from contactflow.embodiments.registry import CameraSpec
 from contactflow.embodiments.sensors.render_camera import RenderDepth
 from contactflow.embodiments.transforms import pose_to_matrix
+from contactflow.recognition import open3d_backend
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -44,9 +45,7 @@ def intrinsics(spec: CameraSpec) -> np.ndarray:
 
 
 def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    import open3d as o3d
-
-    m = o3d.geometry.TriangleMesh.create_box(*(2 * half))
+    m = open3d_backend.load().geometry.TriangleMesh.create_box(*(2 * half))
     v = np.asarray(m.vertices) - half
     return v, np.asarray(m.triangles)
 
@@ -58,9 +57,7 @@ def _along_x(m: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.ndarray]:
 
 def shape_mesh(shape) -> tuple[np.ndarray, np.ndarray] | None:
     """Vertices and triangles of one PhysX collision shape in its own local frame."""
-    # open3d on first use: it takes 1.2 s to import, and the processes that read frames (control nodes) never mesh
-    import open3d as o3d
-
+    o3d = open3d_backend.load()  # the processes that read frames (control nodes) never mesh
     P = sapien.physx
     if isinstance(shape, P.PhysxCollisionShapeBox):
         return _box(np.asarray(shape.get_half_size(), dtype=np.float64))
@@ -132,8 +129,7 @@ class Raycaster:
     def shoot(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
         """Depth (H, W) along the optical axis (0 = none), world points of the depth > 0 pixels in
         row-major order (N, 3), labels (H, W) and label names."""
-        import open3d as o3d
-
+        o3d = open3d_backend.load()
         s = self.spec
         V, F, tri_label, names = self._geometry()
         scene = o3d.t.geometry.RaycastingScene()

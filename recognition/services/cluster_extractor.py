@@ -6,9 +6,10 @@ from dataclasses import dataclass
 
 from contactflow.nodes.module import Layer, Port
 from contactflow.nodes.status import Status
+from contactflow.recognition import open3d_backend
 from contactflow.recognition.backlog import StreamStage
 from contactflow.recognition.messages import PlaneMsg, PointCloud, SegmentedObjects, provenance
-from contactflow.recognition.pipeline import backend, extract_clusters
+from contactflow.recognition.pipeline import extract_clusters
 
 
 class ClusterExtractor(StreamStage):
@@ -28,7 +29,7 @@ class ClusterExtractor(StreamStage):
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
-        backend()  # open3d loads now, not in the first step (the stream would queue behind its import)
+        open3d_backend.load()  # open3d loads now, not in the first step (the stream would queue behind its import)
 
     def step(self) -> Status:
         cloud = self.pending.next(self.io.take("cloud"))

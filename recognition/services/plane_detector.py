@@ -6,8 +6,9 @@ from dataclasses import dataclass
 
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Status
+from contactflow.recognition import open3d_backend
 from contactflow.recognition.messages import PlaneMsg, PointCloud, RoiMsg, provenance
-from contactflow.recognition.pipeline import backend, detect_plane, roi_from_plane
+from contactflow.recognition.pipeline import detect_plane, roi_from_plane
 
 
 class PlaneDetector(Module):
@@ -31,7 +32,7 @@ class PlaneDetector(Module):
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
-        backend()  # open3d loads now, not in the first step (the stream would queue behind its import)
+        open3d_backend.load()  # open3d loads now, not in the first step (the stream would queue behind its import)
 
     def step(self) -> Status:
         cloud = self.io.latest("cloud")
