@@ -10,6 +10,7 @@ roll, pitch, yaw]`` of the hand's grasp frame, the arm, a push direction and dis
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields, replace
 from typing import Any
@@ -91,7 +92,11 @@ def grasp_pose(xyz: np.ndarray, yaw: float = np.pi / 2) -> list[float]:
 
 def pose_list(xyz: np.ndarray, R: np.ndarray) -> list[float]:
     """``[x, y, z, roll, pitch, yaw]`` (fixed axes, as URDF) of a position and rotation."""
-    rpy = Rotation.from_matrix(R).as_euler("xyz")
+    with warnings.catch_warnings():
+        # a side grasp pitched by 90 degrees is gimbal-locked: scipy sets the third angle to zero and
+        # folds the rotation into the first, still exactly R, and warns on every such grasp
+        warnings.simplefilter("ignore", UserWarning)
+        rpy = Rotation.from_matrix(R).as_euler("xyz")
     return [float(v) for v in xyz[:3]] + [float(v) for v in rpy]
 
 

@@ -7,9 +7,11 @@ import signal
 import threading
 from pathlib import Path
 
+import zenoh
+
 from contactflow.nodes.config import NodeConfig, load_node_config
 from contactflow.nodes.host import ModuleHost
-from contactflow.nodes.transport import ZenohTransport
+from contactflow.nodes.transport import NODE_ZENOH_LOG, ZenohTransport
 
 
 class Node:
@@ -39,6 +41,7 @@ class Node:
 def run_node(path: str | Path) -> None:
     """Run a node until SIGINT or SIGTERM."""
     config = load_node_config(path)
+    zenoh.init_log_from_env_or(NODE_ZENOH_LOG)  # before the session's own (the first one counts)
     node = Node(config)
     quit_ = threading.Event()
 

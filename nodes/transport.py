@@ -41,6 +41,11 @@ class Transport(Protocol):
 
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
 ZENOH_LOG = "warn,zenoh::net::runtime::orchestrator=error"  # unless RUST_LOG says otherwise
+# A node process's log also names each transport with a peer that closes, and why (a read error, an expired
+# lease, a peer that stopped reading): a liveliness token that drops or a message that never came follows one.
+# Not a tool's: its own session's close would print them at every exit.
+NODE_ZENOH_LOG = (f"{ZENOH_LOG},zenoh_transport::unicast::universal::link=debug,"
+                  "zenoh_transport::unicast::universal::transport=debug")
 
 
 @dataclass(frozen=True)

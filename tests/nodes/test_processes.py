@@ -242,6 +242,20 @@ def test_sigterm_shuts_a_node_down_cleanly(tmp_path):
     assert "signal 15, shutting down" in (tmp_path / f"{site}.log").read_text()
 
 
+def test_a_node_s_log_names_a_peer_whose_transport_closed(tmp_path):
+    """A liveliness token that drops or a lost message follows a transport that closed: the node's log says which."""
+    site = "plink"
+    proc, tool = single_node(tmp_path, site, [{"name": "src", "type": "signal_source"}])
+    try:
+        peer = str(tool.session.info.zid())
+        tool.close()  # the peer goes: the node's transport with it closes
+        log = tmp_path / f"{site}.log"
+        assert wait_for(lambda: f"Closing transport with peer: {peer}" in log.read_text(), timeout=5), log.read_text()[-2000:]
+        assert proc.poll() is None
+    finally:
+        stop_process(proc)
+
+
 def test_a_sim_clock_node_steps_its_modules_on_the_clock_of_the_key_space(tmp_path):
     site = "psim"
     proc, tool = single_node(tmp_path, site, [{"name": "src", "type": "signal_source", "params": {"rate_hz": 10}}],
