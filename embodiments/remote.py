@@ -51,6 +51,7 @@ from contactflow.nodes.wire import NDArray, WireError, decode, encode, stamp
 log = logging.getLogger("contactflow.remote")
 MAX_TICKS = 5  # world ticks one step of the arm controllers may cover (as the Cartesian controller service)
 CAMERA_TIMEOUT = 30.0  # s of wall time a camera frame may take (the first render compiles shaders)
+INFO_RETRY = 0.05  # s of wall time between asks of a world that did not answer for its robot yet
 
 
 class RemoteError(RuntimeError):
@@ -115,6 +116,10 @@ class RobotLink:
                     self._info = decode(payload, RobotInfo, rkey)
                 if self._info is None and time.monotonic() > end:
                     break
+                if self._info is None:
+                    # no world's queryable yet: zenoh answers such a query at once, and asking again
+                    # straight away burnt a core (and zenoh's network thread) until the world came up
+                    time.sleep(INFO_RETRY)
             if self._info is None:
                 raise RemoteError(f"no world answers for robot {self.robot!r} on {key}")
         return self._info
