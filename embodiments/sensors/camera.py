@@ -12,18 +12,15 @@ differ where link collision meshes are convex hulls). Depth is the optical-axis 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import sapien
 
 from contactflow.embodiments.registry import CameraSpec
+from contactflow.embodiments.sensors import unit_meshes
 from contactflow.embodiments.sensors.render_camera import RenderDepth
 from contactflow.embodiments.transforms import pose_to_matrix
 from contactflow.recognition import open3d_backend
-
-if TYPE_CHECKING:
-    import open3d as o3d
 
 
 @dataclass(frozen=True)
@@ -45,36 +42,29 @@ def intrinsics(spec: CameraSpec) -> np.ndarray:
 
 
 def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    m = open3d_backend.load().geometry.TriangleMesh.create_box(*(2 * half))
-    v = np.asarray(m.vertices) - half
-    return v, np.asarray(m.triangles)
+    v, t = unit_meshes.box(2 * half)
+    return v - half, t
 
 
-def _along_x(m: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.ndarray]:
-    v = np.asarray(m.vertices)
-    return v[:, [2, 1, 0]] * np.array([1.0, 1.0, -1.0]), np.asarray(m.triangles)[:, [0, 2, 1]]
+def _along_x(mesh: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    v, t = mesh
+    return v[:, [2, 1, 0]] * np.array([1.0, 1.0, -1.0]), t[:, [0, 2, 1]]
 
 
 def shape_mesh(shape) -> tuple[np.ndarray, np.ndarray] | None:
     """Vertices and triangles of one PhysX collision shape in its own local frame."""
-    o3d = open3d_backend.load()  # the processes that read frames (control nodes) never mesh
     P = sapien.physx
     if isinstance(shape, P.PhysxCollisionShapeBox):
         return _box(np.asarray(shape.get_half_size(), dtype=np.float64))
     if isinstance(shape, P.PhysxCollisionShapeSphere):
-        m = o3d.geometry.TriangleMesh.create_sphere(shape.get_radius(), resolution=12)
-        return np.asarray(m.vertices), np.asarray(m.triangles)
+        return unit_meshes.sphere(shape.get_radius(), 12)
     if isinstance(shape, P.PhysxCollisionShapeCylinder):
-        return _along_x(o3d.geometry.TriangleMesh.create_cylinder(shape.get_radius(), 2 * shape.get_half_length(), resolution=24))
+        return _along_x(unit_meshes.cylinder(shape.get_radius(), 2 * shape.get_half_length(), 24))
     if isinstance(shape, P.PhysxCollisionShapeCapsule):
         r, h = shape.get_radius(), shape.get_half_length()
-        parts = [o3d.geometry.TriangleMesh.create_cylinder(r, 2 * h, resolution=16)]
-        for z in (-h, h):
-            s = o3d.geometry.TriangleMesh.create_sphere(r, resolution=8)
-            s.translate((0.0, 0.0, z))
-            parts.append(s)
-        m = parts[0] + parts[1] + parts[2]
-        return _along_x(m)
+        caps = [unit_meshes.sphere(r, 8) for _ in (-h, h)]
+        return _along_x(unit_meshes.merged(unit_meshes.cylinder(r, 2 * h, 16),
+                                           *((v + (0.0, 0.0, z), t) for (v, t), z in zip(caps, (-h, h), strict=True))))
     if isinstance(shape, (P.PhysxCollisionShapeConvexMesh, P.PhysxCollisionShapeTriangleMesh)):
         v = np.asarray(shape.get_vertices(), dtype=np.float64) * np.asarray(shape.get_scale(), dtype=np.float64)
         return v, np.asarray(shape.get_triangles(), dtype=np.int64)

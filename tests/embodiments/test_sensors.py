@@ -323,3 +323,51 @@ def test_wrench_control_presses_and_ft_matches_the_contact_force(melfa):
     assert f[2] == pytest.approx(abs(np.mean(table)), rel=0.05)
     arm.move_joints(np.asarray(arm.home))
     assert arm.wait(6.0) == Status.SUCCESS
+
+
+def test_the_stored_unit_meshes_are_open3d_s_and_mesh_every_primitive_shape_as_open3d_does():
+    import open3d as o3d
+    import sapien
+
+    from contactflow.embodiments.sensors import unit_meshes
+    from contactflow.embodiments.sensors.camera import shape_mesh
+
+    made = unit_meshes.generate()
+    assert made.keys() == unit_meshes._stored().keys()
+    assert all(np.array_equal(made[k], unit_meshes._stored()[k]) for k in made)  # the file is open3d's, not stale
+    mesh = o3d.geometry.TriangleMesh
+
+    def o3d_along_x(m):  # PhysX's round shapes lie along x, open3d's along z
+        return np.asarray(m.vertices)[:, [2, 1, 0]] * [1.0, 1.0, -1.0], np.asarray(m.triangles)[:, [0, 2, 1]]
+
+    r, h = 0.013, 0.021
+    capsule = mesh.create_cylinder(r, 2 * h, resolution=16)
+    for z in (-h, h):
+        capsule += mesh.create_sphere(r, resolution=8).translate((0.0, 0.0, z))
+    material = sapien.physx.PhysxMaterial(1.0, 1.0, 0.0)
+    cases = [(sapien.physx.PhysxCollisionShapeBox([0.01, 0.02, 0.03], material),
+              (np.asarray(mesh.create_box(0.02, 0.04, 0.06).vertices) - [0.01, 0.02, 0.03],
+               np.asarray(mesh.create_box(0.02, 0.04, 0.06).triangles))),
+             (sapien.physx.PhysxCollisionShapeSphere(r, material),
+              (np.asarray(mesh.create_sphere(r, resolution=12).vertices), np.asarray(mesh.create_sphere(r, resolution=12).triangles))),
+             (sapien.physx.PhysxCollisionShapeCylinder(r, h, material), o3d_along_x(mesh.create_cylinder(r, 2 * h, resolution=24))),
+             (sapien.physx.PhysxCollisionShapeCapsule(r, h, material), o3d_along_x(capsule))]
+    for shape, (v, t) in cases:
+        got_v, got_t = shape_mesh(shape)
+        assert np.allclose(got_v, v, atol=1e-15) and np.array_equal(got_t, t), type(shape).__name__
+
+
+def test_a_world_meshes_its_robots_hands_without_open3d():
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from contactflow.embodiments.world import World, WorldParams\n"
+            "from contactflow.embodiments.sim_robot import SimRobot\n"
+            "from contactflow.embodiments.hand_geometry import hand_points\n"
+            "for r in ('tombatossals', 'baxter'):\n"  # spheres at the Allegro's tips, cylinders on Baxter's grippers
+            "    sim = SimRobot(World(WorldParams()), r)\n"
+            "    assert all(len(hand_points(sim, a.name)) > 100 for a in sim.spec.arms if a.hand)\n"
+            "print('open3d' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "False", out.stderr[-2000:]
