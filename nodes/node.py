@@ -51,13 +51,17 @@ def run_node(path: str | Path) -> None:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    node.start()
-    logging.getLogger("contactflow").info(
-        "node %s up (site %s, %d modules, clock %s)", config.node, config.site, len(config.modules), config.clock
-    )
-    while not quit_.wait(0.2):
-        if node.host is not None and node.host.dead.is_set():
-            break
-    node.stop()
+    try:
+        node.start()
+        logging.getLogger("contactflow").info(
+            "node %s up (site %s, %d modules, clock %s)", config.node, config.site, len(config.modules), config.clock
+        )
+        while not quit_.wait(0.2):
+            if node.host is not None and node.host.dead.is_set():
+                break
+    finally:
+        # whatever ends the main thread (a module's setup that raised, a log whose pipe broke) stops the loop
+        # too: left running, it kept the process alive, its world ticking, after the node was gone
+        node.stop()
     if node.host is not None and node.host.dead.is_set():
         raise SystemExit(1)  # the loop died: a supervisor restarts the node

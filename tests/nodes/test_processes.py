@@ -256,6 +256,26 @@ def test_a_node_s_log_names_a_peer_whose_transport_closed(tmp_path):
         stop_process(proc)
 
 
+def test_a_node_whose_log_pipe_broke_still_stops_on_sigterm(tmp_path):
+    """Whatever ends a node's main thread stops its loop: a loop left running kept the process (a world: ticking) alive."""
+    import subprocess
+
+    cfg = {"site": "ppipe", "node": "solo", "clock": "wall",
+           "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{free_port()}"], "multicast_scouting": False},
+           "modules": [{"name": "src", "type": "signal_source"}]}
+    proc = subprocess.Popen([sys.executable, "-m", "contactflow.deploy.cli", "node", str(write_config(tmp_path / "n.yaml", cfg))],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        for line in proc.stdout:
+            if b" up (site" in line:
+                break
+        proc.stdout.close()  # as a log piped into a pager the user quit: the node's next line cannot be written
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(10)
+    finally:
+        stop_process(proc)
+
+
 def test_a_sim_clock_node_steps_its_modules_on_the_clock_of_the_key_space(tmp_path):
     site = "psim"
     proc, tool = single_node(tmp_path, site, [{"name": "src", "type": "signal_source", "params": {"rate_hz": 10}}],
