@@ -252,6 +252,7 @@ def test_a_node_s_log_names_a_peer_whose_transport_closed(tmp_path):
         log = tmp_path / f"{site}.log"
         assert wait_for(lambda: f"Closing transport with peer: {peer}" in log.read_text(), timeout=5), log.read_text()[-2000:]
         assert proc.poll() is None
+        assert "\x1b[" not in log.read_text()  # a log file gets no colour codes
     finally:
         stop_process(proc)
 
