@@ -116,7 +116,15 @@ class LockstepClock(SimClock):
         self.node = node
         self._ack = transport.publisher(ks.lockstep(node, cell))
         self._seq = 0
-        self._token: Handle = transport.token(ks.alive_lockstep(node, cell))
+        self._transport, self._key = transport, ks.alive_lockstep(node, cell)
+        self._token: Handle | None = None
+
+    def announce(self) -> None:
+        """Tell the world to wait for this node (its liveliness token): once its modules are set up and its
+        autostarted tasks have started, so a world that waits for the node ticks only then and the tasks start
+        at the same tick whatever the layout and the machine's speed."""
+        if self._token is None:
+            self._token = self._transport.token(self._key)
 
     def _advance(self, msg: Clock) -> bool:
         if self._tick >= 0 and msg.tick > self._tick + MAX_TICK_JUMP:
@@ -146,5 +154,6 @@ class LockstepClock(SimClock):
         self._ack(encode(msg))
 
     def close(self) -> None:
-        self._token.close()
+        if self._token is not None:
+            self._token.close()
         super().close()

@@ -648,6 +648,7 @@ class ModuleHost:
     def _loop(self) -> None:
         clock = self.clock
         if isinstance(clock, LockstepClock):
+            clock.announce()
             threading.Thread(target=self._beat, args=(clock,), daemon=True, name=f"{self.config.node}-beat").start()
             while (got := clock.wait_tick(self._stop)) is not None:
                 k, marks = got

@@ -15,6 +15,7 @@ from contactflow.nodes.host import ModuleHost
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.messages import Clock, LockstepAck, Mark, Vector
 from contactflow.nodes.module import Layer, Module, Port
+from contactflow.nodes.procs import wait_for
 from contactflow.nodes.status import Status
 from contactflow.nodes.transport import LocalTransport, ZenohSettings
 from contactflow.nodes.wire import decode, encode, stamp
@@ -229,3 +230,32 @@ def test_a_node_slow_over_one_tick_tells_the_world_every_second_that_it_is_still
     assert [a.tick for _, a in notes] == [3, 3] and 0.7 < notes[1][0] - notes[0][0] < 1.3, notes
     assert all(a.node == "n1" and not a.marks for _, a in notes)
     assert any("site/n1/slow: one step took 2.6 s (tick 3)" in r.getMessage() for r in caplog.records), caplog.text
+
+
+class SlowStart(Module):
+    """An autostarted module whose start takes a while (a task binding its robot) and records what it saw then."""
+
+    layer = Layer.TASK
+    Params = EveryTick
+
+    def start(self) -> None:
+        time.sleep(0.3)
+        self.announced_at_start = self.io.transport.alive(self.io.keyspace.alive_lockstep("*"))
+
+
+def test_a_lockstep_node_tells_the_world_to_wait_for_it_only_once_its_autostarted_modules_started():
+    """A world that waits for the node ticks only then: an autostarted task starts at the same tick in any layout
+    and on any machine (its start read the world's time as tick 0 on one run and tick 1 on another)."""
+    t, ks = LocalTransport(), KeySpace("ls")
+    cfg = ModuleConfig("slow", "slow", SlowStart, SlowStart.Params(), "site", autostart=True)
+    host = ModuleHost(node("n1", (cfg,)), t)
+    slow = SlowStart("slow")
+    host.add(cfg, slow)
+    assert t.alive(ks.alive_lockstep("*")) == []  # set up, its tasks not started: not to be waited for yet
+    host.start()
+    try:
+        assert slow.announced_at_start == []
+        assert wait_for(lambda: t.alive(ks.alive_lockstep("*")) == [ks.alive_lockstep("n1")], timeout=5)
+    finally:
+        host.shutdown()
+    assert t.alive(ks.alive_lockstep("*")) == []
