@@ -128,7 +128,7 @@ def _standin_main(names: list[str], bases: list[str], endpoint: str, site: str, 
     for a in agents:
         a.start()
     ready.put(len(agents))
-    stop.wait()
+    stop.get()
     for a in agents:
         a.stop()
     t.close()
@@ -150,7 +150,9 @@ def _standins(n: int, procs: int, bring_ups: int, warm: int, bar: Progress) -> l
         broker = Broker(hub, ks, source=f"{site}/broker/broker")
         broker.start()
         tool = ZenohTransport(ZenohSettings(connect=(endpoint,))).open()
-        ready, stop = ctx.Queue(), ctx.Event()
+        # a queue, not an Event: setting a multiprocessing Event waits for every process asleep on it to wake,
+        # for ever when one died asleep (CI: the bench hung there past the test's timeout)
+        ready, stop = ctx.Queue(), ctx.Queue()
         workers = [ctx.Process(target=_standin_main, args=(names[i::procs], bases[i::procs], endpoint, site, ready, stop),
                                daemon=True) for i in range(procs)]
         for w in workers:
@@ -164,7 +166,8 @@ def _standins(n: int, procs: int, bring_ups: int, warm: int, bar: Progress) -> l
                 rows.append({"setup": "stand-ins", "phase": "cold" if i == 0 else "warm", "bring_up": b, **r})
                 bar.advance(task)
         finally:
-            stop.set()
+            for _ in workers:
+                stop.put(None)
             for w in workers:
                 w.join(30)
                 if w.is_alive():
