@@ -113,7 +113,7 @@ def test_render_local_writes_loadable_node_configs_with_a_loopback_mesh(tmp_path
         assert cfg.zenoh.listen == (ln.endpoint,)
         assert set(cfg.zenoh.connect) == eps - {ln.endpoint}
         assert zenoh.Config.from_file(cfg.zenoh.config_file) is not None
-        assert json.loads(Path(cfg.zenoh.config_file).read_text())["transport"]["link"]["tx"]["lease"] == 1000
+        assert json.loads(Path(cfg.zenoh.config_file).read_text())["transport"]["link"]["tx"]["lease"] == 5000
 
 
 INSECURE = BASE.replace("site: t\n", "site: t\nsecurity: {transport: tcp, insecure: true}\n")
