@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import logging
+import os
 import signal
+import sys
 import threading
 from pathlib import Path
 
@@ -41,6 +43,9 @@ class Node:
 def run_node(path: str | Path) -> None:
     """Run a node until SIGINT or SIGTERM."""
     config = load_node_config(path)
+    if not sys.stdout.isatty():
+        # a log file or a pipe gets plain text: zenoh colours its lines (transports closed) wherever they go
+        os.environ.setdefault("NO_COLOR", "1")
     zenoh.init_log_from_env_or(NODE_ZENOH_LOG)  # before the session's own (the first one counts)
     node = Node(config)
     quit_ = threading.Event()

@@ -62,8 +62,7 @@ def spawn_node(config: Path, log: Path | None = None, env: dict[str, str] | None
     if log is not None:
         log.parent.mkdir(parents=True, exist_ok=True)
     out = open(log, "ab") if log else subprocess.DEVNULL  # noqa: SIM115 - handed to the child
-    # a log file gets plain text: zenoh's log lines (transports closed) are coloured unless told not to
-    full_env = dict(os.environ, PYTHONUNBUFFERED="1", **({"NO_COLOR": "1"} if log else {}), **(env or {}))
+    full_env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
     return subprocess.Popen(
         [sys.executable, "-m", "contactflow.deploy.cli", "node", str(config)],
         stdout=out, stderr=subprocess.STDOUT, env=full_env, start_new_session=True,

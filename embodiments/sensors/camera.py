@@ -62,9 +62,11 @@ def shape_mesh(shape) -> tuple[np.ndarray, np.ndarray] | None:
         return _along_x(unit_meshes.cylinder(shape.get_radius(), 2 * shape.get_half_length(), 24))
     if isinstance(shape, P.PhysxCollisionShapeCapsule):
         r, h = shape.get_radius(), shape.get_half_length()
-        caps = [unit_meshes.sphere(r, 8) for _ in (-h, h)]
-        return _along_x(unit_meshes.merged(unit_meshes.cylinder(r, 2 * h, 16),
-                                           *((v + (0.0, 0.0, z), t) for (v, t), z in zip(caps, (-h, h), strict=True))))
+        ends = []
+        for z in (-h, h):
+            v, t = unit_meshes.sphere(r, 8)
+            ends.append((v + (0.0, 0.0, z), t))
+        return _along_x(unit_meshes.merged(unit_meshes.cylinder(r, 2 * h, 16), *ends))
     if isinstance(shape, (P.PhysxCollisionShapeConvexMesh, P.PhysxCollisionShapeTriangleMesh)):
         v = np.asarray(shape.get_vertices(), dtype=np.float64) * np.asarray(shape.get_scale(), dtype=np.float64)
         return v, np.asarray(shape.get_triangles(), dtype=np.int64)
