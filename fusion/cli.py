@@ -103,12 +103,13 @@ def refuse(recording: Annotated[Path, typer.Argument(help="an MCAP file written 
            set_: Annotated[list[str] | None, typer.Option("--set", help="fusion parameter NAME=VALUE (repeatable), e.g. voxel_size=0.01")] = None,
            weight: Annotated[list[str] | None, typer.Option(help="generator weight GENERATOR=FACTOR on its likelihoods (repeatable)")] = None,
            robot: Annotated[str, typer.Option(help="the fused stream's robot segment (site: a shared integrator)")] = "*",
+           grid: Annotated[bool, typer.Option("--grid", help="step every 1/rate_hz s from the clouds' stamps, not on the recorded loop's cycles (for another rate_hz or timeouts)")] = False,
            window: Annotated[float, typer.Option(help="s, largest time difference of a matched pair")] = 0.1,
            radius: Annotated[float, typer.Option(help="m, largest location difference of a matched pair")] = 0.03,
            out: Annotated[Path | None, typer.Option(help="write the comparison as JSON here")] = None) -> None:
     """Re-fuse a recording's hypothesis clouds with other parameters and compare with its recorded events."""
     from contactflow.deploy.recording import Recording, RecordingError
-    from contactflow.fusion.messages import HypothesisCloud
+    from contactflow.fusion.messages import ContactList, HypothesisCloud
     from contactflow.fusion.refusion import EventRecord, compare, refuse
     from contactflow.fusion.service import FusionParams
     from contactflow.nodes.params import ParamError, replace_params
@@ -121,20 +122,28 @@ def refuse(recording: Annotated[Path, typer.Argument(help="an MCAP file written 
         console.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
     ks = KeySpace(rec.site)
-    events_key = ks.fused(robot, "events")
-    clouds, recorded = [], []
+    events_key, contacts_key = ks.fused(robot, "events"), ks.fused(robot, "contacts")
+    clouds, recorded, cycles = [], [], []
     for s in rec.samples():
         if isinstance(s.msg, HypothesisCloud):
             clouds.append(s.msg)
         elif isinstance(s.msg, ContactEventMsg) and key_matches(events_key, s.key):
             recorded.append(EventRecord.of(s.msg))
+        elif isinstance(s.msg, ContactList) and key_matches(contacts_key, s.key):
+            cycles.append(s.msg)
+    loops = {c.hdr.source for c in cycles}
+    if not grid and len(loops) > 1:
+        console.print(f"[red]{recording}: the cycles of {len(loops)} fusion loops ({', '.join(sorted(loops))}): "
+                      f"name one with --robot, or step on a grid with --grid[/]")
+        raise typer.Exit(2)
+    timing = "a grid" if grid or not cycles else f"the recorded loop's {len(cycles)} cycles"
     try:
-        refused = refuse(clouds, params, weights)
+        refused = refuse(clouds, params, weights, None if grid else cycles)
     except (ValueError, WireError) as exc:
         console.print(f"[red]{exc}[/]")
         raise typer.Exit(2) from None
     cmp = compare(recorded, refused, window, radius)
-    table = Table(title=f"re-fusion of {recording.name}: {len(clouds)} clouds")
+    table = Table(title=f"re-fusion of {recording.name}: {len(clouds)} clouds on {timing}")
     for col in ("", "recorded", "re-fused"):
         table.add_column(col)
     for kind in sorted(set(cmp.recorded) | set(cmp.refused)):
@@ -144,6 +153,7 @@ def refuse(recording: Annotated[Path, typer.Argument(help="an MCAP file written 
                   f"max {cmp.dt_max * 1e3:.1f} ms; distance mean {cmp.dist_mean * 1e3:.1f} mm, max {cmp.dist_max * 1e3:.1f} mm; "
                   f"unmatched {len(cmp.unmatched_recorded)} recorded, {len(cmp.unmatched_refused)} re-fused")
     if out is not None:
-        out.write_text(json.dumps({"recording": str(recording), "clouds": len(clouds), "params": params_dict(params),
+        out.write_text(json.dumps({"recording": str(recording), "clouds": len(clouds), "timing": timing,
+                                   "params": params_dict(params),
                                    "weights": weights, **cmp.as_dict()}, indent=2))
 

@@ -1,26 +1,32 @@
 """Re-fusion: the fusion loop run again on recorded hypothesis clouds, and its events compared with the recorded ones.
 
-The thesis tuned its fusion offline on recorded runs; this is that analysis. Clouds are
-offered at the time their producer stamped them (``hdr.t_sim``: the producing node's clock)
-and the loop is stepped every ``1 / rate_hz`` s, as the contact fusion module does, so the
-recorded parameters reproduce the recorded events and other parameters (voxel size,
-condensation, generator weights) show what they would have changed.
+The thesis tuned its fusion offline on recorded runs; this is that analysis. Two timings:
+- the recorded loop's (``cycles``: the fused contact lists it published, one per cycle): the
+  loop steps when the recorded one did and takes each cloud in the cycle that took it (the
+  first whose ``inputs`` name it), so the recorded parameters reproduce the recorded events
+  even where a loaded machine delayed clouds and cycles; for what other condensation,
+  tracking or generator weights would have made;
+- a regular grid: clouds offered at the time their producer stamped them (``hdr.t_sim``) and
+  the loop stepped every ``1 / rate_hz`` s, as an unloaded fusion module does; for another
+  rate or timeouts, whose cycles the recorded ones are not.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable, Mapping
+from bisect import bisect_left
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from contactflow.fusion.hypotheses import Hypotheses
 from contactflow.fusion.loop import FusionLoop
-from contactflow.fusion.messages import ContactEventMsg, HypothesisCloud
+from contactflow.fusion.messages import ContactEventMsg, ContactList, HypothesisCloud
 from contactflow.fusion.service import FusionParams
 from contactflow.nodes.status import Event
+from contactflow.nodes.wire import MsgId
 
 
 @dataclass(frozen=True)
@@ -46,10 +52,13 @@ def _weighted(cloud: Hypotheses, w: float) -> Hypotheses:
 
 
 def refuse(clouds: Iterable[HypothesisCloud], params: FusionParams,
-           weights: Mapping[str, float] | None = None) -> list[EventRecord]:
+           weights: Mapping[str, float] | None = None,
+           cycles: Sequence[ContactList] | None = None) -> list[EventRecord]:
     """The events the fusion with ``params`` makes from ``clouds`` (in any order).
 
     ``weights``: generator name -> factor on its hypotheses' likelihood (1 when not named).
+    ``cycles``: the recorded fusion's contact lists, to step on its timing (module docstring);
+    None or empty: a regular grid.
     """
     params.validate()
     weights = dict(weights or {})
@@ -59,27 +68,66 @@ def refuse(clouds: Iterable[HypothesisCloud], params: FusionParams,
     ordered = sorted(clouds, key=lambda c: c.hdr.t_sim)
     if not ordered:
         return []
+    steps = _recorded_steps(ordered, cycles) if cycles else _grid_steps(ordered, params)
     loop = FusionLoop(params.integrator(), params.condensation(), params.tracker(), drop_after=params.drop_after)
-    dt = 1.0 / params.rate_hz
-    t0 = ordered[0].hdr.t_sim
-    end = ordered[-1].hdr.t_sim + params.timeout + params.hold + params.wait_timeout + 4 * dt
     out: list[EventRecord] = []
-    i, k = 0, 0
-    while True:
-        now = t0 + k * dt
-        if now > end and i >= len(ordered):
-            break
-        while i < len(ordered) and ordered[i].hdr.t_sim <= now:
-            c = ordered[i]
+    for now, taken in steps:
+        for c in taken:
             loop.offer(c.source, _weighted(c.hypotheses(), weights.get(c.generator, 1.0)), now,
                        robot=c.robot, link=c.link, msg=c.hdr.id)
-            i += 1
         cycle = loop.step(now)
         if cycle is not None:
             out += [EventRecord(e.event, e.t, tuple(float(v) for v in np.asarray(e.location)), e.robot, e.link)
                     for e in cycle.events]
-        k += 1
     return out
+
+
+def _grid_steps(ordered: list[HypothesisCloud], params: FusionParams) -> Iterable[tuple[float, list[HypothesisCloud]]]:
+    """Every ``1 / rate_hz`` s from the first cloud, each with the clouds stamped since the step before."""
+    dt = 1.0 / params.rate_hz
+    t0 = ordered[0].hdr.t_sim
+    end = ordered[-1].hdr.t_sim + params.timeout + params.hold + params.wait_timeout + 4 * dt
+    i, k = 0, 0
+    while True:
+        now = t0 + k * dt
+        if now > end and i >= len(ordered):
+            return
+        j = i
+        while j < len(ordered) and ordered[j].hdr.t_sim <= now:
+            j += 1
+        yield now, ordered[i:j]
+        i, k = j, k + 1
+
+
+def _recorded_steps(ordered: list[HypothesisCloud],
+                    cycles: Sequence[ContactList]) -> list[tuple[float, list[HypothesisCloud]]]:
+    """The recorded cycles, each with the clouds it took. A cloud no cycle names was replaced before a cycle ran
+    (two came between cycles): it goes with the next cloud of its source that one names; with none, to the first
+    cycle at or after its stamp. Clouds after the last cycle were never fused."""
+    recorded = sorted(cycles, key=lambda c: c.stamp)
+    times = [c.stamp for c in recorded]
+    first: dict[MsgId, int] = {}
+    for k, c in enumerate(recorded):
+        for m in c.hdr.inputs:
+            first.setdefault(m, k)
+    taken: list[list[HypothesisCloud]] = [[] for _ in recorded]
+    by_source: dict[str, list[HypothesisCloud]] = {}
+    for c in ordered:
+        by_source.setdefault(c.source, []).append(c)
+    for mine in by_source.values():
+        mine.sort(key=lambda c: c.hdr.seq)
+        later: int | None = None
+        for c in reversed(mine):
+            k = first.get(c.hdr.id)
+            if k is not None:
+                later = k
+            elif later is not None:
+                k = later
+            else:
+                k = bisect_left(times, c.hdr.t_sim)
+            if k < len(recorded):
+                taken[k].append(c)
+    return [(t, sorted(cs, key=lambda c: c.hdr.t_sim)) for t, cs in zip(times, taken, strict=True)]
 
 
 @dataclass
