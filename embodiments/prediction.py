@@ -9,9 +9,11 @@ disagree, each a :class:`Mismatch`:
   expected when the predictor had a contact on that hand at some time in
   ``[t - hold - window, t + window]`` (fusion keeps a contact ``hold`` s after its last sight);
   a predicted contact that pressed the hand's tactile pads (in the prediction) for ``sustain``
-  is expected to be felt on the robot, by its pads or its fusion, within ``[t - absent, t + window]``
-  (the prediction's pads and the robot's may differ when the grasp sits a few mm otherwise; fusion
-  keeps a contact ``hold`` s after it is gone, which delays a slip's report by as much). Fused contacts are placed on a hand, not on a point of it (a
+  is expected to be felt on the robot by its pads within ``[t - absent, t + window]``, or by its
+  fusion within ``[t - absent - hold, t + window]`` (the prediction's pads and the robot's may
+  differ when the grasp sits a few mm otherwise; a contact the fusion lost sight of for less than
+  its tracker's ``hold`` is not broken for the robot either: a grasp that closes into its wrench's
+  hypotheses can clear them for a quarter second, pads silent, while the can stays held). Fused contacts are placed on a hand, not on a point of it (a
   wrench's contact lies somewhere on the hand's surface), so the hand is what is compared; a
   sensed contact that names no hand counts where a predicted one lies within ``radius``. The
   decision for time ``t`` waits until both streams reached ``t + window``, so the lag between
@@ -240,7 +242,7 @@ class MismatchDetector:
             if before is None:
                 continue
             _, pressed = self.touched.within(t - p.absent, t + p.window)
-            _, fused = self.sensed.within(t - p.absent, t + p.window)
+            _, fused = self.sensed.within(t - p.absent - p.hold, t + p.window)
             # pressed a while in the prediction; on the robot neither its pads nor its fusion feel the hand touch
             for hand in sorted((felt & before[3] & set(hands)) - pressed - fused):
                 x = points[hands.index(hand)]

@@ -55,7 +55,8 @@ def test_a_predicted_contact_that_presses_the_pads_and_does_not_on_the_robot_is_
     found = run(det, lambda t: (AT if t >= 1.0 else NONE, True), lambda t: AT if 1.0 <= t < 1.8 else NONE, 2.5,
                 pressed=lambda t: 1.0 <= t < 1.5)
     assert [m.kind for m in found] == [MismatchKind.MISSING_CONTACT]
-    assert found[0].since == pytest.approx(1.8 + 0.15, abs=0.055)  # absent 0.15 s after the last fused cycle
+    # absent 0.15 s, and the fusion's hold 0.3 s, after the last fused cycle
+    assert found[0].since == pytest.approx(1.8 + 0.15 + 0.3, abs=0.055)
     assert found[0].part == HAND and found[0].location == pytest.approx(tuple(AT[0]))
     # pads pressed as predicted: nothing missing
     assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, True), lambda t: AT if t >= 1.0 else NONE,
@@ -64,6 +65,13 @@ def test_a_predicted_contact_that_presses_the_pads_and_does_not_on_the_robot_is_
     assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, False), lambda t: NONE, 2.0) == []
     # a brush in passing (50 ms)
     assert run(MismatchDetector(), lambda t: (AT if 1.0 <= t < 1.05 else NONE, True), lambda t: NONE, 2.0) == []
+    # a grasp held by the phalanges (pads silent) whose fused contact drops out for 0.25 s (< the fusion's hold: for
+    # the robot it was never broken) is no mismatch (bench prediction, undisturbed seed 1003: missing_contact at
+    # 12.17 s while the can stayed held); for 0.8 s it is, once absent and hold passed since the last fused cycle
+    held = lambda gap: lambda t: AT if t >= 1.0 and not 1.5 <= t < 1.5 + gap else NONE  # noqa: E731
+    assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, True), held(0.25), 2.5) == []
+    found = run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, True), held(0.8), 2.5)
+    assert [m.kind for m in found] == [MismatchKind.MISSING_CONTACT] and found[0].since == pytest.approx(1.45 + 0.15 + 0.3, abs=0.055)
     # the pads released for 0.1 s (< absent) is no mismatch either
     assert run(MismatchDetector(), lambda t: (AT if t >= 1.0 else NONE, True), lambda t: AT if t >= 1.0 else NONE,
                2.5, pressed=lambda t: t >= 1.0 and not 1.5 <= t < 1.6) == []
