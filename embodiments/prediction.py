@@ -18,6 +18,7 @@ disagree, each a :class:`Mismatch`:
   sensed contact that names no hand counts where a predicted one lies within ``radius``. The
   decision for time ``t`` waits until both streams reached ``t + window``, so the lag between
   them does not matter.
+- a sensed contact counts as unexpected once it lasted ``sustain`` (on every fused cycle);
 - arm joints and wrist loads: a difference beyond ``joint_bound`` / ``force_bound`` that lasts
   ``sustain``;
 - objects: perception seeing one more than ``object_bound`` from where the prediction holds it.
@@ -133,6 +134,7 @@ class MismatchDetector:
         self._decided = -np.inf  # sensed samples up to this time are decided
         self._missing_at = -np.inf  # predicted samples up to this time are decided
         self._reported: list[tuple[MismatchKind, float, np.ndarray | None, str]] = []
+        self._unexpected: list[tuple[str, np.ndarray, float]] = []  # (hand, place, since) sensed, none predicted
         self._over: dict[tuple[str, str], list] = {}  # (what, name) -> [over since, under since, last reported]
         self._loads: dict[str, deque] = {}  # arm -> (t, predicted (3,), measured (3,), steady), oldest first
         self._loads_decided: dict[str, float] = {}
@@ -223,14 +225,23 @@ class MismatchDetector:
                 continue  # a sample of the same time as one decided
             self._decided = t
             pred_pts, pred_hands = self.predicted.within(t - p.hold - p.window, t + p.window)
+            going: list[tuple[str, np.ndarray, float]] = []
             for x, hand in zip(sensed, hands, strict=True):
                 if hand in pred_hands:
                     continue
                 d = _near(pred_pts, x)
-                if hand or d > p.radius:
-                    out += self._report(MismatchKind.UNEXPECTED_CONTACT, t, t, x, hand, d, p.radius,
+                if not (hand or d > p.radius):
+                    continue
+                since = next((s for h, y, s in self._unexpected
+                              if h == hand and (hand or float(np.linalg.norm(x - y)) <= p.radius)), t)
+                going.append((hand, x, since))
+                if t - since >= p.sustain - 1e-9:
+                    out += self._report(MismatchKind.UNEXPECTED_CONTACT, since, t, x, hand, d, p.radius,
                                         f"a contact sensed at {_fmt(x)} on {hand or 'the robot'} where none "
                                         f"was predicted")
+            # one cycle without it ends an episode: a contact that outlives its prediction by a cycle or two (a
+            # hand that lets go of a can a little later than predicted) is no surprise
+            self._unexpected = going
         horizon = min(self.predicted.t, self.touched.t, self.sensed.t) - p.window
         for t, points, hands, felt in self.predicted.after(self._missing_at):
             if t > horizon:
