@@ -136,7 +136,7 @@ def refuse(recording: Annotated[Path, typer.Argument(help="an MCAP file written 
         console.print(f"[red]{recording}: the cycles of {len(loops)} fusion loops ({', '.join(sorted(loops))}): "
                       f"name one with --robot, or step on a grid with --grid[/]")
         raise typer.Exit(2)
-    timing = "a grid" if grid or not cycles else f"the recorded loop's {len(cycles)} cycles"
+    timing = "a grid" if grid or not cycles else f"the recorded loop's {len(cycles)} cycle{'s' if len(cycles) != 1 else ''}"
     try:
         refused = refuse(clouds, params, weights, None if grid else cycles)
     except (ValueError, WireError) as exc:

@@ -308,6 +308,27 @@ def test_the_command_line_refuses_bad_files_and_parameters_and_re_fuses_a_record
     assert r.exit_code == 0 and json.loads((tmp_path / "g.json").read_text())["timing"] == "a grid", r.output
 
 
+def test_re_fusion_of_two_fusion_loops_cycles_asks_for_one_or_a_grid(tmp_path, monkeypatch):
+    from rich.console import Console
+    from typer.testing import CliRunner
+
+    from contactflow.deploy.recording import RecordingWriter
+    from contactflow.fusion import cli as fusion_cli
+    from contactflow.nodes.wire import stamp
+
+    w = RecordingWriter(tmp_path / "two.mcap", SITE).open()
+    for i, robot in enumerate(("r1", "r2")):
+        w.write(KS.fused(robot, "contacts"), stamp(ContactList(stamp=0.1), f"{robot}/n/fusion/contacts", 1, 0.1), 1_000 + i)
+    w.close()
+    monkeypatch.setattr(fusion_cli, "console", Console(width=300))
+    r = CliRunner().invoke(fusion_cli.app, ["refuse", str(tmp_path / "two.mcap")])
+    assert r.exit_code == 2 and "the cycles of 2 fusion loops (r1/n/fusion/contacts, r2/n/fusion/contacts)" in r.output
+    assert "--robot" in r.output and "--grid" in r.output
+    r = CliRunner().invoke(fusion_cli.app, ["refuse", str(tmp_path / "two.mcap"), "--robot", "r2", "--out",
+                                            str(tmp_path / "r2.json")])
+    assert r.exit_code == 0 and json.loads((tmp_path / "r2.json").read_text())["timing"] == "the recorded loop's 1 cycle"
+
+
 def test_a_key_that_carries_several_message_types_gets_a_channel_per_type(tmp_path):
     from contactflow.deploy.recording import RecordingWriter
     from contactflow.embodiments.messages import CameraRequest, HandCommand
