@@ -223,16 +223,21 @@ class VoxelIndex:
         kernels.index_lookup(self.table, self.shift, keys, out)
         return out
 
-    def insert(self, keys: np.ndarray) -> np.ndarray:
-        """Row of each key, adding absent keys (duplicates in ``keys`` share one new row)."""
-        keys = np.ascontiguousarray(keys, dtype=np.int64)
-        end = self.count + keys.shape[0]
+    def reserve(self, more: int) -> int:
+        """Room for ``more`` new keys (table under half full, rows); returns the count it allows."""
+        end = self.count + more
         if end > self.size // 2:
             self._grow(end)
         if end > self.row_keys.shape[0]:
             grown = np.zeros(max(end, 2 * self.row_keys.shape[0]), dtype=np.int64)
             grown[: self.count] = self.row_keys[: self.count]
             self.row_keys = grown
+        return end
+
+    def insert(self, keys: np.ndarray) -> np.ndarray:
+        """Row of each key, adding absent keys (duplicates in ``keys`` share one new row)."""
+        keys = np.ascontiguousarray(keys, dtype=np.int64)
+        self.reserve(keys.shape[0])
         out = np.empty(keys.shape[0], dtype=np.int64)
         self.count = kernels.index_insert(self.table, self.shift, self.row_keys, self.count, keys, out)
         return out
@@ -260,17 +265,18 @@ class VoxelIndex:
 class HypothesisSpace:
     """The hypothesis space HS: occupied voxels with per-source likelihood, stamp, type, force.
 
-    Sources are columns (at most 64, so a voxel's sources fit a uint64 bitmask). Storage is
-    column-major (``lik[col, row]``, ``direction[col, axis, row]``, ``center[axis, row]``), so
-    that writing one source's cloud and reducing over the few sources are contiguous passes.
-    A column entry is empty when its stamp is ``+inf`` and its likelihood 0. Entries expire in
-    the fused pass (:meth:`fuse`), which reads every column anyway. Rows whose every column is
-    empty are dead; they are dropped in bulk when they outnumber the live ones.
+    Sources are columns (at most 64, so a voxel's sources fit a uint64 bitmask). An entry (a row's
+    column) is one record of :data:`~contactflow.fusion.kernels.FIELDS` floats, ``rec[row, col, field]``,
+    so that writing a hypothesis touches one cache line and the fused pass reads the records in
+    memory order; ``center[axis, row]`` holds the voxel centres. An entry is empty when its stamp is
+    ``+inf`` and its likelihood 0. Entries expire in the fused pass (:meth:`fuse`), which reads every
+    record anyway. Rows whose every column is empty are dead; they are dropped in bulk when they
+    outnumber the live ones.
     """
 
     MAX_SOURCES = 64
 
-    def __init__(self, voxel_size: float = VOXEL_SIZE, capacity: int = 1024, columns: int = 4) -> None:
+    def __init__(self, voxel_size: float = VOXEL_SIZE, capacity: int = 1024, columns: int = 1) -> None:
         if not voxel_size > 0:
             raise ValueError(f"HypothesisSpace: voxel_size={voxel_size} must be > 0")
         self.voxel_size = float(voxel_size)
@@ -278,83 +284,89 @@ class HypothesisSpace:
         self.n = 0
         self.cap = 0
         self.ncol = 0
-        self._tag = 0  # the number of the last write, for ``_mark``
+        self._tag = 0.0  # the number of the last write, in each entry it wrote (kernels.TAG)
         self.center = np.zeros((3, 0))
+        self._keys = np.zeros(0, dtype=np.int64)  # a put's scratch: the packed key of each hypothesis
         self._alloc_rows(max(capacity, 16), columns)
+
+    @staticmethod
+    def _empty_records(rows: int, ncol: int) -> np.ndarray:
+        """Empty records, each on a cache line of its own (numpy aligns large arrays to 16 bytes only, and
+        a record across two lines costs a put two misses)."""
+        size = rows * ncol * kernels.FIELDS
+        buf = np.zeros(size + kernels.FIELDS)
+        first = (-buf.ctypes.data % 64) // buf.itemsize
+        rec = buf[first:first + size].reshape(rows, ncol, kernels.FIELDS)
+        rec[:, :, kernels.STAMP] = np.inf
+        return rec
 
     def _alloc_rows(self, cap: int, ncol: int) -> None:
         n, c = self.n, self.ncol
-        lik = np.zeros((ncol, cap))
-        stamp = np.full((ncol, cap), np.inf)
-        kind = np.zeros((ncol, cap), dtype=np.uint8)
-        force = np.zeros((ncol, cap))
-        direction = np.zeros((ncol, 3, cap))
+        rec = self._empty_records(cap, ncol)
         center = np.zeros((3, cap))
-        mark = np.zeros(cap, dtype=np.int64)
         if n:
             center[:, :n] = self.center[:, :n]
-        if c:
-            lik[:c, :n] = self.lik[:, :n]
-            stamp[:c, :n] = self.stamp[:, :n]
-            kind[:c, :n] = self.kind[:, :n]
-            force[:c, :n] = self.force[:, :n]
-            direction[:c, :, :n] = self.direction[:, :, :n]
-        self.lik, self.stamp, self.kind, self.force, self.direction = lik, stamp, kind, force, direction
-        self.center, self._mark = center, mark
+            rec[:n, :c] = self.rec[:n, :c]
+        self.rec, self.center = rec, center
         self.cap, self.ncol = cap, ncol
+
+    @property
+    def lik(self) -> np.ndarray:
+        """Likelihood of each entry, ``lik[col, row]`` (a view)."""
+        return self.rec[:, :, kernels.LIK].T
+
+    @property
+    def stamp(self) -> np.ndarray:
+        """Stamp of each entry, ``stamp[col, row]``, ``+inf`` where empty (a view)."""
+        return self.rec[:, :, kernels.STAMP].T
 
     def ensure_column(self, col: int) -> None:
         if not 0 <= col < self.MAX_SOURCES:
             raise ValueError(f"HypothesisSpace: source column {col} outside [0, {self.MAX_SOURCES})")
         if col >= self.ncol:
-            self._alloc_rows(self.cap, min(self.MAX_SOURCES, max(col + 1, 2 * self.ncol)))
+            self._alloc_rows(self.cap, col + 1)  # exactly: the fused pass streams whole rows
 
-    def rows_for(self, keys: np.ndarray) -> np.ndarray:
-        """Rows of the voxels ``keys``, creating rows for new voxels."""
-        rows = self.index.insert(keys)
-        n_new = self.index.count
-        if n_new > self.cap:
+    def _room(self, more: int) -> None:
+        """Index and rows large enough for ``more`` new voxels."""
+        end = self.index.reserve(more)
+        if end > self.cap:
             cap = self.cap
-            while cap < n_new:
+            while cap < end:
                 cap *= 2
             self._alloc_rows(cap, self.ncol)
-        if n_new > self.n:
-            kernels.key_centers(self.keys[self.n:n_new], self.voxel_size, self.center[:, self.n:n_new])
-            self.n = n_new
-        return rows
 
-    def rows_for_points(self, points: np.ndarray) -> np.ndarray:
-        """Rows of the voxels holding ``points`` (n, 3), creating rows for new voxels."""
-        points = np.ascontiguousarray(points, dtype=np.float64)
-        keys = np.empty(points.shape[0], dtype=np.int64)
-        if not kernels.point_keys(points, self.voxel_size, keys):
-            raise ValueError(f"voxel coordinates out of range ±{_OFFSET} (point too far from the origin)")
-        return self.rows_for(keys)
-
-    def put(self, col: int, rows: np.ndarray, h: Hypotheses) -> None:
-        """Write one source's hypotheses into its column (the newest reading of a source wins;
-        several hypotheses of one cloud in one voxel keep the most likely)."""
+    def put(self, col: int, h: Hypotheses) -> None:
+        """Write one source's hypotheses into its column, adding rows for new voxels (the newest
+        reading of a source wins; several hypotheses of one cloud in one voxel keep the most likely)."""
         self.ensure_column(col)
-        if not rows.size:
+        m = len(h)
+        if not m:
             return
-        self._tag += 1
-        kernels.column_put(self.lik, self.stamp, self.kind, self.force, self.direction, col,
-                           np.ascontiguousarray(rows, dtype=np.int64), h.likelihood, h.kind, h.force,
-                           np.ascontiguousarray(h.direction), float(h.stamp), self._mark, self._tag)
+        if self._keys.shape[0] < m:
+            self._keys = np.empty(max(m, 2 * self._keys.shape[0]), dtype=np.int64)
+        keys = self._keys[:m]
+        if not kernels.point_keys(np.ascontiguousarray(h.location, dtype=np.float64), self.voxel_size, keys):
+            raise ValueError(f"voxel coordinates out of range ±{_OFFSET} (point too far from the origin)")
+        self._room(m)
+        self._tag += 1.0
+        idx = self.index
+        idx.count = kernels.cloud_put(idx.table, idx.shift, idx.row_keys, idx.count, self.rec, self.center,
+                                      self.voxel_size, col, keys, h.likelihood, h.kind, h.force,
+                                      np.ascontiguousarray(h.direction), float(h.stamp), self._tag)
+        self.n = idx.count
 
     def clear_column(self, col: int) -> None:
         if col < self.ncol:
-            self.lik[col] = 0.0
-            self.stamp[col] = np.inf
+            self.rec[:, col, kernels.LIK] = 0.0
+            self.rec[:, col, kernels.STAMP] = np.inf
 
     def fuse(self, ncol: int, older_than: float) -> tuple:
         """Expire entries stamped before ``older_than`` and fuse the first ``ncol`` columns
         (:func:`~contactflow.fusion.kernels.fuse_rows`)."""
-        return kernels.fuse_rows(self.lik, self.stamp, self.kind, self.force, self.direction, self.center,
-                                 ncol, self.n, older_than)
+        return kernels.fuse_rows(self.rec, self.center, ncol, self.n, older_than)
 
     def live(self) -> np.ndarray:
-        return (self.stamp[:, : self.n] < np.inf).any(axis=0)
+        return (self.rec[: self.n, :, kernels.STAMP] < np.inf).any(axis=1)
 
     def compact(self, force: bool = False, live_rows: int | None = None) -> bool:
         """Drop dead rows when they are the majority (or always with ``force``); ``live_rows``,
@@ -367,12 +379,9 @@ class HypothesisSpace:
             return False
         keep = np.flatnonzero(live)
         keys = self.keys[keep]
-        for name in ("lik", "stamp", "kind", "force", "direction"):
-            arr = getattr(self, name)
-            arr[..., :n_live] = np.take(arr, keep, axis=-1)
+        self.rec[:n_live] = self.rec[keep]
+        self.rec[n_live:self.n] = self._empty_records(self.n - n_live, self.ncol)
         self.center[:, :n_live] = np.take(self.center, keep, axis=1)
-        self.stamp[:, n_live:self.n] = np.inf
-        self.lik[:, n_live:self.n] = 0.0
         self.n = n_live
         self.index.rebuild(keys)
         return True

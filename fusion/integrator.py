@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from contactflow.fusion import kernels
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisSpace
 
 
@@ -160,7 +161,7 @@ class Integrator:
             src.pending, src.pending_since = None, np.inf
             if len(cloud) == 0:
                 continue
-            space.put(src.col, space.rows_for_points(cloud.location), cloud)
+            space.put(src.col, cloud)
         self.cycles += 1
         return self.fuse(now)
 
@@ -175,12 +176,12 @@ class Integrator:
             names[s.col], robots[s.col], links[s.col] = s.name, s.robot, s.link
         if n == 0 or ncol == 0:
             return Fused.empty(now, ncol)
-        loc, lik, force, direction, bits, per, vetoed, unsupported, live = space.fuse(
-            ncol, now - self.params.timeout)
+        out, bits, vetoed, unsupported, live = space.fuse(ncol, now - self.params.timeout)
         space.compact(live_rows=live)
-        # (3, k) and (S, k) arrays come out as transposed views, as the loops wrote them
-        return Fused(location=loc.T, likelihood=lik, force=force, direction=direction.T, sources=bits, per_source=per.T,
-                     columns=names, robots=robots, links=links, stamp=now, vetoed=vetoed, unsupported=unsupported)
+        # the fields are views of the pass's rows (kernels.fuse_rows)
+        return Fused(location=out[:, 0:3], likelihood=out[:, 3], force=out[:, 4], direction=out[:, 5:8], sources=bits,
+                     per_source=out[:, kernels.OUT_SOURCES:], columns=names, robots=robots, links=links, stamp=now,
+                     vetoed=vetoed, unsupported=unsupported)
 
     def reset(self) -> None:
         """Empty the space; sources stay plugged."""

@@ -2,11 +2,13 @@
 of the robot's shapes (the cells of its surface and interior, for motion support and null hypotheses).
 
 Why compiled: on moving clouds every cycle hashes, writes and fuses every hypothesis again,
-and as numpy passes that costs one array temporary per operation. The stateless numpy
+and as numpy passes that costs one array temporary per operation: the stateless numpy
 reference of ``bench fusion`` (one sort and a few bincounts over the concatenated clouds, no
-state at all) is already at the 1 kHz goal for 3 x 10k hypotheses, so a stateful numpy
-version with per-source replacement and timeouts cannot reach it; these loops visit each
-hypothesis and each row once. They release the GIL, so a node's zenoh threads keep running
+state at all) runs 3 x 10k moving hypotheses at 400-480 cycles/s here, and a stateful numpy
+version with per-source replacement and timeouts would be slower still. These loops visit
+each hypothesis and each row once. What bounds them is memory, not arithmetic: a hypothesis
+lands on a random row (one hash probe, one record), and the fused pass streams every record.
+They release the GIL, so a node's zenoh threads keep running
 while a cycle fuses. The shapes: gridding each bi-sphere's box in numpy took 3-6 ms a cycle of
 a moving hand (three temporaries per cell), the world waiting on it at every 20 Hz cycle.
 """
@@ -21,6 +23,10 @@ GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 KEY_BITS = 21  # per axis of a packed voxel key (±5 km at 5 mm); the numpy packing in hypotheses.py uses these
 KEY_OFFSET = 1 << (KEY_BITS - 1)
 REGULAR, NULL = 0, 2  # HypothesisType values the fused pass tests
+# the fields of an entry's record (rec[row, column, field]): one entry, one cache line
+LIK, STAMP, FORCE, DX, DY, DZ, KIND, TAG = range(8)
+FIELDS = 8
+OUT_SOURCES = 8  # the first column of the per-source likelihoods in the fused pass's rows
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -43,16 +49,6 @@ def point_keys(points: np.ndarray, voxel_size: float, out: np.ndarray) -> bool:
 
 
 @njit(cache=True, nogil=True)
-def key_centers(keys: np.ndarray, voxel_size: float, out: np.ndarray) -> None:
-    """Voxel centre (3, n) of each packed key into ``out``, m."""
-    mask = (1 << KEY_BITS) - 1
-    for i in range(keys.shape[0]):
-        k = keys[i]
-        for a in range(3):
-            out[a, i] = (((k >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
-
-
-@njit(cache=True, nogil=True)
 def _find(table: np.ndarray, shift: np.uint64, key: np.int64) -> np.int64:
     """The slot holding ``key``, or the empty slot that ends its probe chain (its row is -1)."""
     mask = table.shape[0] - 1
@@ -60,6 +56,18 @@ def _find(table: np.ndarray, shift: np.uint64, key: np.int64) -> np.int64:
     while table[s, 0] != key and table[s, 0] != EMPTY:
         s = (s + 1) & mask
     return s
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _row(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, key: np.int64) -> tuple[int, int]:
+    """(row of ``key``, new count): an absent key gets row ``count``."""
+    s = _find(table, shift, key)
+    if table[s, 0] == EMPTY:
+        table[s, 0] = key
+        table[s, 1] = count
+        row_keys[count] = key
+        return count, count + 1
+    return table[s, 1], count
 
 
 @njit(cache=True, nogil=True)
@@ -70,14 +78,7 @@ def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, coun
     The caller keeps the table under half full and ``row_keys`` large enough.
     """
     for i in range(keys.shape[0]):
-        k = keys[i]
-        s = _find(table, shift, k)
-        if table[s, 0] == EMPTY:
-            table[s, 0] = k
-            table[s, 1] = count
-            row_keys[count] = k
-            count += 1
-        out[i] = table[s, 1]
+        out[i], count = _row(table, shift, row_keys, count, keys[i])
     return count
 
 
@@ -89,106 +90,107 @@ def index_lookup(table: np.ndarray, shift: np.uint64, keys: np.ndarray, out: np.
 
 
 @njit(cache=True, nogil=True)
-def column_put(lik: np.ndarray, stamp: np.ndarray, kind: np.ndarray, force: np.ndarray, direction: np.ndarray,
-               col: int, rows: np.ndarray, h_lik: np.ndarray, h_kind: np.ndarray, h_force: np.ndarray,
-               h_dir: np.ndarray, h_stamp: float, mark: np.ndarray, tag: int) -> None:
-    """Write one cloud into column ``col``; several hypotheses in one voxel keep the most likely.
+def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, rec: np.ndarray,
+              center: np.ndarray, voxel_size: float, col: int, keys: np.ndarray, h_lik: np.ndarray,
+              h_kind: np.ndarray, h_force: np.ndarray, h_dir: np.ndarray, h_stamp: float, tag: float) -> int:
+    """Write one cloud (its packed voxel ``keys``) into column ``col`` of the records, adding a row
+    (and its centre) for each new voxel; returns the new row count. Several hypotheses of the cloud
+    in one voxel keep the most likely: the entry's TAG field tells this write (``tag``) from an older one.
 
-    ``mark`` holds, per row, the ``tag`` of the last write, so a second hypothesis of the same
-    cloud in a row is told from an older cloud's entry.
+    One pass, one probe and one record per hypothesis: a record holds all fields of an entry, so a
+    write touches one cache line, not one per field. The caller keeps the table under half full and
+    the rows large enough for every key to be new.
     """
-    for i in range(rows.shape[0]):
-        r = rows[i]
-        if mark[r] == tag and h_lik[i] < lik[col, r]:
+    mask = (1 << KEY_BITS) - 1
+    n_rows = count
+    for i in range(keys.shape[0]):
+        k = keys[i]
+        r, count = _row(table, shift, row_keys, count, k)
+        if count > n_rows:  # a new row, r
+            n_rows = count
+            for a in range(3):
+                center[a, r] = (((k >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
+        if rec[r, col, TAG] == tag and h_lik[i] < rec[r, col, LIK]:
             continue
-        mark[r] = tag
-        lik[col, r] = h_lik[i]
-        stamp[col, r] = h_stamp
-        kind[col, r] = h_kind[i]
-        force[col, r] = h_force[i]
-        for a in range(3):
-            direction[col, a, r] = h_dir[i, a]
+        rec[r, col, TAG] = tag
+        rec[r, col, LIK] = h_lik[i]
+        rec[r, col, STAMP] = h_stamp
+        rec[r, col, FORCE] = h_force[i]
+        rec[r, col, DX] = h_dir[i, 0]
+        rec[r, col, DY] = h_dir[i, 1]
+        rec[r, col, DZ] = h_dir[i, 2]
+        rec[r, col, KIND] = h_kind[i]
+    return count
 
 
 @njit(cache=True, nogil=True)
-def fuse_rows(lik: np.ndarray, stamp: np.ndarray, kind: np.ndarray, force: np.ndarray, direction: np.ndarray,
-              center: np.ndarray, ncol: int, n: int, older_than: float):
+def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than: float):
     """Expire the entries stamped before ``older_than``, then eq. 4.14 with the type rules over
     rows ``[0, n)`` of the first ``ncol`` columns.
 
-    Returns (location (3, k), likelihood, force, direction (3, k), source bits, per-source
-    likelihood (ncol, k), vetoed, unsupported, live rows) of the k kept voxels: those
-    with a regular hypothesis, no null one and a fused likelihood above zero. Force and
-    direction average, weighted by likelihood, over the entries that carry a force. Expiry
-    rides on this pass so the columns are read once per cycle.
+    Returns (out (k, OUT_SOURCES + ncol), source bits (k,), vetoed, unsupported, live rows) for the k
+    kept voxels: those with a regular hypothesis, no null one and a fused likelihood above zero. A row
+    of ``out`` holds the location, the fused likelihood, force and direction, then each column's
+    likelihood (0 where absent). Force and direction average, weighted by likelihood, over the entries
+    that carry a force. Expiry rides on this pass so the records are read once per cycle.
     """
-    # Column by column, so each inner loop runs over contiguous memory and vectorises; which
-    # columns hold an entry is random from row to row, so the loops are branch-free.
-    miss = np.ones(n)
-    wsum = np.zeros(n)
-    fsum = np.zeros(n)
-    dsum = np.zeros((3, n))
-    bits = np.zeros(n, dtype=np.uint64)
-    regular = np.zeros(n, dtype=np.bool_)
-    null = np.zeros(n, dtype=np.bool_)
-    for c in range(ncol):
-        bit = np.uint64(1) << np.uint64(c)
-        for r in range(n):
-            st = stamp[c, r]
-            old = st < older_than
-            stamp[c, r] = np.inf if old else st
-            lik[c, r] = 0.0 if old else lik[c, r]
-            v = (st >= older_than) & (st < np.inf)
-            kd = kind[c, r]
-            bits[r] |= bit * v
-            regular[r] |= v & (kd == REGULAR)
-            null[r] |= v & (kd == NULL)
-            p = lik[c, r]
-            miss[r] *= 1.0 - p
-            f = force[c, r]
-            w = p * (f > 0.0)
-            wsum[r] += w
-            fsum[r] += w * f
-        for a in range(3):
-            for r in range(n):
-                dsum[a, r] += lik[c, r] * (force[c, r] > 0.0) * direction[c, a, r]
-    keep = np.empty(n, dtype=np.int64)
+    # Row by row over the records, each read once in memory order; the kept voxels go to one
+    # output array, row by row too: one stream in, one stream out.
+    out = np.empty((n, OUT_SOURCES + ncol))
+    kbits = np.empty(n, dtype=np.uint64)
     k = 0
     vetoed = 0
     unsupported = 0
     live = 0
     for r in range(n):
-        live += bits[r] != 0
-        vetoed += null[r]
-        unsupported += (bits[r] != 0) & (not regular[r]) & (not null[r])
-        keep[k] = r
-        k += regular[r] & (not null[r]) & (miss[r] < 1.0)
-    keep = keep[:k]
-    loc = np.empty((3, k))
-    dmean = np.empty((3, k))
-    per = np.empty((ncol, k))
-    fused = np.empty(k)
-    fmean = np.empty(k)
-    kbits = np.empty(k, dtype=np.uint64)
-    for j in range(k):
-        r = keep[j]
-        fused[j] = 1.0 - miss[r]
-        w = wsum[r]
-        fmean[j] = fsum[r] / w if w > 0.0 else 0.0
-        kbits[j] = bits[r]
-        dx, dy, dz = dsum[0, r], dsum[1, r], dsum[2, r]
-        norm = np.sqrt(dx * dx + dy * dy + dz * dz)
-        scale = 1.0 / norm if norm > 1e-12 else 0.0
-        dmean[0, j] = dx * scale
-        dmean[1, j] = dy * scale
-        dmean[2, j] = dz * scale
-    for a in range(3):
-        for j in range(k):
-            loc[a, j] = center[a, keep[j]]
-    for c in range(ncol):
-        for j in range(k):
-            per[c, j] = lik[c, keep[j]]
-    return loc, fused, fmean, dmean, kbits, per, vetoed, unsupported, live
+        miss = 1.0
+        wsum = 0.0
+        fsum = 0.0
+        dx = 0.0
+        dy = 0.0
+        dz = 0.0
+        bits = np.uint64(0)
+        regular = False
+        null = False
+        for c in range(ncol):
+            st = rec[r, c, STAMP]
+            if st < older_than:
+                rec[r, c, STAMP] = np.inf
+                rec[r, c, LIK] = 0.0
+                continue
+            if st == np.inf:
+                continue
+            bits |= np.uint64(1) << np.uint64(c)
+            kd = rec[r, c, KIND]
+            regular |= kd == REGULAR
+            null |= kd == NULL
+            p = rec[r, c, LIK]
+            miss *= 1.0 - p
+            f = rec[r, c, FORCE]
+            if f > 0.0:
+                wsum += p
+                fsum += p * f
+                dx += p * rec[r, c, DX]
+                dy += p * rec[r, c, DY]
+                dz += p * rec[r, c, DZ]
+        live += bits != 0
+        vetoed += null
+        unsupported += (bits != 0) & (not regular) & (not null)
+        if regular and not null and miss < 1.0:
+            for a in range(3):
+                out[k, a] = center[a, r]
+            out[k, 3] = 1.0 - miss
+            out[k, 4] = fsum / wsum if wsum > 0.0 else 0.0
+            norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+            scale = 1.0 / norm if norm > 1e-12 else 0.0
+            out[k, 5] = dx * scale
+            out[k, 6] = dy * scale
+            out[k, 7] = dz * scale
+            for c in range(ncol):
+                out[k, OUT_SOURCES + c] = rec[r, c, LIK]
+            kbits[k] = bits
+            k += 1
+    return out[:k], kbits[:k], vetoed, unsupported, live
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -87,12 +87,14 @@ def test_space_expiry_in_the_fused_pass_and_compact_keep_rows_consistent():
     pts = np.random.default_rng(2).uniform(0, 0.3, (300, 3))
     h_old = Hypotheses.make(pts[:200], 0.5, stamp=0.0)
     h_new = Hypotheses.make(pts[200:], 0.7, stamp=1.0)
-    sp.put(0, sp.rows_for(voxel_keys(h_old.location, 0.005)), h_old)
-    sp.put(1, sp.rows_for(voxel_keys(h_new.location, 0.005)), h_new)
+    sp.put(0, h_old)
+    sp.put(1, h_new)
     fused = sp.fuse(2, older_than=0.5)
     live = fused[-1]
     keys_new = np.unique(voxel_keys(pts[200:], 0.005))
-    assert live == keys_new.size and fused[0].shape == (3, keys_new.size)  # the old cloud expired
+    assert live == keys_new.size and fused[0].shape == (keys_new.size, kernels.OUT_SOURCES + 2)  # the old cloud expired
+    assert np.array_equal(np.sort(voxel_keys(fused[0][:, :3], 0.005)), keys_new)
+    assert np.allclose(fused[0][:, kernels.OUT_SOURCES:], [0.0, 0.7])
     assert sp.compact(live_rows=live)
     assert sp.n == keys_new.size
     rows = sp.index.lookup(keys_new)
@@ -103,18 +105,20 @@ def test_space_expiry_in_the_fused_pass_and_compact_keep_rows_consistent():
 def test_kernel_type_codes_and_point_keys_match_the_numpy_definitions():
     assert (kernels.REGULAR, kernels.NULL) == (HypothesisType.REGULAR, HypothesisType.NULL)
     pts = np.random.default_rng(3).uniform(-2, 2, (1000, 3))
-    sp = HypothesisSpace(0.005)
-    rows = sp.rows_for_points(pts)
-    assert np.array_equal(sp.keys[rows], voxel_keys(pts, 0.005))
-    assert np.allclose(sp.centers(rows), voxel_centers(voxel_keys(pts, 0.005), 0.005))
+    sp = HypothesisSpace(0.005, capacity=16)
+    sp.put(0, Hypotheses.make(pts, 0.5))
+    keys = np.unique(voxel_keys(pts, 0.005))
+    assert np.array_equal(np.sort(sp.keys[: sp.n]), keys)
+    assert np.allclose(sp.centers(sp.index.lookup(keys)), voxel_centers(keys, 0.005))
     with pytest.raises(ValueError, match="out of range"):
-        sp.rows_for_points(np.array([[1e5, 0.0, 0.0]]))
+        sp.put(0, Hypotheses.make(np.array([[0.0, 0.0, 0.0], [1e5, 0.0, 0.0]]), 0.5))
+    assert sp.n == keys.size  # the refused cloud added nothing
 
 
 def test_put_keeps_the_most_likely_of_one_cloud_but_the_newest_cloud_wins():
     sp = HypothesisSpace(0.005)
     pts = np.array([[0.001, 0.001, 0.001], [0.002, 0.002, 0.002]])  # one voxel
-    sp.put(0, sp.rows_for_points(pts), Hypotheses.make(pts, [0.8, 0.3], stamp=1.0))
+    sp.put(0, Hypotheses.make(pts, [0.8, 0.3], stamp=1.0))
     assert sp.lik[0, 0] == pytest.approx(0.8)
-    sp.put(0, sp.rows_for_points(pts[:1]), Hypotheses.make(pts[:1], 0.2, stamp=2.0))
+    sp.put(0, Hypotheses.make(pts[:1], 0.2, stamp=2.0))
     assert sp.lik[0, 0] == pytest.approx(0.2) and sp.stamp[0, 0] == 2.0
