@@ -287,6 +287,7 @@ class HypothesisSpace:
         self._tag = 0.0  # the number of the last write, in each entry it wrote (kernels.TAG)
         self.center = np.zeros((3, 0))
         self._keys = np.zeros(0, dtype=np.int64)  # a put's scratch: the packed key of each hypothesis
+        self._rows = np.zeros(0, dtype=np.int64)  # and its row
         self._alloc_rows(max(capacity, 16), columns)
 
     @staticmethod
@@ -344,6 +345,7 @@ class HypothesisSpace:
             return
         if self._keys.shape[0] < m:
             self._keys = np.empty(max(m, 2 * self._keys.shape[0]), dtype=np.int64)
+            self._rows = np.empty(self._keys.shape[0], dtype=np.int64)
         keys = self._keys[:m]
         if not kernels.point_keys(np.ascontiguousarray(h.location, dtype=np.float64), self.voxel_size, keys):
             raise ValueError(f"voxel coordinates out of range ±{_OFFSET} (point too far from the origin)")
@@ -352,7 +354,8 @@ class HypothesisSpace:
         idx = self.index
         idx.count = kernels.cloud_put(idx.table, idx.shift, idx.row_keys, idx.count, self.rec, self.center,
                                       self.voxel_size, col, keys, h.likelihood, h.kind, h.force,
-                                      np.ascontiguousarray(h.direction), float(h.stamp), self._tag)
+                                      np.ascontiguousarray(h.direction), float(h.stamp), self._tag,
+                                      self._rows[:m])
         self.n = idx.count
 
     def clear_column(self, col: int) -> None:

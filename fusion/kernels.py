@@ -16,7 +16,10 @@ a moving hand (three temporaries per cell), the world waiting on it at every 20 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 EMPTY = -1  # an empty hash slot (key and row); packed keys are never negative
 GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -89,27 +92,60 @@ def index_lookup(table: np.ndarray, shift: np.uint64, keys: np.ndarray, out: np.
         out[i] = table[_find(table, shift, keys[i]), 1]
 
 
+@intrinsic
+def _prefetch(typingctx, arr, index):
+    """Start loading the cache line of ``arr[index]`` (a tuple index) for a write (LLVM's prefetch)."""
+
+    def codegen(context, builder, signature, args):
+        aryty, idxty = signature.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = [builder.extract_value(args[1], i) for i in range(len(idxty))]
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, idx, wraparound=False)
+        i8p, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return types.void(arr, index), codegen
+
+
+AHEAD = 16  # hypotheses a put loads ahead: a probe or a record misses the caches, and its branch stalls the loop
+
+
 @njit(cache=True, nogil=True)
 def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, rec: np.ndarray,
               center: np.ndarray, voxel_size: float, col: int, keys: np.ndarray, h_lik: np.ndarray,
-              h_kind: np.ndarray, h_force: np.ndarray, h_dir: np.ndarray, h_stamp: float, tag: float) -> int:
+              h_kind: np.ndarray, h_force: np.ndarray, h_dir: np.ndarray, h_stamp: float, tag: float,
+              rows: np.ndarray) -> int:
     """Write one cloud (its packed voxel ``keys``) into column ``col`` of the records, adding a row
     (and its centre) for each new voxel; returns the new row count. Several hypotheses of the cloud
     in one voxel keep the most likely: the entry's TAG field tells this write (``tag``) from an older one.
 
-    One pass, one probe and one record per hypothesis: a record holds all fields of an entry, so a
-    write touches one cache line, not one per field. The caller keeps the table under half full and
-    the rows large enough for every key to be new.
+    Two passes, each with one random access per hypothesis, loaded ``AHEAD`` hypotheses early: the
+    probes (rows into ``rows``), then the records. A record holds all fields of an entry, so a write
+    touches one cache line, not one per field. The caller keeps the table under half full and the
+    rows large enough for every key to be new.
     """
     mask = (1 << KEY_BITS) - 1
-    n_rows = count
-    for i in range(keys.shape[0]):
+    m = keys.shape[0]
+    for i in range(m):
+        if i + AHEAD < m:
+            _prefetch(table, (np.int64((np.uint64(keys[i + AHEAD]) * GOLDEN) >> shift), 0))
         k = keys[i]
-        r, count = _row(table, shift, row_keys, count, k)
-        if count > n_rows:  # a new row, r
-            n_rows = count
+        s = _find(table, shift, k)
+        if table[s, 0] == EMPTY:
+            table[s, 0] = k
+            table[s, 1] = count
+            row_keys[count] = k
             for a in range(3):
-                center[a, r] = (((k >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
+                center[a, count] = (((k >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
+            count += 1
+        rows[i] = table[s, 1]
+    for i in range(m):
+        if i + AHEAD < m:
+            _prefetch(rec, (rows[i + AHEAD], col, 0))
+        r = rows[i]
         if rec[r, col, TAG] == tag and h_lik[i] < rec[r, col, LIK]:
             continue
         rec[r, col, TAG] = tag
@@ -135,9 +171,11 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
     that carry a force. Expiry rides on this pass so the records are read once per cycle.
     """
     # Row by row over the records, each read once in memory order; the kept voxels go to one
-    # output array, row by row too: one stream in, one stream out.
-    out = np.empty((n, OUT_SOURCES + ncol))
-    kbits = np.empty(n, dtype=np.uint64)
+    # output array, row by row too: one stream in, one stream out. Which columns hold an entry
+    # is random from row to row, so the loop has no branch on it: every row's result is written,
+    # and the next row overwrites it unless it was kept.
+    out = np.empty((n + 1, OUT_SOURCES + ncol))
+    kbits = np.empty(n + 1, dtype=np.uint64)
     k = 0
     vetoed = 0
     unsupported = 0
@@ -154,42 +192,39 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
         null = False
         for c in range(ncol):
             st = rec[r, c, STAMP]
-            if st < older_than:
-                rec[r, c, STAMP] = np.inf
+            if st < older_than:  # expired: emptied for good (a store on every entry would dirty every line)
+                st = np.inf
+                rec[r, c, STAMP] = st
                 rec[r, c, LIK] = 0.0
-                continue
-            if st == np.inf:
-                continue
-            bits |= np.uint64(1) << np.uint64(c)
-            kd = rec[r, c, KIND]
-            regular |= kd == REGULAR
-            null |= kd == NULL
             p = rec[r, c, LIK]
+            v = st < np.inf
+            kd = rec[r, c, KIND]
+            bits |= np.uint64(v) << np.uint64(c)
+            regular |= v & (kd == REGULAR)
+            null |= v & (kd == NULL)
             miss *= 1.0 - p
             f = rec[r, c, FORCE]
-            if f > 0.0:
-                wsum += p
-                fsum += p * f
-                dx += p * rec[r, c, DX]
-                dy += p * rec[r, c, DY]
-                dz += p * rec[r, c, DZ]
+            w = p * (f > 0.0)
+            wsum += w
+            fsum += w * f
+            dx += w * rec[r, c, DX]
+            dy += w * rec[r, c, DY]
+            dz += w * rec[r, c, DZ]
+            out[k, OUT_SOURCES + c] = p
         live += bits != 0
         vetoed += null
         unsupported += (bits != 0) & (not regular) & (not null)
-        if regular and not null and miss < 1.0:
-            for a in range(3):
-                out[k, a] = center[a, r]
-            out[k, 3] = 1.0 - miss
-            out[k, 4] = fsum / wsum if wsum > 0.0 else 0.0
-            norm = np.sqrt(dx * dx + dy * dy + dz * dz)
-            scale = 1.0 / norm if norm > 1e-12 else 0.0
-            out[k, 5] = dx * scale
-            out[k, 6] = dy * scale
-            out[k, 7] = dz * scale
-            for c in range(ncol):
-                out[k, OUT_SOURCES + c] = rec[r, c, LIK]
-            kbits[k] = bits
-            k += 1
+        for a in range(3):
+            out[k, a] = center[a, r]
+        out[k, 3] = 1.0 - miss
+        out[k, 4] = fsum / wsum if wsum > 0.0 else 0.0
+        norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+        scale = 1.0 / norm if norm > 1e-12 else 0.0
+        out[k, 5] = dx * scale
+        out[k, 6] = dy * scale
+        out[k, 7] = dz * scale
+        kbits[k] = bits
+        k += regular & (not null) & (miss < 1.0)
     return out[:k], kbits[:k], vetoed, unsupported, live
 
 
