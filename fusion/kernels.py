@@ -8,9 +8,9 @@ state at all) runs 3 x 10k moving hypotheses at 400-480 cycles/s here, and a sta
 version with per-source replacement and timeouts would be slower still. These loops visit
 each hypothesis and each row once. What bounds them is memory, not arithmetic: a hypothesis
 lands on a random row (one hash probe, one record), and the fused pass streams every record.
-They release the GIL, so a node's zenoh threads keep running
-while a cycle fuses. The shapes: gridding each bi-sphere's box in numpy took 3-6 ms a cycle of
-a moving hand (three temporaries per cell), the world waiting on it at every 20 Hz cycle.
+They release the GIL, so a node's zenoh threads keep running while a cycle fuses. The shapes:
+gridding each bi-sphere's box in numpy took 3-6 ms a cycle of a moving hand (three temporaries
+per cell), the world waiting on it at every 20 Hz cycle.
 """
 
 from __future__ import annotations
@@ -61,37 +61,6 @@ def _find(table: np.ndarray, shift: np.uint64, key: np.int64) -> np.int64:
     return s
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _row(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, key: np.int64) -> tuple[int, int]:
-    """(row of ``key``, new count): an absent key gets row ``count``."""
-    s = _find(table, shift, key)
-    if table[s, 0] == EMPTY:
-        table[s, 0] = key
-        table[s, 1] = count
-        row_keys[count] = key
-        return count, count + 1
-    return table[s, 1], count
-
-
-@njit(cache=True, nogil=True)
-def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, keys: np.ndarray,
-                 out: np.ndarray) -> int:
-    """Row of each key into ``out``, numbering absent keys from ``count`` on; returns the new count.
-
-    The caller keeps the table under half full and ``row_keys`` large enough.
-    """
-    for i in range(keys.shape[0]):
-        out[i], count = _row(table, shift, row_keys, count, keys[i])
-    return count
-
-
-@njit(cache=True, nogil=True)
-def index_lookup(table: np.ndarray, shift: np.uint64, keys: np.ndarray, out: np.ndarray) -> None:
-    """Row of each key into ``out``, -1 where absent."""
-    for i in range(keys.shape[0]):
-        out[i] = table[_find(table, shift, keys[i]), 1]
-
-
 @intrinsic
 def _prefetch(typingctx, arr, index):
     """Start loading the cache line of ``arr[index]`` (a tuple index) for a write (LLVM's prefetch)."""
@@ -110,7 +79,37 @@ def _prefetch(typingctx, arr, index):
     return types.void(arr, index), codegen
 
 
-AHEAD = 16  # hypotheses a put loads ahead: a probe or a record misses the caches, and its branch stalls the loop
+AHEAD = 16  # keys or hypotheses a loop loads ahead (a probe or a record that misses the caches)
+
+
+@njit(cache=True, nogil=True)
+def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, keys: np.ndarray,
+                 out: np.ndarray) -> int:
+    """Row of each key into ``out``, numbering absent keys from ``count`` on; returns the new count.
+
+    The probe of the key ``AHEAD`` on is loaded early: a probe misses the caches, and its branch
+    stalls the loop. The caller keeps the table under half full and ``row_keys`` large enough.
+    """
+    m = keys.shape[0]
+    for i in range(m):
+        if i + AHEAD < m:
+            _prefetch(table, (np.int64((np.uint64(keys[i + AHEAD]) * GOLDEN) >> shift), 0))
+        k = keys[i]
+        s = _find(table, shift, k)
+        if table[s, 0] == EMPTY:
+            table[s, 0] = k
+            table[s, 1] = count
+            row_keys[count] = k
+            count += 1
+        out[i] = table[s, 1]
+    return count
+
+
+@njit(cache=True, nogil=True)
+def index_lookup(table: np.ndarray, shift: np.uint64, keys: np.ndarray, out: np.ndarray) -> None:
+    """Row of each key into ``out``, -1 where absent."""
+    for i in range(keys.shape[0]):
+        out[i] = table[_find(table, shift, keys[i]), 1]
 
 
 @njit(cache=True, nogil=True)
@@ -123,25 +122,17 @@ def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: 
     in one voxel keep the most likely: the entry's TAG field tells this write (``tag``) from an older one.
 
     Two passes, each with one random access per hypothesis, loaded ``AHEAD`` hypotheses early: the
-    probes (rows into ``rows``), then the records. A record holds all fields of an entry, so a write
-    touches one cache line, not one per field. The caller keeps the table under half full and the
+    probes (:func:`index_insert`, rows into ``rows``), then the records. A record holds all fields of
+    an entry, so a write touches one cache line, not one per field. The caller keeps the table under half full and the
     rows large enough for every key to be new.
     """
+    first = count
+    count = index_insert(table, shift, row_keys, count, keys, rows)
     mask = (1 << KEY_BITS) - 1
+    for r in range(first, count):  # the new voxels' rows, numbered on from the last
+        for a in range(3):
+            center[a, r] = (((row_keys[r] >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
     m = keys.shape[0]
-    for i in range(m):
-        if i + AHEAD < m:
-            _prefetch(table, (np.int64((np.uint64(keys[i + AHEAD]) * GOLDEN) >> shift), 0))
-        k = keys[i]
-        s = _find(table, shift, k)
-        if table[s, 0] == EMPTY:
-            table[s, 0] = k
-            table[s, 1] = count
-            row_keys[count] = k
-            for a in range(3):
-                center[a, count] = (((k >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
-            count += 1
-        rows[i] = table[s, 1]
     for i in range(m):
         if i + AHEAD < m:
             _prefetch(rec, (rows[i + AHEAD], col, 0))

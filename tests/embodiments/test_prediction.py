@@ -44,7 +44,7 @@ def test_a_sensed_contact_where_none_was_predicted_is_unexpected_and_reported_on
     assert [m.kind for m in found] == [MismatchKind.UNEXPECTED_CONTACT]  # quiet for 1 s after it
     m = found[0]
     assert m.since == pytest.approx(1.0) and m.part == HAND and m.location == pytest.approx(tuple(AT[0]))
-    assert m.detail.startswith("a contact sensed at") and found and len(found) == 1
+    assert m.detail.startswith("a contact sensed at")
     # one that lasts less than sustain (two fused cycles, 50 ms apart) is not: a hand that let go of a can two
     # cycles later than predicted (bench prediction, undisturbed seed 1012, at 20.26 s), a brush
     let_go = lambda end: lambda t: AT if 1.0 <= t < end else NONE  # noqa: E731
