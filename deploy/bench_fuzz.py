@@ -33,7 +33,14 @@ from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 from contactflow.nodes.wire import NDArray, encode, stamp
 
 console = Console()
-QUERY_WAIT = 2.0  # s a hostile query waits for its answer before it counts as unanswered
+QUERY_WAIT = 10.0  # s a hostile query waits for its answer before it counts as unanswered (an answer is a reply at
+# all, not a latency: a node's queryable thread on two cores shared with another deployment took over 0.5 s (CI: 4
+# of 236), and beside two busy processes and a second deployment over 2 s (7 of 252); a node that answers takes no longer for it)
+RESUME_WAIT = 30.0  # s after the fuzz a module that stepped before it has to be heard stepping again
+"""A loop that stopped never steps again; a lockstep node whose world crawls under load steps again late (CI:
+the logs of tombatossals' world showed it at ticks 201-202 through a fuzz beside the demo test, and a fixed 4 s wait
+took its 14 modules for stalled). The seconds the slowest one took are reported (``resume_s``), with each world's
+ticks."""
 
 
 def _kind(ks: KeySpace, key: str) -> str:
@@ -79,28 +86,31 @@ class _Counters:
     def snapshot(self, known: tuple[dict, dict, dict] | None = None) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
         """The counts per module and robot; with ``known`` (the counts before the fuzz), of those names only.
 
-        Rejects and refused commands as each module or robot said them since the fuzz ended, or as before the fuzz
-        when it said nothing since: a forged status (a fuzzed payload on a module's status key) stays the last word
-        of a module that publishes nothing meanwhile (a lockstep node whose world is paused), and summed into the
-        rejects it made them -9.2e18 (CI). Steps as last heard, the fuzz included: a module whose world paused
-        after it stepped is quiet, not stalled, and its real statuses during the fuzz show it stepping."""
+        Counts as each module or robot said them since the fuzz ended, or as before the fuzz when it said nothing
+        since: a forged status (a fuzzed payload on a module's status key) stays the last word of a module that
+        publishes nothing meanwhile (a lockstep node whose world crawls), and summed into the rejects it made them
+        -9.2e18 (CI); as its steps, it would make a module look stalled or stepping."""
         with self.lock:
             heard = self.heard.dicts()
             fresh = self.since_fuzz.dicts() if self.since_fuzz is not None else ({}, {}, {})
         if known is None:
             return heard
-        (rejected0, steps0, refused0), (rejected, _, refused), steps = known, fresh, heard[1]
-        return ({k: rejected.get(k, v) for k, v in rejected0.items()}, {k: steps.get(k, v) for k, v in steps0.items()},
-                {k: refused.get(k, v) for k, v in refused0.items()})
+        return tuple({k: now.get(k, v) for k, v in then.items()} for then, now in zip(known, fresh, strict=True))
+
+    def ticks(self) -> dict[str, int]:
+        """The last tick each robot's world published a state at; once the fuzz ended, the ticks published since."""
+        with self.lock:
+            return dict((self.since_fuzz if self.since_fuzz is not None else self.heard).ticks)
 
 
 class _Counts:
-    """Counts by module (rejected, steps) and by robot (refused), from status and robot state maps."""
+    """Counts by module (rejected, steps) and by robot (refused, tick), from status and robot state maps."""
 
     def __init__(self) -> None:
         self.rejected: dict[str, int] = {}
         self.steps: dict[str, int] = {}
         self.refused: dict[str, int] = {}
+        self.ticks: dict[str, int] = {}
 
     def take(self, msg: dict) -> None:
         counts = {k: v for k, v in msg.items() if isinstance(v, int) and not isinstance(v, bool)}
@@ -109,6 +119,7 @@ class _Counts:
             self.steps[msg["module"]] = counts.get("steps", 0)
         elif msg.get("type") == "robot_state" and isinstance(msg.get("robot"), str):
             self.refused[msg["robot"]] = counts.get("refused", 0)
+            self.ticks[msg["robot"]] = counts.get("tick", 0)
 
     def dicts(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
         return dict(self.rejected), dict(self.steps), dict(self.refused)
@@ -149,6 +160,7 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
         modules = sorted(tool.alive(ks.alive_module(), timeout=1.0))
         before = counters.snapshot()
         rejected0, steps0, refused0 = before
+        ticks0 = counters.ticks()
         with counters.lock:
             streams = {k: p for k, p in counters.samples.items() if "/alive/" not in k}
         for r in ROBOTS:  # commands are only sent while a task runs: a valid one is the template
@@ -167,19 +179,24 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
                 bar.advance(task)
             for key in queries:
                 for kind, payload in payloads(rng, None, max(2, n // 5)):
-                    # the transport's own wait: an answer is a reply at all, not a latency, and a node's queryable
-                    # thread on two cores shared with another deployment took over 0.5 s (CI: 4 of 236)
                     answered = tool.query(key, payload, timeout=QUERY_WAIT)
                     sent[_kind(ks, key)][kind] += 1
                     sent[_kind(ks, key)]["answered"] += int(bool(answered))
                 bar.advance(task)
         counters.fuzz_ended()
-        time.sleep(4.0)  # the modules report their counts every second while their loops run
-        nodes_after = set(tool.alive(ks.alive_node(), timeout=1.0))
-        rejected1, steps1, refused1 = counters.snapshot(before)
-        exited = {name: p.poll() for name, p in procs.items() if p.poll() is not None}
+        ended = time.time()
         running = {mod for mod, s in steps0.items() if s > steps_idle.get(mod, s)}  # stepping before the fuzz
-        stalled = sorted(mod for mod in running if steps1.get(mod, 0) <= steps0[mod])
+        time.sleep(4.0)  # the modules report their counts every second while their loops run
+        while True:
+            rejected1, steps1, refused1 = counters.snapshot(before)
+            stalled = sorted(mod for mod in running if steps1.get(mod, 0) <= steps0[mod])
+            if not stalled or time.time() - ended >= RESUME_WAIT:
+                break
+            time.sleep(0.5)
+        resume_s = time.time() - ended
+        ticks1 = counters.ticks()
+        nodes_after = set(tool.alive(ks.alive_node(), timeout=1.0))
+        exited = {name: p.poll() for name, p in procs.items() if p.poll() is not None}
     finally:
         sub.close()
         tool.close()
@@ -189,7 +206,8 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
         "per_key": n, "seconds": round(time.time() - t0, 1), "streams": len(streams), "queryables": len(queries),
         "payloads": sum(v for c in sent.values() for k, v in c.items() if k != "answered"),
         "nodes": len(nodes_before), "node_deaths": len(nodes_before - nodes_after) + len(exited), "exited": exited,
-        "stalled_modules": stalled,
+        "stalled_modules": stalled, "resume_s": round(resume_s, 1),
+        "world_ticks": {r: ticks1.get(r, t) - t for r, t in ticks0.items()},
         "rejected": sum(rejected1.get(k, 0) - rejected0.get(k, 0) for k in rejected1),
         "refused_commands": sum(refused1.get(r, 0) - refused0.get(r, 0) for r in refused1),
         "by_key": {k: dict(v) for k, v in sorted(sent.items())},
@@ -202,7 +220,9 @@ def run(out: Path, quick: bool = False, per_key: int | None = None) -> dict:
                       str(c.get("answered", "")))
     console.print(table)
     console.print(f"node deaths: {result['node_deaths']} of {result['nodes']} (goal 0); stalled modules: "
-                  f"{len(stalled)} (goal 0); rejects counted by the modules: {result['rejected']}; "
+                  f"{len(stalled)} (goal 0; every other one stepped again {result['resume_s']:g} s after the fuzz); "
+                  f"world ticks from the fuzz's start to then: {result['world_ticks']}; "
+                  f"rejects counted by the modules: {result['rejected']}; "
                   f"commands refused by the worlds: {result['refused_commands']}")
     (out / "fuzz.json").write_text(json.dumps(result, indent=2))
     return result
