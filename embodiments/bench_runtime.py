@@ -6,6 +6,8 @@
    Each layout is run with every node in one process (a session each) and with each node a
    process of its own, side by side; every run starts in a fresh process. Lockstep makes the two
    layouts one run: the bench says whether they gave the same events at the same simulated times.
+   Each cell runs with the plain lockstep and with the world's pipeline (it steps tick k+1 while
+   its nodes step tick k, so world and nodes use both cores).
 2. Command -> sensor round trip over loopback: a controller session in lockstep with a world
    node in another process receives tick k's state, sends an arm command, answers the tick,
    and waits for the state that shows the command applied (one physics tick in between).
@@ -23,19 +25,22 @@ from pathlib import Path
 
 import numpy as np
 
-LAYOUTS = (("1 robot", False), ("2 robots, one cell", True))
+LAYOUTS = (("1 robot, pipelined", False, True), ("1 robot", False, False), ("2 robots, one cell", True, False),
+           ("2 robots, one cell, pipelined", True, True))
+"""(label, melfa too, the world's pipeline): the quick bench runs the first only."""
 
 
-def _cell_job(args: tuple[bool, bool, str]) -> dict:
+def _cell_job(args: tuple[bool, bool, str, bool]) -> dict:
     """One run of the reference cell; in-process layouts run here, in a fresh worker process."""
     from contactflow.embodiments.layout import run_cell, table_cell
     from contactflow.nodes.procs import free_port
     from contactflow.nodes.status import Event
 
-    melfa, processes, folder = args
+    melfa, processes, folder, pipeline = args
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     site = f"bench{free_port()}"
-    run = run_cell(Path(folder), *table_cell(site, endpoint, melfa=melfa), endpoint, processes=processes)
+    run = run_cell(Path(folder), *table_cell(site, endpoint, melfa=melfa, pipeline=pipeline), endpoint,
+                   processes=processes)
     last = run.poses[-1] if run.poses else None
     return {"rtf": run.rtf, "sim_s": run.sim_s, "wall_s": run.wall_s,
             "outcomes": {r: str(e.event) for r, e in run.outcomes.items()},
@@ -50,11 +55,12 @@ def _cell_job(args: tuple[bool, bool, str]) -> dict:
 def rtf_runs(folder: Path, advance=lambda: None, layouts=LAYOUTS) -> dict:
     ctx = mp.get_context("spawn")
     out: dict = {}
-    for label, melfa in layouts:
+    for label, melfa, pipeline in layouts:
         row = {}
+        slug = label.replace(",", "").replace(" ", "_")
         for layout, processes in (("one_process", False), ("split", True)):
             with ctx.Pool(1) as pool:
-                row[layout] = pool.apply(_cell_job, ((melfa, processes, str(folder / f"{label[0]}_{layout}")),))
+                row[layout] = pool.apply(_cell_job, ((melfa, processes, str(folder / f"{slug}_{layout}"), pipeline),))
             advance()
         row["split_vs_one"] = row["split"]["rtf"] / row["one_process"]["rtf"] if row["one_process"]["rtf"] else 0.0
         row["repeated"] = (row["split"]["trace"], row["split"]["sim_s"]) == (row["one_process"]["trace"],

@@ -281,6 +281,11 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
         table.add_row(f"runtime, {label}: the same events in both layouts | overruns",
                       f"{'yes' if row['repeated'] else 'NO'} ({one['events']} events) | "
                       f"{one['overruns']} | {split['overruns']}")
+    rows = summary["runtime"]["rtf"]
+    for label in [k for k in rows if f"{k}, pipelined" in rows]:
+        plain, piped = rows[label]["split"]["rtf"], rows[f"{label}, pipelined"]["split"]["rtf"]
+        table.add_row(f"runtime RTF, {label}, split: pipelined vs plain", f"{piped:.1f}x vs {plain:.1f}x "
+                                                                          f"({piped / plain if plain else 0.0:.2f})")
     rt = summary["runtime"]["round_trip"]
     table.add_row(f"command -> sensor round trip, loopback ({rt['ticks']} ticks): p50 / p99",
                   f"{rt['p50_ms']:.2f} / {rt['p99_ms']:.2f} ms")

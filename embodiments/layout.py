@@ -494,14 +494,15 @@ def _pose(xyz: tuple[float, float, float]) -> list[float]:
 
 
 def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping[str, Any] | None = None,
-               task: str = "pick_and_place", cell_map: bool = False) -> tuple[dict, list[dict]]:
+               task: str = "pick_and_place", cell_map: bool = False, pipeline: bool = False) -> tuple[dict, list[dict]]:
     """The runtime's reference cell: tombatossals picks the can and places it (thesis Fig. 6.3, ``task`` of
     ``thesis.yaml``: ``careful_pick_and_place`` corrects what its predictor reports), its grasp watched on its
     fused contacts while it carries the can (and by its predictor, with ``predictor``: its params); with
     ``melfa`` the cell is the shared table and melfa, across it, taps down onto a cube; with ``cell_map`` too, melfa
     runs its contact fusion as well (its touch stops on its fused contacts), tombatossals' control node the
     cell's map of both (:func:`cell_map_module`), and tombatossals' carry watcher reads its grasp from that map
-    (the robot subscribes to its cell's contacts).
+    (the robot subscribes to its cell's contacts). With ``pipeline`` the world steps a tick while its nodes step the one
+    before (the world module's ``pipeline``).
 
     Returns the world node (listening on ``endpoint``, waiting for the control nodes before
     tick 1, so a run repeats exactly) and the control nodes (connecting to it, tasks autostarted).
@@ -521,5 +522,6 @@ def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping
                                      connect=(endpoint,), autostart=True, contacts=cell_map))
         if cell_map:
             controls[0]["modules"].append(cell_map_module(cell, ("tombatossals", "melfa")))
-    w = world_node(site, CELLS / f"{cell}.yaml", listen=endpoint, wait_for=tuple(c["node"] for c in controls))
+    w = world_node(site, CELLS / f"{cell}.yaml", listen=endpoint, wait_for=tuple(c["node"] for c in controls),
+                   pipeline=pipeline)
     return w, controls

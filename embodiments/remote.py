@@ -21,6 +21,7 @@ import secrets
 import threading
 import time
 import weakref
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -43,6 +44,7 @@ from contactflow.embodiments.messages import (
 )
 from contactflow.embodiments.sensors.camera import DepthFrame
 from contactflow.embodiments.sensors.ft import WrenchReading
+from contactflow.nodes.host import tick_of
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.status import Status
 from contactflow.nodes.transport import Transport
@@ -66,7 +68,7 @@ class RobotLink:
         self._transport = weakref.ref(transport)
         self.ks, self.robot, self.node = ks, robot, node
         self._lock = threading.Condition()
-        self.state: RobotState | None = None
+        self._states: deque[RobotState] = deque(maxlen=4)  # the newest states, oldest first
         self.first_tick = 0  # the tick of the first state this node received
         self.rejected = 0
         self._frames: dict[int, CameraFrame | None] = {}  # the requests this node waits for
@@ -87,11 +89,29 @@ class RobotLink:
             self.rejected += 1
             return
         with self._lock:
-            if self.state is None or msg.tick >= self.state.tick or msg.tick == 0:
-                if self.state is None:
+            last = self._states[-1] if self._states else None
+            if last is None or msg.tick >= last.tick or msg.tick == 0:
+                if last is None:
                     self.first_tick = msg.tick
-                self.state = msg
+                if last is not None and msg.tick < last.tick:  # the world started again
+                    self._states.clear()
+                self._states.append(msg)
                 self._lock.notify_all()
+
+    @property
+    def state(self) -> RobotState | None:
+        """The state of the tick the node steps (a pipelined world sends the next one meanwhile); the newest
+        outside lockstep, or when the node has stepped no tick it has a state of."""
+        with self._lock:
+            if not self._states:
+                return None
+            transport = self._transport()
+            tick = tick_of(transport) if transport is not None else -1
+            if tick >= 0:
+                for s in reversed(self._states):
+                    if s.tick <= tick:
+                        return s
+            return self._states[-1]
 
     def _on_frame(self, key: str, payload: bytes) -> None:
         try:
@@ -126,9 +146,8 @@ class RobotLink:
 
     def wait_state(self, timeout: float = 5.0) -> RobotState:
         with self._lock:
-            if self.state is None:
-                self._lock.wait_for(lambda: self.state is not None, timeout)
-            if self.state is None:
+            self._lock.wait_for(lambda: bool(self._states), timeout)
+            if not self._states:
                 raise RemoteError(f"no state of robot {self.robot!r} on {self.ks.robot(self.robot, 'state')} "
                                   f"within {timeout:g} s")
             return self.state
@@ -142,8 +161,12 @@ class RobotLink:
                 self._handles.append(transport.token(self.ks.alive_controller(self.robot, self.node)))
             self.controller = True
         self._seq += 1
-        t = self.state.t if self.state is not None else 0.0
-        self._cmd(encode(stamp(msg, f"{self.robot}/{self.node}/controller", self._seq, t)))
+        state = self.state
+        t = state.t if state is not None else 0.0
+        stamp(msg, f"{self.robot}/{self.node}/controller", self._seq, t)
+        transport = self._transport()
+        msg.hdr.tick = tick_of(transport) if transport is not None else -1  # a pipelined world applies it by this
+        self._cmd(encode(msg))
 
     def frame(self, camera: str, timeout: float = CAMERA_TIMEOUT) -> CameraFrame:
         """Ask the world for a frame now and wait for it (the world answers within the current tick)."""

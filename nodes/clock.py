@@ -109,9 +109,10 @@ class LockstepClock(SimClock):
     """
 
     def __init__(self, transport: Transport, ks: KeySpace, node: str, cell: str = "") -> None:
-        self._tick = -1
-        self._done = -1
-        self._marks: list[Mark] = []
+        self._tick = -1  # the latest tick heard
+        self._done = -1  # the last tick handed to the host
+        self._ticks: dict[int, tuple[float, list[Mark], int]] = {}  # heard, not yet stepped: tick -> (t, marks, lag)
+        self._stepped: float | None = None  # the time of the tick handed to the host
         super().__init__(transport, ks, cell)
         self.node = node
         self._ack = transport.publisher(ks.lockstep(node, cell))
@@ -131,20 +132,32 @@ class LockstepClock(SimClock):
             self._refuse("clock", f"tick {msg.tick} is more than {MAX_TICK_JUMP} ahead of tick {self._tick}")
             return False
         if msg.tick > self._tick:
-            self._tick, self._t, self._marks = msg.tick, max(self._t, msg.t), msg.marks
+            self._tick, self._t = msg.tick, max(self._t, msg.t)
+            self._ticks[msg.tick] = (msg.t, msg.marks, max(0, msg.lag))
+            if len(self._ticks) > 8:  # a node whose loop has not started yet steps from the latest anyway
+                self._ticks = {j: v for j, v in self._ticks.items() if j > msg.tick - 4}
             return True
         return False
 
-    def wait_tick(self, stop: threading.Event) -> tuple[int, list[Mark]] | None:
-        """Block until the world publishes a tick this node has not stepped: (tick, the marks of the tick
-        before); None when ``stop`` is set."""
+    def now(self) -> float:
+        """The time of the tick the node steps: a pipelined world publishes the next one meanwhile."""
+        return self._t if self._stepped is None else self._stepped
+
+    def wait_tick(self, stop: threading.Event) -> tuple[int, list[Mark], int] | None:
+        """Block until the world publishes a tick this node has not stepped: (tick, its marks, the world's lag);
+        None when ``stop`` is set. Ticks come in order, but never more than the lag behind the latest: a node that
+        fell behind (the world went on without it) goes on from the latest, as without a pipeline."""
         with self._cond:
             while self._tick <= self._done and not stop.is_set():
                 self._cond.wait(0.05)
             if stop.is_set():
                 return None
-            self._done = self._tick
-            return self._tick, self._marks
+            latest = self._ticks[self._tick]
+            k = max(min(j for j in self._ticks if j > self._done), self._tick - latest[2])
+            t, marks, lag = self._ticks[k]
+            self._ticks = {j: v for j, v in self._ticks.items() if j > k}
+            self._done, self._stepped = k, t
+            return k, marks, lag
 
     def ack(self, tick: int, marks: list[Mark] | None = None, busy: bool = False, working: bool = False) -> None:
         """Answer ``tick``; with ``working``, tell the world the node is still stepping it (not an answer: it waits on)."""

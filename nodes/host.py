@@ -16,6 +16,7 @@ import math
 import threading
 import time
 import traceback
+import weakref
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -147,13 +148,14 @@ class HostedIO:
         """Queue an input; returns how many sequence numbers of its source were missed before it.
 
         In lockstep a message another node sent during the tick this node steps (it travelled
-        fast) waits for the next tick, as one that travelled slowly does: see :meth:`release`.
+        fast) waits for the next tick (with a pipelined world, the one after), as one that
+        travelled slowly does: see :meth:`release`.
         """
         with self._lock:
             missed = self._trackers[port].observe(msg.hdr)
             if missed:
                 self._hm.counters.gaps[port] += missed
-            if 0 <= self._host.tick_no <= msg.hdr.tick:
+            if 0 <= self._host.tick_no <= msg.hdr.tick + self._host.lag:
                 self._held.append((port, msg))
             else:
                 self._latest[port] = msg
@@ -275,6 +277,17 @@ class HostedModule:
         return self.module.state
 
 
+_hosts: weakref.WeakKeyDictionary[Any, weakref.ref[ModuleHost]] = weakref.WeakKeyDictionary()  # weak both ways
+
+
+def tick_of(transport: Transport) -> int:
+    """The world tick the node on ``transport`` steps (-1: none, or not in lockstep): what a robot's state
+    and commands go by where the node's modules share them outside their ports (a robot link)."""
+    ref = _hosts.get(transport)
+    host = ref() if ref is not None else None
+    return -1 if host is None else host.tick_no
+
+
 class ModuleHost:
     """Hosts the modules of one node on a transport."""
 
@@ -282,6 +295,7 @@ class ModuleHost:
         self.config = config
         self.ks: KeySpace = config.keyspace
         self.transport = transport
+        _hosts[transport] = weakref.ref(self)
         if clock is None and config.clock == "lockstep":
             clock = LockstepClock(transport, self.ks, config.node, config.cell)
         elif clock is None and config.clock == "sim":
@@ -305,6 +319,7 @@ class ModuleHost:
         self.mark_timeouts = 0  # ticks stepped without every message their marks named
         self.marks_refused = 0  # marks too far ahead of their stream to be waited for (MAX_MARK_LEAD)
         self.tick_no = -1  # the world tick a lockstep node steps (-1: not in lockstep)
+        self.lag = 0  # ticks beyond the next that another node's message of a tick waits to be an input (the world's)
         self._ticked = False  # the node stepped its modules once
         self.dead = threading.Event()  # the loop died (the node is down, its process should exit non-zero)
         self._ctl_seqs: dict[str, itertools.count] = {}  # issuer -> sequence of its control requests
@@ -651,16 +666,16 @@ class ModuleHost:
             clock.announce()
             threading.Thread(target=self._beat, args=(clock,), daemon=True, name=f"{self.config.node}-beat").start()
             while (got := clock.wait_tick(self._stop)) is not None:
-                k, marks = got
+                k, marks, lag = got
                 with self._ack_lock:
                     self._stepping = (k, time.monotonic())
                 with self._delivery:
-                    self.tick_no = k
+                    self.tick_no, self.lag = k, lag
                 self._await_marks(k, marks)
                 with self._lock:
                     hosted = list(self.modules.values())
                 for hm in hosted:
-                    hm.io.release(k)
+                    hm.io.release(k - lag)
                 self.tick()
                 with self._ack_lock:
                     busy = self._busy()

@@ -75,7 +75,9 @@ class Clock(Message, tag="clock"):
     t: float  # s of simulated time
     real_time_factor: float = 1.0  # simulated over wall seconds, measured by the world
     tick: int = 0  # control tick of the world; lockstep nodes answer each one
-    marks: list[Mark] = []  # what the lockstep nodes published during the previous tick: a subscriber steps once it has them
+    marks: list[Mark] = []  # what the lockstep nodes published during the tick lag + 1 before: a subscriber steps once it has them
+    lag: int = 0  # ticks (0 or 1): with 1 the world steps tick k+1 while its nodes step tick k (a pipeline), so what a
+    # node sends during tick k reaches the others and the world at tick k+2 instead of k+1, in any process layout
 
 
 class LockstepAck(Message, tag="lockstep_ack"):

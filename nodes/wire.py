@@ -54,7 +54,7 @@ class Header(msgspec.Struct, kw_only=True):
     t_sim: float = 0.0  # s, simulation (or robot) clock
     t_wall: float = 0.0  # s since the Unix epoch
     inputs: list[MsgId] = []  # the messages this one was computed from
-    tick: int = -1  # the world tick a lockstep node sent it during (subscribers in lockstep see it the tick after); -1: none
+    tick: int = -1  # the world tick a lockstep node sent it during (subscribers in lockstep see it the tick after, a tick later with a pipelined world); -1: none; a pipelined world stamps its own two before the clock they precede
 
     def __post_init__(self) -> None:
         if self.schema != SCHEMA_VERSION:

@@ -20,6 +20,9 @@ Two clocks (``params.clock``):
   or task running, :meth:`Module.busy`) and resumes when one gets work: a task dispatched at
   any wall-clock moment starts at the tick its robot went idle, so a seeded run repeats even
   when a person or a broker starts its tasks (CARLA's synchronous mode: the client ticks).
+  With ``pipeline`` the world steps tick k+1 once the nodes answered tick k-1: it simulates
+  while they step tick k, and what they send during tick k takes effect a tick later than
+  without it (docs/protocol.md), the same in any process layout.
 - ``realtime``: the ticks follow the wall clock, as on the thesis robot; a command that
   arrives after the tick it was meant for is counted late.
 
@@ -64,7 +67,7 @@ from contactflow.embodiments.messages import (
 from contactflow.nodes.messages import Clock, LockstepAck, Mark
 from contactflow.nodes.module import Layer, Module, ModuleIO
 from contactflow.nodes.status import Event, Status
-from contactflow.nodes.wire import NDArray, WireError, decode, encode, stamp
+from contactflow.nodes.wire import M, NDArray, WireError, decode, encode, stamp
 
 RobotCommand = ArmCommand | HandCommand | HeadCommand | CameraRequest
 _command_decoder = msgspec.msgpack.Decoder(RobotCommand)
@@ -204,6 +207,8 @@ class WorldModule(Module):
         clock: str = "lockstep"  # lockstep | realtime
         idle: str = "run"  # lockstep: run | pause (no tick while every lockstep node is idle; the task that wakes one starts at the next)
         max_rtf: float = 0.0  # lockstep: never faster than this many times real time (0: as fast as the nodes answer)
+        pipeline: bool = False  # lockstep: step tick k+1 while the nodes step tick k (world and nodes at once on two
+        # cores); a command and a message between nodes take effect a tick later, the same in any process layout
         control_rate: float = 200.0  # Hz, one tick: joint control, state messages, the clock (§6.3.1)
         settle: float = 0.3  # s of physics before the first tick (objects come to rest)
         deadline: float = 10.0  # s of wall time a lockstep node has to answer a tick, or to say it is still working on it
@@ -237,7 +242,8 @@ class WorldModule(Module):
         self._requests: deque[CameraRequest] = deque()
         self._holds: deque[tuple[str, str]] = deque()
         self._acks: dict[str, int] = {}
-        self._marks: dict[tuple[str, str], int] = {}  # what the lockstep nodes published since the last tick
+        self._marks: dict[int, dict[tuple[str, str], int]] = {}  # tick -> what the lockstep nodes published during it
+        self._lag = 0  # ticks the world runs ahead of its nodes' answers (params.pipeline)
         self._tick_marks: list[Mark] = []  # ... passed on with the current tick's clock
         self._lockstep: set[str] = set()
         self._busy: dict[str, bool] = {}  # lockstep node -> busy at its last ack
@@ -274,6 +280,9 @@ class WorldModule(Module):
             raise ValueError(f"{where}.idle: {p.idle!r} is not run, or pause with the lockstep clock")
         if not p.scene_file and self._given is None:
             raise ValueError(f"{where}.scene_file: a world needs a scene file")
+        if p.pipeline and (p.clock != "lockstep" or p.idle != "run" or self._given is not None):
+            raise ValueError(f"{where}.pipeline: needs the lockstep clock, idle: run and a world of its own")
+        self._lag = int(p.pipeline)
         if p.control_rate <= 0 or p.deadline <= 0 or p.slice <= 0 or p.max_rtf < 0 or p.max_step < p.deadline:
             raise ValueError(f"{where}: control_rate, deadline and slice must be positive, max_rtf not negative, "
                              f"max_step at least the deadline")
@@ -373,12 +382,13 @@ class WorldModule(Module):
                                      key, ack.node, ack.tick, self.tick_no)
                 return
             if ack.working:  # not an answer: the node's loop is alive and still stepping that tick
-                if ack.tick == self.tick_no:
+                if ack.tick >= self.tick_no - self._lag:
                     self._working[ack.node] = (ack.tick, time.monotonic())
                 return
+            marks = self._marks.setdefault(ack.tick, {})
             for m in ack.marks:
-                if m.seq > self._marks.get((m.key, m.source), 0):
-                    self._marks[(m.key, m.source)] = m.seq
+                if m.seq > marks.get((m.key, m.source), 0):
+                    marks[(m.key, m.source)] = m.seq
             if ack.tick > self._acks.get(ack.node, -1):
                 self._acks[ack.node] = ack.tick
                 self._busy[ack.node] = ack.busy
@@ -464,22 +474,23 @@ class WorldModule(Module):
         """Wait until every lockstep node answered the current tick (serving camera requests meanwhile);
         False while the world is paused (``idle: pause`` and every node idle)."""
         k = self.tick_no
+        want = k - self._lag if k > 0 else 0  # the answer this tick waits for (tick 0: every node is up)
         now = time.monotonic()
         deadline, repeat = now + self.params.deadline, now + self.params.republish
         start_by, give_up = now + self.params.start_timeout, now + self.params.max_step
         while True:
             with self._cond:
                 expected = self._lockstep | (set(self.params.wait_for) if k == 0 else set())
-                missing = [n for n in expected if self._acks.get(n, -1) < k]
+                missing = [n for n in expected if self._acks.get(n, -1) < want]
                 if not missing:
                     return self._run_on(expected)
                 now = time.monotonic()
                 absent = k == 0 and bool(set(missing) - self._lockstep)  # a node tick 1 waits for is not up yet
                 if absent and now >= start_by:
                     break
-                if not absent and now >= deadline and (now >= give_up or not self._all_working(missing, k, now)):
+                if not absent and now >= deadline and (now >= give_up or not self._all_working(missing, want, now)):
                     break
-                if not self._requests:
+                if not any(self._due(m) for m in self._requests):
                     self._cond.wait(max(0.0, min(repeat - now, 0.05)))
             if self._serve_requests():  # the time the world spent rendering is not the nodes' delay
                 deadline = time.monotonic() + self.params.deadline
@@ -487,14 +498,14 @@ class WorldModule(Module):
                 self._publish_tick(repeat=True)
                 repeat = time.monotonic() + self.params.republish
         self.overruns += 1
-        detail = f"tick {k}: lockstep node(s) {sorted(missing)} did not answer within {self.params.deadline:g} s"
+        detail = f"tick {want}: lockstep node(s) {sorted(missing)} did not answer within {self.params.deadline:g} s"
         if now >= give_up:
-            detail = f"tick {k}: lockstep node(s) {sorted(missing)} still working on it after {self.params.max_step:g} s"
+            detail = f"tick {want}: lockstep node(s) {sorted(missing)} still working on it after {self.params.max_step:g} s"
         self.log.warning(detail)
         self.io.emit(Event.OVERRUN, detail, self._when())
         with self._cond:
             for n in missing:  # a stalled node is treated as gone until it answers again
-                self._acks[n] = k
+                self._acks[n] = want
             stalled = [name for name, r in self.robots.items() if r.controllers & set(missing)]
         for name in stalled:
             self._hold(name, f"its controller node(s) {sorted(missing)} stalled")
@@ -521,10 +532,17 @@ class WorldModule(Module):
             self._cond.wait(0.05)
         return False
 
+    def _due(self, msg: RobotCommand) -> bool:
+        """Whether a command or request applies at the current tick: a pipelined world takes those of the tick
+        its nodes answered, not those a node already sent while stepping the current one (under the lock). A tick
+        ahead of the world's is forged: it is applied (or refused) at once, never queued for good."""
+        return not self.tick_no - self._lag < msg.hdr.tick <= self.tick_no
+
     def _serve_requests(self) -> int:
-        """Answer queued camera requests with a frame of the current state (commands wait for the tick)."""
+        """Answer the due camera requests with a frame of the current state (commands wait for the tick)."""
         with self._cond:
-            todo, self._requests = self._requests, deque()
+            todo = deque(m for m in self._requests if self._due(m))
+            self._requests = deque(m for m in self._requests if not self._due(m))
         for msg in todo:
             self._apply(msg)
         return len(todo)
@@ -533,7 +551,8 @@ class WorldModule(Module):
         self._serve_requests()
         self._apply_holds()
         with self._cond:
-            batch, self._commands = self._commands, deque()
+            batch = deque(m for m in self._commands if self._due(m))
+            self._commands = deque(m for m in self._commands if not self._due(m))
         for msg in batch:
             # in real time a command stamped before the previous tick missed the tick it was meant for
             if self.world.time - msg.hdr.t_sim > 1.5 / self.params.control_rate and msg.robot in self.robots:
@@ -566,8 +585,8 @@ class WorldModule(Module):
             if not repeat or r.last is None:
                 r.last = self._state(name, r)
             r.seq += 1
-            r.state_pub(encode(stamp(r.last, f"{self.source}/{name}/state", r.seq, t)))
-            r.joints_pub(encode(stamp(r.joints, f"{self.source}/{name}/joints", r.seq, t)))
+            r.state_pub(encode(self._tag(stamp(r.last, f"{self.source}/{name}/state", r.seq, t), self.tick_no)))
+            r.joints_pub(encode(self._tag(stamp(r.joints, f"{self.source}/{name}/joints", r.seq, t), self.tick_no)))
         if not repeat and self.params.camera_hz > 0 and t >= self._depth_due - 1e-9:
             period = 1.0 / self.params.camera_hz
             # keep the phase: counted from the tick, 30 Hz at 200 Hz ticks would be every 7th tick (28.6 Hz)
@@ -581,18 +600,29 @@ class WorldModule(Module):
             self._gt_due = t + 1.0 / self.params.ground_truth_hz
             objs = {n: o.pose() for n, o in self.world.objects.items()} | self.world.bottle_poses()
             poses = np.stack(list(objs.values())) if objs else np.zeros((0, 4, 4))
-            self._gt_pub(encode(stamp(ObjectPoses(names=list(objs), poses=NDArray.of(poses)),
-                                      f"{self.source}/object_poses", self.tick_no + 1, t)))
+            self._gt_pub(encode(self._tag(stamp(ObjectPoses(names=list(objs), poses=NDArray.of(poses)),
+                                                f"{self.source}/object_poses", self.tick_no + 1, t), self.tick_no)))
         if not repeat and self.params.contacts_hz > 0 and t >= self._contacts_due - 1e-9:
             self._contacts_due = t + 1.0 / self.params.contacts_hz
             self._publish_contacts(t)
         if not repeat:
-            with self._cond:
-                marks, self._marks = self._marks, {}
+            with self._cond:  # what the nodes sent during the ticks whose answers this tick waited for
+                done = [k for k in self._marks if k <= self.tick_no - 1 - self._lag]
+                marks: dict[tuple[str, str], int] = {}
+                for k in sorted(done):
+                    marks.update(self._marks.pop(k))
             self._tick_marks = [Mark(key=k, source=src, seq=seq) for (k, src), seq in marks.items()]
         self._clock_seq += 1
-        self._clock_pub(encode(stamp(Clock(t=t, tick=self.tick_no, marks=self._tick_marks), f"{self.source}/clock",
-                                     self._clock_seq, t)))
+        self._clock_pub(encode(self._tag(stamp(Clock(t=t, tick=self.tick_no, marks=self._tick_marks, lag=self._lag),
+                                               f"{self.source}/clock", self._clock_seq, t), self.tick_no)))
+
+    def _tag(self, msg: M, clock: int) -> M:
+        """A pipelined world's message sent before the clock of tick ``clock`` is an input of its nodes from that
+        tick on (as what the nodes sent during tick clock - 1 - lag): its header says that tick. Without a
+        pipeline it says none (-1): the nodes have stepped the tick before when it arrives."""
+        if self._lag:
+            msg.hdr.tick = clock - 1 - self._lag
+        return msg
 
     def _publish_contacts(self, t: float) -> None:
         """Each robot's physics contact points with the cell's objects, the table included (its link first, the normal from it)."""
@@ -612,8 +642,8 @@ class WorldModule(Module):
                                normals=NDArray.of(np.array([f[3] for f in found], dtype=np.float64).reshape(-1, 3)),
                                forces=NDArray.of(np.array([f[4] for f in found], dtype=np.float64)))
             self.robots[name].contacts_seq += 1
-            self._contacts_pubs[name](encode(stamp(msg, f"{self.source}/{name}/true_contacts",
-                                                   self.robots[name].contacts_seq, t)))
+            self._contacts_pubs[name](encode(self._tag(stamp(msg, f"{self.source}/{name}/true_contacts",
+                                                             self.robots[name].contacts_seq, t), self.tick_no)))
 
     def _state(self, name: str, r: _Robot) -> RobotState:
         sim = r.sim
@@ -713,7 +743,8 @@ class WorldModule(Module):
             return
         r.depth_seq += 1
         msg = DepthImage.of(depth, K, Twc, camera)
-        r.depth_pub(encode(stamp(msg, f"{self.source}/{r.sim.name}/depth", r.depth_seq, self.world.time)))
+        r.depth_pub(encode(self._tag(stamp(msg, f"{self.source}/{r.sim.name}/depth", r.depth_seq, self.world.time),
+                                     self.tick_no)))
 
     def _stream_fixed(self, c: _FixedCamera, t: float) -> None:
         name = c.camera.spec.name
@@ -723,7 +754,8 @@ class WorldModule(Module):
             self.log.warning("camera %s: %s", name, exc)
             return
         c.seq += 1
-        c.pub(encode(stamp(DepthImage.of(depth, c.camera.K, Twc, name), f"{self.source}/camera/{name}", c.seq, t)))
+        c.pub(encode(self._tag(stamp(DepthImage.of(depth, c.camera.K, Twc, name), f"{self.source}/camera/{name}", c.seq, t),
+                               self.tick_no)))
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:
         frame = r.sim.camera(msg.camera)
@@ -734,4 +766,6 @@ class WorldModule(Module):
                           pixels=NDArray.of(np.asarray(frame.pixels, dtype=np.int32)),
                           K=[float(v) for v in np.asarray(frame.K).ravel()],
                           pose=[float(v) for v in np.asarray(frame.T_world_cam).ravel()])
-        r.camera_pub(encode(stamp(out, f"{self.source}/{r.sim.name}/camera", msg.request, self.world.time)))
+        # answered before the next tick's clock: the nodes may read it from that tick on
+        r.camera_pub(encode(self._tag(stamp(out, f"{self.source}/{r.sim.name}/camera", msg.request, self.world.time),
+                                      self.tick_no + 1)))

@@ -28,7 +28,9 @@ def test_quick_bench_writes_its_summary(tmp_path):
     assert set(summary["planning"]) == {"KPIECE1", "RRTConnect"}
     assert all(0.0 <= p["success"]["rate"] <= 1.0 for p in summary["planning"].values())
     rt = summary["runtime"]
-    row = rt["rtf"]["1 robot"]
+    # quick: the pipelined cell only (test_runtime_repeat repeats the plain lockstep across process layouts)
+    assert list(rt["rtf"]) == ["1 robot, pipelined"]
+    row = rt["rtf"]["1 robot, pipelined"]
     one, split = row["one_process"], row["split"]
     assert one["outcomes"] == split["outcomes"] == {"tombatossals": "success"}
     # the same run, exactly, in both layouts: the same events at the same simulated times, no tick overrun

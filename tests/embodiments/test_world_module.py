@@ -243,6 +243,56 @@ def test_a_lockstep_node_holds_the_world_at_each_tick_until_it_answers(world):
     assert wm.overruns == 0
 
 
+def test_a_pipelined_world_steps_a_tick_ahead_of_its_nodes_and_applies_what_they_sent_during_tick_k_after_tick_k_plus_1(
+        tmp_path):
+    """``pipeline``: tick k+1 runs once the nodes answered tick k-1 (world and nodes step at once); a command sent
+    during tick k applies at the step after tick k+1, whenever it arrives, and what a node sent during tick k
+    is marked on the clock of tick k+2. The world's messages say the tick they are inputs from."""
+    node, c = start_world(tmp_path, pipeline=True)
+    wm = node.host.modules[("site", "world")].module
+    try:
+        token = c.t.token(c.ks.alive_lockstep("tester"))
+        assert wait_for(lambda: "tester" in wm._lockstep, 10)
+        time.sleep(0.3)
+        k = wm.tick_no
+        time.sleep(0.5)
+        assert wm.tick_no == k  # waiting for the tester's answer to tick k-1
+        c.ack(k - 1)
+        assert wait_for(lambda: wm.tick_no == k + 1, 5)
+        time.sleep(0.3)
+        assert wm.tick_no == k + 1  # ... and now for its answer to tick k
+        clock = next(m for m in c.clocks if m.tick == k + 1)
+        state = next(s for s in c.states if s.tick == k + 1)
+        assert clock.lag == 1 and clock.hdr.tick == state.hdr.tick == k - 1  # inputs of the nodes from tick k+1 on
+        home = np.array(wm.robots["melfa"].sim.spec.arm("arm").home)
+        early = arm_cmd(ArmCommandKind.TARGET, [home + [0.1, 0, 0, 0, 0, 0], np.zeros(6)], seq=5)
+        early.hdr.tick = k + 1  # sent while stepping tick k+1, ahead of the world's wait: not due yet
+        c.send(early)
+        sent = Mark(key="cf/x/data/out", source="site/tester/m/out", seq=7)
+        time.sleep(0.3)
+        c.ack(k, [sent])
+        assert wait_for(lambda: any(s.tick == k + 2 for s in c.states), 5)
+        assert next(s for s in c.states if s.tick == k + 2).arms[0].applied == 0  # tick k+1's command waits
+        c.ack(k + 1)
+        assert wait_for(lambda: any(s.tick == k + 3 for s in c.states), 5)
+        assert next(s for s in c.states if s.tick == k + 3).arms[0].applied == 5
+        marks = {m.tick: m.marks for m in c.clocks if m.tick > k}
+        assert marks[k + 1] == [] and marks[k + 2] == [sent] and marks[k + 3] == []
+        # a command that says a tick the world has not reached is forged: applied (or refused) at once, never kept
+        forged = arm_cmd(ArmCommandKind.TARGET, [home, np.zeros(6)], seq=6)
+        forged.hdr.tick = 2**62
+        c.send(forged)
+        c.ack(k + 2)
+        assert wait_for(lambda: any(s.tick == k + 4 for s in c.states), 5)
+        assert next(s for s in c.states if s.tick == k + 4).arms[0].applied == 6 and not wm._commands
+        token.close()
+        assert wait_for(lambda: wm.tick_no > k + 50, 10)
+        assert wm.overruns == 0
+    finally:
+        c.close()
+        node.stop()
+
+
 def test_a_lockstep_token_zenoh_drops_and_re_learns_keeps_the_answer_the_node_gave(world):
     """A peer's liveliness tokens can vanish and come back while the peer lives (zenoh re-routing): a node that
     answered the current tick and whose token flickers is not waited for again; the world ticks on once the

@@ -86,26 +86,32 @@ def node(name: str, modules: tuple[ModuleConfig, ...]) -> NodeConfig:
                       modules=modules)
 
 
-def run_world(t: LocalTransport, ks: KeySpace, nodes: list[str], ticks: int, pass_marks: bool) -> None:
-    """What the world module does: tick k+1 once every node acknowledged tick k, with the marks of their acks."""
-    acks: dict[str, LockstepAck] = {}
+def run_world(t: LocalTransport, ks: KeySpace, nodes: list[str], ticks: int, pass_marks: bool, lag: int = 0) -> None:
+    """What the world module does: tick k+1 once every node acknowledged tick k - lag, with the marks of those acks."""
+    acks: dict[str, dict[int, list[Mark]]] = {n: {} for n in nodes}  # node -> tick -> the marks of its answer
     cond = threading.Condition()
 
     def on_ack(key: str, payload: bytes) -> None:
         ack = decode(payload, LockstepAck, key)
+        if ack.working:
+            return
         with cond:
-            acks[ack.node] = ack
+            acks[ack.node][ack.tick] = ack.marks
             cond.notify_all()
 
     sub = t.subscribe(ks.lockstep("*"), on_ack)
     clock = t.publisher(ks.clock())
     marks: list[Mark] = []
+    passed = -1  # the last tick whose answers' marks went out
     try:
         for k in range(ticks):
-            clock(encode(stamp(Clock(t=k * DT, tick=k, marks=marks if pass_marks else []), "world/clock", k + 1, k * DT)))
+            clock(encode(stamp(Clock(t=k * DT, tick=k, marks=marks if pass_marks else [], lag=lag), "world/clock", k + 1,
+                               k * DT)))
+            want = max(k - lag, 0)
             with cond:
-                assert cond.wait_for(lambda k=k: all(n in acks and acks[n].tick >= k for n in nodes), 10.0)
-                marks = [m for n in nodes for m in acks[n].marks]
+                assert cond.wait_for(lambda w=want: all(max(acks[n], default=-1) >= w for n in nodes), 10.0)
+                marks = [m for n in nodes for j in range(passed + 1, want + 1) for m in acks[n].get(j, [])]
+            passed = want
     finally:
         sub.close()
 
@@ -121,8 +127,10 @@ def one_node(t: LocalTransport) -> tuple[ModuleHost, Consumer]:
     return host, consumer
 
 
+@pytest.mark.parametrize("lag", [0, 1])
 @pytest.mark.parametrize("layout", ["one node", "two nodes"])
-def test_a_lockstep_module_gets_what_another_sent_during_the_tick_before_however_late_it_travels(layout):
+def test_a_lockstep_module_gets_what_another_sent_during_the_tick_before_however_late_it_travels(layout, lag):
+    """With a pipelined world (lag 1: it runs tick k+1 while its nodes step tick k) the tick after the next."""
     t = SlowDataTransport()
     ks = KeySpace("ls")
     producer, consumer = Producer("src"), Consumer("dst")
@@ -139,14 +147,15 @@ def test_a_lockstep_module_gets_what_another_sent_during_the_tick_before_however
     for h in hosts:
         h.start()
     try:
-        run_world(t, ks, [h.config.node for h in hosts], 40, pass_marks=True)
+        run_world(t, ks, [h.config.node for h in hosts], 40, pass_marks=True, lag=lag)
     finally:
         for h in hosts:
             h.shutdown()
-    steps = consumer.seen[1:]  # at tick 0 nothing was sent yet
-    assert len(steps) >= 38
-    # every tick brings exactly the value the producer sent the tick before, not DELAY (6 ticks) later
-    assert all(values == [pytest.approx(now - DT)] for now, values in steps), [s for s in steps if s[1] != [pytest.approx(s[0] - DT)]]
+    steps = consumer.seen[1 + lag:]  # nothing was sent before tick 0
+    assert len(steps) >= 38 - lag
+    # every tick brings exactly the value the producer sent 1 + lag ticks before, not DELAY (6 ticks) later
+    back = (1 + lag) * DT
+    assert all(values == [pytest.approx(now - back)] for now, values in steps), [s for s in steps if s[1] != [pytest.approx(s[0] - back)]]
     assert all(h.mark_timeouts == 0 for h in hosts)
 
 
