@@ -471,8 +471,8 @@ class WorldModule(Module):
 
     # -- the tick -----------------------------------------------------------------------------
     def _await_acks(self) -> bool:
-        """Wait until every lockstep node answered the current tick (serving camera requests meanwhile);
-        False while the world is paused (``idle: pause`` and every node idle)."""
+        """Wait until every lockstep node answered the current tick (with a pipeline, the one before), serving
+        camera requests meanwhile; False while the world is paused (``idle: pause`` and every node idle)."""
         k = self.tick_no
         want = k - self._lag if k > 0 else 0  # the answer this tick waits for (tick 0: every node is up)
         now = time.monotonic()
@@ -538,11 +538,18 @@ class WorldModule(Module):
         ahead of the world's is forged: it is applied (or refused) at once, never queued for good."""
         return not self.tick_no - self._lag < msg.hdr.tick <= self.tick_no
 
+    def _take_due(self, queue: deque) -> tuple[deque, deque]:
+        """(the due messages of ``queue``, the others), each in arrival order (under the lock)."""
+        due: deque = deque()
+        later: deque = deque()
+        for m in queue:
+            (due if self._due(m) else later).append(m)
+        return due, later
+
     def _serve_requests(self) -> int:
         """Answer the due camera requests with a frame of the current state (commands wait for the tick)."""
         with self._cond:
-            todo = deque(m for m in self._requests if self._due(m))
-            self._requests = deque(m for m in self._requests if not self._due(m))
+            todo, self._requests = self._take_due(self._requests)
         for msg in todo:
             self._apply(msg)
         return len(todo)
@@ -551,8 +558,7 @@ class WorldModule(Module):
         self._serve_requests()
         self._apply_holds()
         with self._cond:
-            batch = deque(m for m in self._commands if self._due(m))
-            self._commands = deque(m for m in self._commands if not self._due(m))
+            batch, self._commands = self._take_due(self._commands)
         for msg in batch:
             # in real time a command stamped before the previous tick missed the tick it was meant for
             if self.world.time - msg.hdr.t_sim > 1.5 / self.params.control_rate and msg.robot in self.robots:
