@@ -33,9 +33,10 @@ from contactflow.nodes.transport import ZenohSettings, ZenohTransport
 from contactflow.nodes.wire import NDArray, encode, stamp
 
 console = Console()
-QUERY_WAIT = 10.0  # s a hostile query waits for its answer before it counts as unanswered (an answer is a reply at
-# all, not a latency: a node's queryable thread on two cores shared with another deployment took over 0.5 s (CI: 4
-# of 236), and beside two busy processes and a second deployment over 2 s (7 of 252); a node that answers takes no longer for it)
+QUERY_WAIT = 10.0  # s a hostile query waits for its answer before it counts as unanswered (an answer is a reply
+# at all, not a latency: a node's queryable thread on two cores shared with another deployment took over 0.5 s (CI:
+# 4 of 236), and beside two busy processes and a second deployment over 2 s (7 of 252); a node that answers takes
+# no longer for it)
 RESUME_WAIT = 30.0  # s after the fuzz a module that stepped before it has to be heard stepping again
 """A loop that stopped never steps again; a lockstep node whose world crawls under load steps again late (CI:
 the logs of tombatossals' world showed it at ticks 201-202 through a fuzz beside the demo test, and a fixed 4 s wait

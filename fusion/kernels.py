@@ -123,8 +123,8 @@ def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: 
 
     Two passes, each with one random access per hypothesis, loaded ``AHEAD`` hypotheses early: the
     probes (:func:`index_insert`, rows into ``rows``), then the records. A record holds all fields of
-    an entry, so a write touches one cache line, not one per field. The caller keeps the table under half full and the
-    rows large enough for every key to be new.
+    an entry, so a write touches one cache line, not one per field. The caller keeps the table under
+    half full and the rows large enough for every key to be new.
     """
     first = count
     count = index_insert(table, shift, row_keys, count, keys, rows)

@@ -67,7 +67,7 @@ from contactflow.embodiments.messages import (
 from contactflow.nodes.messages import Clock, LockstepAck, Mark
 from contactflow.nodes.module import Layer, Module, ModuleIO
 from contactflow.nodes.status import Event, Status
-from contactflow.nodes.wire import M, NDArray, WireError, decode, encode, stamp
+from contactflow.nodes.wire import Message, NDArray, WireError, decode, encode, stamp
 
 RobotCommand = ArmCommand | HandCommand | HeadCommand | CameraRequest
 _command_decoder = msgspec.msgpack.Decoder(RobotCommand)
@@ -591,8 +591,8 @@ class WorldModule(Module):
             if not repeat or r.last is None:
                 r.last = self._state(name, r)
             r.seq += 1
-            r.state_pub(encode(self._tag(stamp(r.last, f"{self.source}/{name}/state", r.seq, t), self.tick_no)))
-            r.joints_pub(encode(self._tag(stamp(r.joints, f"{self.source}/{name}/joints", r.seq, t), self.tick_no)))
+            r.state_pub(self._encode(r.last, f"{name}/state", r.seq, t))
+            r.joints_pub(self._encode(r.joints, f"{name}/joints", r.seq, t))
         if not repeat and self.params.camera_hz > 0 and t >= self._depth_due - 1e-9:
             period = 1.0 / self.params.camera_hz
             # keep the phase: counted from the tick, 30 Hz at 200 Hz ticks would be every 7th tick (28.6 Hz)
@@ -606,8 +606,8 @@ class WorldModule(Module):
             self._gt_due = t + 1.0 / self.params.ground_truth_hz
             objs = {n: o.pose() for n, o in self.world.objects.items()} | self.world.bottle_poses()
             poses = np.stack(list(objs.values())) if objs else np.zeros((0, 4, 4))
-            self._gt_pub(encode(self._tag(stamp(ObjectPoses(names=list(objs), poses=NDArray.of(poses)),
-                                                f"{self.source}/object_poses", self.tick_no + 1, t), self.tick_no)))
+            self._gt_pub(self._encode(ObjectPoses(names=list(objs), poses=NDArray.of(poses)), "object_poses",
+                                      self.tick_no + 1, t))
         if not repeat and self.params.contacts_hz > 0 and t >= self._contacts_due - 1e-9:
             self._contacts_due = t + 1.0 / self.params.contacts_hz
             self._publish_contacts(t)
@@ -619,16 +619,18 @@ class WorldModule(Module):
                     marks.update(self._marks.pop(k))
             self._tick_marks = [Mark(key=k, source=src, seq=seq) for (k, src), seq in marks.items()]
         self._clock_seq += 1
-        self._clock_pub(encode(self._tag(stamp(Clock(t=t, tick=self.tick_no, marks=self._tick_marks, lag=self._lag),
-                                               f"{self.source}/clock", self._clock_seq, t), self.tick_no)))
+        self._clock_pub(self._encode(Clock(t=t, tick=self.tick_no, marks=self._tick_marks, lag=self._lag), "clock",
+                                     self._clock_seq, t))
 
-    def _tag(self, msg: M, clock: int) -> M:
-        """A pipelined world's message sent before the clock of tick ``clock`` is an input of its nodes from that
-        tick on (as what the nodes sent during tick clock - 1 - lag): its header says that tick. Without a
-        pipeline it says none (-1): the nodes have stepped the tick before when it arrives."""
+    def _encode(self, msg: Message, stream: str, seq: int, t: float, clock: int | None = None) -> bytes:
+        """``msg`` stamped as sent on ``<source>/<stream>``, encoded. A pipelined world's message sent before the clock
+        of tick ``clock`` (the current one's unless given) is an input of its nodes from that tick on, as what the
+        nodes sent during tick clock - 1 - lag: its header says that tick. Without a pipeline it says none (-1): the
+        nodes have stepped the tick before when it arrives."""
+        stamp(msg, f"{self.source}/{stream}", seq, t)
         if self._lag:
-            msg.hdr.tick = clock - 1 - self._lag
-        return msg
+            msg.hdr.tick = (self.tick_no if clock is None else clock) - 1 - self._lag
+        return encode(msg)
 
     def _publish_contacts(self, t: float) -> None:
         """Each robot's physics contact points with the cell's objects, the table included (its link first, the normal from it)."""
@@ -648,8 +650,7 @@ class WorldModule(Module):
                                normals=NDArray.of(np.array([f[3] for f in found], dtype=np.float64).reshape(-1, 3)),
                                forces=NDArray.of(np.array([f[4] for f in found], dtype=np.float64)))
             self.robots[name].contacts_seq += 1
-            self._contacts_pubs[name](encode(self._tag(stamp(msg, f"{self.source}/{name}/true_contacts",
-                                                             self.robots[name].contacts_seq, t), self.tick_no)))
+            self._contacts_pubs[name](self._encode(msg, f"{name}/true_contacts", self.robots[name].contacts_seq, t))
 
     def _state(self, name: str, r: _Robot) -> RobotState:
         sim = r.sim
@@ -749,8 +750,7 @@ class WorldModule(Module):
             return
         r.depth_seq += 1
         msg = DepthImage.of(depth, K, Twc, camera)
-        r.depth_pub(encode(self._tag(stamp(msg, f"{self.source}/{r.sim.name}/depth", r.depth_seq, self.world.time),
-                                     self.tick_no)))
+        r.depth_pub(self._encode(msg, f"{r.sim.name}/depth", r.depth_seq, self.world.time))
 
     def _stream_fixed(self, c: _FixedCamera, t: float) -> None:
         name = c.camera.spec.name
@@ -760,8 +760,7 @@ class WorldModule(Module):
             self.log.warning("camera %s: %s", name, exc)
             return
         c.seq += 1
-        c.pub(encode(self._tag(stamp(DepthImage.of(depth, c.camera.K, Twc, name), f"{self.source}/camera/{name}", c.seq, t),
-                               self.tick_no)))
+        c.pub(self._encode(DepthImage.of(depth, c.camera.K, Twc, name), f"camera/{name}", c.seq, t))
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:
         frame = r.sim.camera(msg.camera)
@@ -773,5 +772,4 @@ class WorldModule(Module):
                           K=[float(v) for v in np.asarray(frame.K).ravel()],
                           pose=[float(v) for v in np.asarray(frame.T_world_cam).ravel()])
         # answered before the next tick's clock: the nodes may read it from that tick on
-        r.camera_pub(encode(self._tag(stamp(out, f"{self.source}/{r.sim.name}/camera", msg.request, self.world.time),
-                                      self.tick_no + 1)))
+        r.camera_pub(self._encode(out, f"{r.sim.name}/camera", msg.request, self.world.time, clock=self.tick_no + 1))
