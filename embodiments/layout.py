@@ -73,12 +73,13 @@ def primitive_modules(robot: str, embodiment: str = "", types: list[str] | None 
 
 
 def contact_modules(robot: str, embodiment: str = "", predictor: bool = False) -> list[dict]:
-    """Module entries of a robot's own contact fusion (thesis ch. 4) on its control node: the tactile and wrist
-    F/T generators of every arm with a hand (``contact_cues``), the robot's posed model (``model``, from the
-    joints the world publishes) feeding motion support (§4.5.1: where the hands go next) and null hypotheses
-    (§4.2.1: the space they swept), with ``predictor`` (the node hosts the robot's predictor) the simulator
-    support of its predicted hand contacts (§4.5.2), and ``contact_fusion`` over them all, whose contacts and
-    events go out on ``contacts/fused/<robot>/...`` (what ``wait_event`` with ``sensor: fused`` reads)."""
+    """Module entries of a robot's own contact fusion (thesis ch. 4) on its control node: the tactile, wrist F/T
+    and (a multi-finger hand) finger pose generators of every arm with a hand (``contact_cues``), the robot's
+    posed model (``model``, from the joints the world publishes) feeding motion support (§4.5.1: where the hands
+    go next) and null hypotheses (§4.2.1: the space they swept), with ``predictor`` (the node hosts the robot's
+    predictor) the simulator support of its predicted hand contacts (§4.5.2), and ``contact_fusion`` over them
+    all, whose contacts and events go out on ``contacts/fused/<robot>/...`` (what ``wait_event`` with
+    ``sensor: fused`` reads)."""
     from contactflow.embodiments import registry
     from contactflow.fusion.station import hand_links
 

@@ -1,4 +1,4 @@
-"""Contact cues of a world's robot on a node: one arm's tactile pads and wrist F/T as generator clouds on the key space."""
+"""Contact cues of a world's robot on a node: one arm's tactile pads, wrist F/T and finger pose as generator clouds on the key space."""
 
 from __future__ import annotations
 
@@ -6,26 +6,31 @@ from dataclasses import dataclass
 from typing import Any
 
 from contactflow.fusion.messages import HypothesisCloud
-from contactflow.fusion.station import cue_clouds, robot_cues
+from contactflow.fusion.station import FingerCue, cue_clouds, robot_cues
 from contactflow.nodes.keys import KeySpace
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Status
 
 
 class ContactCues(Module):
-    """The tactile (eq. 4.6) and wrist F/T (eq. 4.8-4.9) generators of one arm of the robot the module is hosted for.
+    """The tactile (eq. 4.6), wrist F/T (eq. 4.8-4.9) and finger pose (§4.4.5) generators of one arm of the robot the
+    module is hosted for.
 
     It reads what the robot's station would give, over the key space: the world's
-    ``robot/<robot>/state`` (pressures, the wrench) and the robot's own model at the measured
-    joints (taxel poses, the hand's bi-spheres). Each cycle it publishes one cloud per
-    generator on ``contacts/<robot>/tactile_<arm>`` and ``contacts/<robot>/force_torque_<arm>``,
-    empty when the sensor feels nothing, so a fusion service waiting for all its sources is
-    never kept waiting; ``contact_fusion`` fuses them.
+    ``robot/<robot>/state`` (pressures, the wrench, the hand's encoders and whether its command
+    still runs) and the robot's own model at the measured joints (taxel poses, the hand's
+    bi-spheres). Each cycle it publishes one cloud per generator on
+    ``contacts/<robot>/tactile_<arm>``, ``contacts/<robot>/force_torque_<arm>`` and, for a
+    multi-finger hand, ``contacts/<robot>/finger_pose_<arm>``, empty when the sensor feels
+    nothing, so a fusion service waiting for all its sources is never kept waiting;
+    ``contact_fusion`` fuses them.
     """
 
     layer = Layer.SERVICE
     outputs = (Port("tactile", HypothesisCloud, "tactile hypotheses of the arm's hand, world frame"),
-               Port("force_torque", HypothesisCloud, "wrist F/T hypotheses on the arm's hand, world frame"))
+               Port("force_torque", HypothesisCloud, "wrist F/T hypotheses on the arm's hand, world frame"),
+               Port("finger_pose", HypothesisCloud, "finger pose hypotheses on the fingers a contact bent (a multi-finger "
+                                                    "hand), world frame"))
 
     @dataclass(frozen=True)
     class Params:
@@ -58,10 +63,14 @@ class ContactCues(Module):
                 raise ValueError(f"{self.name}.params.arm: {self.params.arm!r} is no arm with a hand of {io.robot} "
                                  f"({sorted(cues)})")
             self.cue = cues[self.params.arm]
+            self.fingers = FingerCue(self.robot, self.cue) if FingerCue.applies(self.robot, self.cue) else None
         r = self.robot
         state = r.link.state  # the sensor message the clouds are computed from: their provenance
         read = [state.hdr.id] if state is not None and state.hdr.source else []
         for generator, cloud in cue_clouds(r, self.cue, r.time):
             port = generator.removesuffix(f"_{self.cue.name}")
             io.publish(port, HypothesisCloud.of(cloud, r.name, generator, self.cue.hand), inputs=read)
+        if self.fingers is not None:
+            io.publish("finger_pose", HypothesisCloud.of(self.fingers.cloud(r, r.time), r.name,
+                                                         f"finger_pose_{self.cue.name}", self.cue.hand), inputs=read)
         return Status.RUNNING

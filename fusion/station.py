@@ -1,7 +1,8 @@
-"""A robot station's contact cues: each arm's tactile pads and wrist F/T as hypothesis clouds (thesis eq. 4.6, 4.8-4.9).
+"""A robot station's contact cues: each arm's tactile pads, wrist F/T and finger pose as hypothesis clouds (thesis eq. 4.6, 4.8-4.9, §4.4.5).
 
-``contact_cues`` modules publish them on ``contacts/<robot>/tactile_<arm>`` and
-``contacts/<robot>/force_torque_<arm>`` (empty when the sensor feels nothing) and a
+``contact_cues`` modules publish them on ``contacts/<robot>/tactile_<arm>``,
+``contacts/<robot>/force_torque_<arm>`` and, for a multi-finger hand,
+``contacts/<robot>/finger_pose_<arm>`` (empty when the sensor feels nothing) and a
 ``contact_fusion`` module fuses them into the robot's contacts and events
 (``layout.contact_modules``).
 """
@@ -12,7 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contactflow.fusion.generators.finger import FingerParams, FingerPoseGenerator
 from contactflow.fusion.generators.tactile import tactile_hypotheses
+from contactflow.fusion.geometry import capsule_surface
 from contactflow.fusion.hypotheses import Hypotheses
 from contactflow.fusion.sim_sources import hand_capsules, taxel_readings, wrist_hypotheses
 
@@ -71,3 +74,53 @@ def cue_clouds(robot: object, cue: Cue, now: float) -> list[tuple[str, Hypothese
             cloud, _ = wrist_hypotheses(robot, cue.arm, cue.ft_link, hand_capsules(robot, cue.links), now)
         out.append((f"force_torque_{cue.name}", cloud))
     return out
+
+
+class FingerCue:
+    """Finger pose feedback (thesis §4.4.5) of one cue's multi-finger hand: a finger its drive does not move
+    that the hand's encoders show moved since the hand came to rest is bent by a contact, somewhere on its
+    surface (:class:`~contactflow.fusion.generators.finger.FingerPoseGenerator`). The hand is driven while
+    its last command runs, and until its fingers are still after it; each finger's surface is the bi-spheres of
+    its joints' links in the posed model.
+    """
+
+    STILL = 0.005  # rad between two readings: fingers that move less have come to rest (a reference is taken)
+
+    def __init__(self, robot: object, cue: Cue, params: FingerParams | None = None) -> None:
+        from contactflow.embodiments.primitives.hands import finger_groups
+
+        spec = robot.spec.hand(cue.hand)
+        model, sph = robot.kin.model, robot.spherical
+        fingers = list(finger_groups(spec).values())
+        self.hand = cue.hand
+        # the s-topes of each finger: those hung on its joints (pinocchio joint ids, as the model's s-topes)
+        joints = [{model.getJointId(spec.joints[int(j)]) for j in f} for f in fingers]
+        hung = np.array([st.joint for st in sph.stopes])
+        self.stopes = [np.flatnonzero(np.isin(hung, sorted(ids))) for ids in joints]
+        self.core = FingerPoseGenerator(fingers, params or FingerParams(robot=robot.name))
+        self._last: np.ndarray | None = None
+
+    @staticmethod
+    def applies(robot: object, cue: Cue) -> bool:
+        """True for a hand of several fingers, each with its joints (a gripper's jaws share theirs)."""
+        spec = robot.spec.hand(cue.hand)
+        return spec.kind == "multi_finger" and bool(spec.pads) and len(spec.joints) % len(spec.pads) == 0
+
+    def cloud(self, robot: object, now: float) -> Hypotheses:
+        """This reading's hypotheses: on the fingers bent since the hand last came to rest (empty while it is driven)."""
+        from contactflow.nodes.status import Status
+
+        hand = robot.hand(self.hand)
+        sph = robot.spherical
+
+        def surface(finger: int) -> np.ndarray:
+            sel = self.stopes[finger]
+            caps = np.concatenate([sph.C1[sel], sph.r1[sel, None], sph.C2[sel], sph.r2[sel, None]], axis=1)
+            return capsule_surface(caps, self.core.params.voxel_size)
+
+        q = hand.positions()
+        # a hand whose command ended still settles onto its goal: the reference waits until its fingers are still
+        moving = self._last is not None and float(np.abs(q - self._last).max()) > self.STILL
+        self._last = q.copy()
+        driven = hand.status is Status.RUNNING or (self.core.reference is None and moving)
+        return self.core.update(q, surface, now, actuated=driven)

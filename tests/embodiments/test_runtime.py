@@ -32,9 +32,10 @@ def test_two_robots_in_one_cell_each_run_a_task_without_disturbing_the_other(tmp
     assert all(o.event is Event.SUCCESS for o in run.outcomes.values()), run.events
     assert ("transport", "success") in {(m, e) for _, m, e in run.events} and "grasp_lost" not in {
         e for _, _, e in run.events}, run.events
-    # every cue of both robots (each hand's tactile and F/T, motion support, null) in the one map, nothing refused
+    # every cue of both robots (each hand's tactile and F/T, an allegro's finger pose, motion support, null) in the one
+    # map, nothing refused
     # (its status, as contactflow ls shows it, at the end)
-    assert run.statuses["site/control_tombatossals/cell_map"].detail == "sources: tombatossals 6, melfa 4; refused: none"
+    assert run.statuses["site/control_tombatossals/cell_map"].detail == "sources: tombatossals 8, melfa 4; refused: none"
     cell = [c for c in run.contacts if c.hdr.source == "site/control_tombatossals/cell_map/events"]
     assert [(c.robot, c.link, str(c.event)) for c in cell][:1] == [(ROBOT, "right_hand", "contact_made")], cell
     own = [c for c in run.contacts if c.hdr.source.startswith(f"{ROBOT}/")]  # tombatossals' own fusion

@@ -1,4 +1,4 @@
-"""A station's contact cues on a simulated robot, fused: touching the table makes a contact, lifting breaks it."""
+"""A station's contact cues on a simulated robot: touching the table makes a fused contact, lifting breaks it; a bent finger is a finger pose contact."""
 
 import numpy as np
 import pytest
@@ -6,9 +6,10 @@ import pytest
 from contactflow.embodiments.scenes import SCENES
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import World, WorldParams
+from contactflow.fusion.geometry import capsule_distance
 from contactflow.fusion.messages import HypothesisCloud
 from contactflow.fusion.service import ContactFusion, FusionParams
-from contactflow.fusion.station import cue_clouds, robot_cues
+from contactflow.fusion.station import FingerCue, cue_clouds, robot_cues
 from contactflow.nodes.status import Event
 from contactflow.nodes.testing import FakeIO, run_module
 from contactflow.nodes.wire import stamp
@@ -25,6 +26,7 @@ def melfa():
 
 def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
     (cue,) = robot_cues(melfa, 1.5)
+    assert not FingerCue.applies(melfa, cue)  # a gripper's jaws share their joints: no finger pose
     fusion = ContactFusion("contacts", FusionParams(robot="melfa", sources="melfa/*", timeout=0.3, wait_timeout=0.05,
                                                     source_timeout=0.5, hold=0.3))
     io = FakeIO()
@@ -72,3 +74,44 @@ def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
     assert io.published["events"][-1].event == Event.CONTACT_BROKEN
     lists = io.published["contacts"]
     assert lists[-1].contacts == [] and any(c.link == "gripper" for m in lists for c in m.contacts)
+
+
+@pytest.fixture(scope="module")
+def tombatossals():
+    world = World(WorldParams())
+    SCENES["table"](world)
+    robot = SimRobot(world, "tombatossals")
+    robot.step(0.3)
+    return robot
+
+
+def test_the_thumb_the_table_bends_is_a_finger_pose_contact_and_a_driven_hand_is_none(tombatossals):
+    """Thesis §4.4.5 on a station: the open allegro hand pressed down onto the table; its hanging thumb, bent by the
+    table while the hand is at rest, gets hypotheses over its surface, no other finger does, and none while the
+    hand's command runs."""
+    robot = tombatossals
+    cue = {c.arm: c for c in robot_cues(robot, 1.5)}["right"]
+    assert FingerCue.applies(robot, cue)
+    fingers = FingerCue(robot, cue)
+    hand, arm = robot.hand(cue.hand), robot.arm("right")
+    hand.open()
+    robot.step(0.5)
+    robot.tare_ft("right")
+    arm.guarded_move([0, 0, -0.3, 0, 0, 0], max_force=40.0, duration=10)
+    clouds = []
+    while not arm.done() and robot.time < 15.0:
+        robot.step(0.05)
+        clouds.append(fingers.cloud(robot, robot.time))
+    touched = [c for c in clouds if len(c)]
+    assert not any(len(c) for c in clouds[:10]), "hypotheses before the hand reached the table"
+    assert touched, "the table bent no finger"
+    thumb = fingers.stopes[3]
+    sph = robot.spherical
+    caps = np.concatenate([sph.C1[thumb], sph.r1[thumb, None], sph.C2[thumb], sph.r2[thumb, None]], axis=1)
+    last = touched[-1]
+    assert np.abs(capsule_distance(last.location, caps)).max() < 0.01  # on the thumb's surface only
+    assert last.location[:, 2].min() < 0.77  # down to the table top (0.75 m)
+    assert np.isclose(last.likelihood.sum(), 1.0)  # one contact somewhere on the finger (uniform law)
+    hand.close()
+    robot.step(0.05)
+    assert len(fingers.cloud(robot, robot.time)) == 0  # the hand is driven: its fingers move on command
