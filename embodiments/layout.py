@@ -186,10 +186,14 @@ VISION_INPUTS = {"detect_objects": {"objects": "objects.objects", "plane": "plan
 
 
 def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect: tuple[str, ...] = (),
-                clock: str = "lockstep", cell: str = "", embodiment: str = "") -> dict[str, Any]:
+                clock: str = "lockstep", cell: str = "", embodiment: str = "", contacts: bool = False) -> dict[str, Any]:
     """A robot's vision3d node (thesis §6.3.3): cloud -> plane -> ROI -> self filter -> objects, fed by the depth
     stream and the joints its world publishes (the self filter poses the spherical model of ``embodiment``,
-    default ``robot``, at its registry base).
+    default ``robot``, at its registry base). With ``contacts`` (the robot's control node runs its contact fusion,
+    :func:`contact_modules`) it also runs the range generator (§4.4.4: the occupancy grid of the objects it sees
+    above the support plane, the posed model of the robot's control node as the virtual contact sensor) on the same
+    depth stream, its clouds on ``contacts/<robot>/range``, which the robot's fusion plugs beside its other
+    generators.
 
     The world streams depth frames only with its ``camera_hz`` param set. In lockstep (the
     default) the world waits for the chain each tick, so a frame's objects reach a task at the
@@ -208,6 +212,10 @@ def vision_node(site: str, robot: str, node: str = "", listen: str = "", connect
         {"name": "objects", "type": f"{svc}.cluster_extractor:ClusterExtractor",
          "inputs": {"cloud": "self.cloud", "plane": "plane.plane"}},
     ]
+    if contacts:
+        modules.append({"name": "range", "type": "range_hypotheses", "params": {"robot": robot},
+                        "inputs": {"depth": ks.robot(robot, "depth"), "robot_model": f"{robot}/model.robot_model",
+                                   "roi": "plane.roi"}})
     return {"site": site, "node": node or f"vision3d_{robot}", "robot": robot, "clock": clock, "cell": cell,
             "zenoh": zenoh(listen, connect), "modules": modules}
 

@@ -49,9 +49,31 @@ def capsule_distance(points: np.ndarray, caps: np.ndarray, chunk: int = 65536) -
     return out
 
 
-def distance_fn(caps: np.ndarray) -> DistanceFn:
+def distance_fn(caps: np.ndarray, cutoff: float = np.inf) -> DistanceFn:
+    """The signed distance to the union of ``caps``; with a finite ``cutoff``, ``+inf`` for the points outside every
+    part's bounding box grown by ``cutoff`` (farther than that from the union): what a caller that only tells
+    near from far needs, without a distance to each part for every point of a large grid."""
     caps = check_capsules(caps)
-    return lambda points: capsule_distance(points, caps)
+    if not np.isfinite(cutoff) or caps.shape[0] == 0:
+        return lambda points: capsule_distance(points, caps)
+    r1, r2 = caps[:, 3:4], caps[:, 7:8]
+    lo = np.minimum(caps[:, 0:3] - r1, caps[:, 4:7] - r2) - cutoff
+    hi = np.maximum(caps[:, 0:3] + r1, caps[:, 4:7] + r2) + cutoff
+
+    g_lo, g_hi = lo.min(axis=0), hi.max(axis=0)
+
+    def near(points: np.ndarray, chunk: int = 16384) -> np.ndarray:
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.full(pts.shape[0], np.inf)
+        cand = np.flatnonzero(np.all((pts >= g_lo) & (pts <= g_hi), axis=1))  # in the union's box first: one test
+        for s in range(0, cand.size, chunk):
+            idx = cand[s:s + chunk]
+            p = pts[idx, None, :]
+            boxed = idx[((p >= lo) & (p <= hi)).all(axis=2).any(axis=1)]
+            out[boxed] = capsule_distance(pts[boxed], caps)
+        return out
+
+    return near
 
 
 def gradient(distance: DistanceFn, points: np.ndarray, h: float = 1e-3) -> np.ndarray:

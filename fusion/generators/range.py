@@ -25,10 +25,10 @@ from contactflow.embodiments.messages import DepthImage, PointCloud, RobotModel
 from contactflow.fusion.generators.base import GeneratorModule, capsules_of
 from contactflow.fusion.geometry import DistanceFn, distance_fn
 from contactflow.fusion.hypotheses import VOXEL_SIZE, Hypotheses, HypothesisType
-from contactflow.nodes.messages import Vector
 from contactflow.nodes.module import Port
 from contactflow.nodes.status import Status
 from contactflow.nodes.wire import NDArray
+from contactflow.recognition.messages import RoiMsg
 
 P_OCCLUDED = 0.5
 
@@ -54,7 +54,7 @@ class RangeParams:
     robot_margin: float = 0.01  # m, depth points this close to the robot model are the robot
     table_margin: float = 0.005  # m, depth points this close above the table are the table
     roi: tuple[float, ...] = ()  # m, [xlo, ylo, zlo, xhi, yhi, zhi] box around the object, world; the roi input
-    # overrides it; (): the whole view
+    # (a vision chain's region above its support plane) overrides it; (): the whole view
     stride: int = 2  # px, decimation of a depth input's image before back-projection
 
     def validate(self) -> None:
@@ -247,7 +247,8 @@ class RangeHypothesesGenerator(GeneratorModule):
         Port("points", PointCloud, "depth points, world frame, with the camera position as origin"),
         Port("depth", DepthImage, "or a camera's depth frames (a world's depth stream), back-projected here"),
         Port("robot_model", RobotModel, "posed bi-spheres of the observed robot, world"),
-        Port("roi", Vector, "[xlo, ylo, zlo, xhi, yhi, zhi] box around the object, world (optional)"),
+        Port("roi", RoiMsg, "the region the objects are read in (a vision chain's region above its support plane: "
+                            "its box's axis-aligned bounds, world; optional, else params.roi)"),
     )
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
@@ -266,13 +267,14 @@ class RangeHypothesesGenerator(GeneratorModule):
         roi = self.io.latest("roi")
         lo = hi = None
         if roi is not None:
-            box = np.asarray(roi.values, dtype=float)  # type: ignore[attr-defined]
-            if box.shape != (6,):
-                raise ValueError(f"{self.name}: input 'roi' has {box.size} values, expected 6")
-            lo, hi = box[:3], box[3:]
+            corners = np.asarray(roi.vertices, dtype=float)  # type: ignore[attr-defined]
+            if corners.shape != (24,) or not np.isfinite(corners).all():
+                raise ValueError(f"{self.name}: input 'roi' has {corners.size} vertex values, expected 8 finite x, y, z")
+            lo, hi = corners.reshape(8, 3).min(axis=0), corners.reshape(8, 3).max(axis=0)
         elif self.params.roi:
             lo, hi = np.asarray(self.params.roi[:3]), np.asarray(self.params.roi[3:])
-        dist = distance_fn(self.near(model, lo, hi))
+        # a point or a voxel farther from the robot than its margins is neither the robot nor on its surface
+        dist = distance_fn(self.near(model, lo, hi), cutoff=max(self.params.surface_band, self.params.robot_margin))
         msg = max(frames, key=lambda m: m.hdr.t_sim)
         if isinstance(msg, DepthImage):
             msg = self.back_project(msg)

@@ -88,10 +88,12 @@ def test_quick_demo_succeeds_on_every_robot_with_the_expected_physical_result(tm
     assert any("/simulator/" in i for c in summary["contacts"] if c["robot"] == "tombatossals" for i in c["inputs"])
     for c in summary["contacts"]:
         assert c["sources"] and len(c["inputs"]) == len(c["sources"]), c
-        # the sensed cues, and the support of where the hands move (motion) and of what the predictor predicts
-        assert all(i.startswith(f"{c['robot']}/") and any(g in i for g in ("/cues_", "/motion/", "/simulator/"))
+        # the sensed cues, the vision3d node's range, and the support of where the hands move (motion) and of what
+        # the predictor predicts
+        assert all(i.startswith(f"{c['robot']}/") and any(g in i for g in ("/cues_", "/range/", "/motion/",
+                                                                           "/simulator/"))
                    for i in c["inputs"]), c
-        assert any("/cues_" in i for i in c["inputs"]), c  # support alone makes no contact
+        assert any(g in i for i in c["inputs"] for g in ("/cues_", "/range/")), c  # support alone makes no contact
     for name in ("timeline.png", "contacts.png"):
         assert (tmp_path / name).stat().st_size > 10_000
 

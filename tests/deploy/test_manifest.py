@@ -64,7 +64,10 @@ def test_default_manifest_runs_the_real_modules_of_the_areas():
     agents = {n.host: mod["params"]["robot"] for n in m.nodes() for mod in n.modules if mod["type"] == "robot_agent"}
     assert agents == {r.control: r.name for r in m.robots.values()}
     assert {c.__module__.rsplit(".", 1)[-1] for (h, _), c in classes.items() if h == "vision3d"} == {
-        "cloud_builder", "plane_detector", "roi_filter", "self_filter", "cluster_extractor"}
+        "cloud_builder", "plane_detector", "roi_filter", "self_filter", "cluster_extractor", "range"}
+    # the range generator on the 3D vision computer (thesis §4.4.4) about tombatossals, whose control node fuses it
+    (rng,) = [mod for n in m.nodes() for mod in n.modules if n.host == "vision3d" and mod["type"] == "range_hypotheses"]
+    assert rng["params"]["robot"] == "tombatossals" and rng["inputs"]["robot_model"] == "tombatossals/model.robot_model"
     assert classes[("vision2d", "shape")].__module__.endswith("classify_shape")
     # each robot's control node fuses its own contacts: a cue generator per arm with a hand, and contact_fusion
     for r in m.robots.values():

@@ -242,3 +242,39 @@ def test_a_task_transitions_on_the_robots_fused_contacts(tmp_path):
         cues, motion = f"/control_{ROBOT}/cues_", f"/control_{ROBOT}/motion/"
         assert all(cues in i.source or motion in i.source for i in c.hdr.inputs), c.hdr.inputs
         assert any(cues in i.source for i in c.hdr.inputs), c.hdr.inputs  # support alone makes no contact
+
+
+def test_the_vision_node_s_range_generator_is_fused_with_the_control_node_s_cues(tmp_path):
+    """Thesis §4.4.4 on the runtime: the vision3d node's range generator (the occupancy grid of what it sees above
+    the table, the control node's posed model as the virtual contact sensor) publishes on contacts/<robot>/range,
+    and the robot's own fusion on the control node fuses it with the hand's cues: contacts the range evidence took
+    part in lie on the grasping hand, the first where it came down on the can."""
+    from contactflow.embodiments.layout import (
+        CELLS,
+        PLACE_TARGET,
+        VISION_INPUTS,
+        control_node,
+        vision_node,
+        world_node,
+    )
+    from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
+    from contactflow.embodiments.tasks import TASKS_DIR
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    target = list(pose6(top_grasp_pose(PLACE_TARGET)).values())
+    control = control_node("rt6", ROBOT, ROBOT, TASKS_DIR / "thesis.yaml", "pick_and_place", {"target": target},
+                           connect=(endpoint,), autostart=True, inputs=VISION_INPUTS, contacts=True)
+    vision = vision_node("rt6", ROBOT, connect=(endpoint,), contacts=True)
+    assert [m["inputs"] for m in vision["modules"] if m["type"] == "range_hypotheses"] == [
+        {"depth": "cf/rt6/robot/tombatossals/depth", "robot_model": "tombatossals/model.robot_model", "roi": "plane.roi"}]
+    world = world_node("rt6", CELLS / "pick_place.yaml", listen=endpoint, wait_for=(control["node"], vision["node"]),
+                       camera_hz=2.0)
+    run = run_cell(tmp_path, world, [control], endpoint, services=(vision,), timeout=180)
+    assert run.outcomes[ROBOT].event is Event.SUCCESS, run.events
+    ranged = [c for c in run.contacts if f"{ROBOT}/range" in c.sources]
+    assert ranged, {s for c in run.contacts for s in c.sources}
+    assert all(c.part.startswith("right_") and c.region in ("finger", "palm", "held_object") for c in ranged), [
+        (c.part, c.region) for c in ranged]
+    # the first where the hand came down on the can (at 0.55, -0.30; 12 cm tall on the table at 0.75 m)
+    first = min((c for c in ranged if c.event is Event.CONTACT_MADE), key=lambda c: c.t)
+    assert np.linalg.norm(np.subtract(first.location[:2], (0.55, -0.3))) < 0.06 and 0.75 < first.location[2] < 0.9, first

@@ -239,3 +239,19 @@ def test_null_generator_swept_space_and_free_boxes():
     integ.offer("null", gen.update(inside, 1.1), 1.1)
     integ.offer("tactile", tactile_hypotheses(np.array([1.0]), np.array([[0.53, 0, 0.8]]), 1.1), 1.1)
     assert len(integ.cycle(1.1)) == 1
+
+
+def test_a_distance_with_a_cutoff_is_exact_near_the_parts_and_infinite_beyond():
+    """What the range generator evaluates over its grid: a point within the cutoff of a part gets its exact signed
+    distance, one farther than that from every part +inf (no distance to each part computed for it)."""
+    rng = np.random.default_rng(3)
+    c1 = rng.uniform(0.3, 0.7, (12, 3))
+    r = rng.uniform(0.01, 0.04, (12, 2))
+    caps = np.concatenate([c1, r[:, :1], c1 + rng.normal(0, 0.05, (12, 3)), r[:, 1:]], axis=1)
+    pts = rng.uniform(0.0, 1.0, (40_000, 3))
+    exact = distance_fn(caps)(pts)
+    cut = distance_fn(caps, cutoff=0.01)(pts)
+    near = exact <= 0.01
+    assert near.sum() > 100 and (~near).sum() > 100
+    assert np.array_equal(cut[near], exact[near])
+    assert np.all(cut[~near] > 0.01) and np.isinf(cut[exact > 0.2]).all()

@@ -175,12 +175,19 @@ def depth_frame(eye, box_top_z=0.87, half=0.03, table_z=0.75, size=120):
 
 
 def test_a_range_generator_reads_a_worlds_depth_stream_within_its_roi():
+    from contactflow.recognition.geometry import Box
+    from contactflow.recognition.messages import RoiMsg
+
     on_top = np.array([[0.55, 0.0, 0.885, 0.015, 0.55, 0.0, 0.95, 0.015]])  # a fingertip on the box
     away = np.array([[0.9, 0.4, 1.2, 0.01, 0.9, 0.4, 1.25, 0.01]])
+    box, beside = (0.45, -0.1, 0.76, 0.65, 0.1, 1.0), (0.7, 0.2, 0.76, 0.9, 0.4, 1.0)
     found = {}
-    for name, roi in (("box", (0.45, -0.1, 0.76, 0.65, 0.1, 1.0)), ("beside", (0.7, 0.2, 0.76, 0.9, 0.4, 1.0))):
+    for name, roi, region in (("box", box, None), ("beside", beside, None), ("input beside", box, beside)):
         gen = RangeHypothesesGenerator("range", RangeParams(robot="melfa", require_motion=False, roi=roi))
         io = started(gen)
+        if region is not None:  # a vision chain's region above its plane (roi input) overrides params.roi
+            lo, hi = np.array(region[:3]), np.array(region[3:])
+            io.feed("roi", RoiMsg.of(Box((lo + hi) / 2, np.eye(3), hi - lo)))
         io.feed("robot_model", robot_model(away, robot="melfa"))
         io.feed("depth", depth_frame((0.55, 0.0, 1.45)))
         gen.step()
@@ -190,7 +197,8 @@ def test_a_range_generator_reads_a_worlds_depth_stream_within_its_roi():
         found[name] = gen.core.camera, clouds(io)[-1]
         if name == "box":  # the link far from the roi and the grid is left out of the distances: it changes no voxel
             assert np.array_equal(gen.near(np.vstack([on_top, away]), np.array(roi[:3]), np.array(roi[3:])), on_top)
-    assert found["beside"][0] is None and len(found["beside"][1]) == 0  # nothing in that roi: no grid, no contact
+    for name in ("beside", "input beside"):
+        assert found[name][0] is None and len(found[name][1]) == 0, name  # nothing in that roi: no grid, no contact
     camera, h = found["box"]
     assert np.allclose(camera, [0.55, 0.0, 1.45])  # the grid's rays start at the frame's camera
     assert len(h) > 0 and np.linalg.norm(h.location.mean(axis=0) - [0.55, 0.0, 0.87]) < 0.01
