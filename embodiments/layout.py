@@ -534,3 +534,20 @@ def table_cell(site: str, endpoint: str, melfa: bool = False, predictor: Mapping
     w = world_node(site, CELLS / f"{cell}.yaml", listen=endpoint, wait_for=tuple(c["node"] for c in controls),
                    pipeline=pipeline)
     return w, controls
+
+
+def vision_cell(site: str, endpoint: str, camera_hz: float = 2.0, contacts: bool = False) -> tuple[dict, dict, dict]:
+    """The reference cell with the 3D vision computer: tombatossals picks the can its vision3d node segmented from
+    the world's Kinect stream (``camera_hz``, in simulated time) and places it (``pick_and_place``); with
+    ``contacts`` the control node runs the robot's contact fusion and the vision node the range generator it fuses
+    (:func:`vision_node`). Returns the world node (listening on ``endpoint``, waiting for both nodes before tick 1),
+    the control node and the vision node (connecting to it)."""
+    from contactflow.embodiments.tasks import TASKS_DIR
+
+    control = control_node(site, "tombatossals", "tombatossals", TASKS_DIR / "thesis.yaml", "pick_and_place",
+                           {"target": _pose(PLACE_TARGET)}, connect=(endpoint,), autostart=True, inputs=VISION_INPUTS,
+                           contacts=contacts)
+    vision = vision_node(site, "tombatossals", connect=(endpoint,), contacts=contacts)
+    world = world_node(site, CELLS / "pick_place.yaml", listen=endpoint, wait_for=(control["node"], vision["node"]),
+                       camera_hz=camera_hz)
+    return world, control, vision

@@ -59,7 +59,6 @@ def distance_fn(caps: np.ndarray, cutoff: float = np.inf) -> DistanceFn:
     r1, r2 = caps[:, 3:4], caps[:, 7:8]
     lo = np.minimum(caps[:, 0:3] - r1, caps[:, 4:7] - r2) - cutoff
     hi = np.maximum(caps[:, 0:3] + r1, caps[:, 4:7] + r2) + cutoff
-
     g_lo, g_hi = lo.min(axis=0), hi.max(axis=0)
 
     def near(points: np.ndarray, chunk: int = 16384) -> np.ndarray:

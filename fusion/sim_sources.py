@@ -18,11 +18,15 @@ from contactflow.fusion.hypotheses import Hypotheses
 FT_BAND = 0.02  # m, F/T hypotheses kept this close to the hand model (bi-sphere fitting error)
 
 
+def stope_capsules(sph, sel: Sequence[int] | np.ndarray) -> np.ndarray:
+    """The posed bi-spheres ``[c1, r1, c2, r2]`` (k, 8) of s-topes ``sel`` of a spherical model."""
+    return np.concatenate([sph.C1[sel], sph.r1[sel, None], sph.C2[sel], sph.r2[sel, None]], axis=1)
+
+
 def hand_capsules(robot, link_prefixes: Sequence[str]) -> np.ndarray:
     """The posed bi-spheres ``[c1, r1, c2, r2]`` (k, 8) of the links whose names start with a prefix."""
     sph = robot.spherical
-    sel = [i for i, link in enumerate(sph.links) if any(link.startswith(p) for p in link_prefixes)]
-    return np.concatenate([sph.C1[sel], sph.r1[sel, None], sph.C2[sel], sph.r2[sel, None]], axis=1)
+    return stope_capsules(sph, [i for i, link in enumerate(sph.links) if any(link.startswith(p) for p in link_prefixes)])
 
 
 def taxel_readings(robot, hand: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

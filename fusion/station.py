@@ -17,7 +17,13 @@ from contactflow.fusion.generators.finger import FingerParams, FingerPoseGenerat
 from contactflow.fusion.generators.tactile import tactile_hypotheses
 from contactflow.fusion.geometry import capsule_surface
 from contactflow.fusion.hypotheses import Hypotheses
-from contactflow.fusion.sim_sources import hand_capsules, taxel_readings, wrist_hypotheses
+from contactflow.fusion.sim_sources import (
+    hand_capsules,
+    stope_capsules,
+    taxel_readings,
+    wrist_hypotheses,
+)
+from contactflow.nodes.status import Status
 
 
 @dataclass
@@ -102,21 +108,17 @@ class FingerCue:
 
     @staticmethod
     def applies(robot: object, cue: Cue) -> bool:
-        """True for a hand of several fingers, each with its joints (a gripper's jaws share theirs)."""
-        spec = robot.spec.hand(cue.hand)
-        return spec.kind == "multi_finger" and bool(spec.pads) and len(spec.joints) % len(spec.pads) == 0
+        """True for a hand of several fingers, each with joints of its own (a gripper's jaws share theirs)."""
+        from contactflow.embodiments.primitives.hands import finger_groups
+
+        return len({tuple(j) for j in finger_groups(robot.spec.hand(cue.hand)).values()}) > 1
 
     def cloud(self, robot: object, now: float) -> Hypotheses:
         """This reading's hypotheses: on the fingers bent since the hand last came to rest (empty while it is driven)."""
-        from contactflow.nodes.status import Status
-
         hand = robot.hand(self.hand)
-        sph = robot.spherical
 
         def surface(finger: int) -> np.ndarray:
-            sel = self.stopes[finger]
-            caps = np.concatenate([sph.C1[sel], sph.r1[sel, None], sph.C2[sel], sph.r2[sel, None]], axis=1)
-            return capsule_surface(caps, self.core.params.voxel_size)
+            return capsule_surface(stope_capsules(robot.spherical, self.stopes[finger]), self.core.params.voxel_size)
 
         q = hand.positions()
         # a hand whose command ended still settles onto its goal: the reference waits until its fingers are still

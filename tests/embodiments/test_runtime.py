@@ -249,26 +249,12 @@ def test_the_vision_node_s_range_generator_is_fused_with_the_control_node_s_cues
     the table, the control node's posed model as the virtual contact sensor) publishes on contacts/<robot>/range,
     and the robot's own fusion on the control node fuses it with the hand's cues: contacts the range evidence took
     part in lie on the grasping hand, the first where it came down on the can."""
-    from contactflow.embodiments.layout import (
-        CELLS,
-        PLACE_TARGET,
-        VISION_INPUTS,
-        control_node,
-        vision_node,
-        world_node,
-    )
-    from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
-    from contactflow.embodiments.tasks import TASKS_DIR
+    from contactflow.embodiments.layout import vision_cell
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    target = list(pose6(top_grasp_pose(PLACE_TARGET)).values())
-    control = control_node("rt6", ROBOT, ROBOT, TASKS_DIR / "thesis.yaml", "pick_and_place", {"target": target},
-                           connect=(endpoint,), autostart=True, inputs=VISION_INPUTS, contacts=True)
-    vision = vision_node("rt6", ROBOT, connect=(endpoint,), contacts=True)
+    world, control, vision = vision_cell("rt6", endpoint, contacts=True)
     assert [m["inputs"] for m in vision["modules"] if m["type"] == "range_hypotheses"] == [
         {"depth": "cf/rt6/robot/tombatossals/depth", "robot_model": "tombatossals/model.robot_model", "roi": "plane.roi"}]
-    world = world_node("rt6", CELLS / "pick_place.yaml", listen=endpoint, wait_for=(control["node"], vision["node"]),
-                       camera_hz=2.0)
     run = run_cell(tmp_path, world, [control], endpoint, services=(vision,), timeout=180)
     assert run.outcomes[ROBOT].event is Event.SUCCESS, run.events
     ranged = [c for c in run.contacts if f"{ROBOT}/range" in c.sources]

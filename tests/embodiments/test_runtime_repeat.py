@@ -14,26 +14,12 @@ pytestmark = pytest.mark.heavy(seconds=100)
 
 
 def test_world_control_and_vision_pick_and_place_what_the_vision_node_segmented_and_repeat_in_three_processes(tmp_path):
-    from contactflow.embodiments.layout import (
-        CELLS,
-        PLACE_TARGET,
-        VISION_INPUTS,
-        control_node,
-        vision_node,
-        world_node,
-    )
-    from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
-    from contactflow.embodiments.tasks import TASKS_DIR
+    from contactflow.embodiments.layout import vision_cell
 
-    target = list(pose6(top_grasp_pose(PLACE_TARGET)).values())
     runs = []
     for processes in (False, True):
         endpoint = f"tcp/127.0.0.1:{free_port()}"
-        control = control_node("rtv", ROBOT, ROBOT, TASKS_DIR / "thesis.yaml", "pick_and_place", {"target": target},
-                               connect=(endpoint,), autostart=True, inputs=VISION_INPUTS)
-        vision = vision_node("rtv", ROBOT, connect=(endpoint,))
-        world = world_node("rtv", CELLS / "pick_place.yaml", listen=endpoint,
-                           wait_for=(control["node"], vision["node"]), camera_hz=2.0)
+        world, control, vision = vision_cell("rtv", endpoint)
         runs.append(run_cell(tmp_path / str(processes), world, [control], endpoint, processes=processes,
                              services=(vision,), timeout=180))
     one, three = runs

@@ -9,19 +9,25 @@ from contactflow.embodiments.world import World, WorldParams
 from contactflow.fusion.geometry import capsule_distance
 from contactflow.fusion.messages import HypothesisCloud
 from contactflow.fusion.service import ContactFusion, FusionParams
+from contactflow.fusion.sim_sources import stope_capsules
 from contactflow.fusion.station import FingerCue, cue_clouds, robot_cues
 from contactflow.nodes.status import Event
 from contactflow.nodes.testing import FakeIO, run_module
 from contactflow.nodes.wire import stamp
 
 
-@pytest.fixture(scope="module")
-def melfa():
+def at_table(name: str) -> SimRobot:
+    """Robot ``name`` at the table, its arms settled."""
     world = World(WorldParams())
     SCENES["table"](world)
-    robot = SimRobot(world, "melfa")
+    robot = SimRobot(world, name)
     robot.step(0.3)
     return robot
+
+
+@pytest.fixture(scope="module")
+def melfa():
+    return at_table("melfa")
 
 
 def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
@@ -78,11 +84,7 @@ def test_touching_the_table_makes_a_contact_and_lifting_breaks_it(melfa):
 
 @pytest.fixture(scope="module")
 def tombatossals():
-    world = World(WorldParams())
-    SCENES["table"](world)
-    robot = SimRobot(world, "tombatossals")
-    robot.step(0.3)
-    return robot
+    return at_table("tombatossals")
 
 
 def test_the_thumb_the_table_bends_is_a_finger_pose_contact_and_a_driven_hand_is_none(tombatossals):
@@ -105,9 +107,7 @@ def test_the_thumb_the_table_bends_is_a_finger_pose_contact_and_a_driven_hand_is
     touched = [c for c in clouds if len(c)]
     assert not any(len(c) for c in clouds[:10]), "hypotheses before the hand reached the table"
     assert touched, "the table bent no finger"
-    thumb = fingers.stopes[3]
-    sph = robot.spherical
-    caps = np.concatenate([sph.C1[thumb], sph.r1[thumb, None], sph.C2[thumb], sph.r2[thumb, None]], axis=1)
+    caps = stope_capsules(robot.spherical, fingers.stopes[3])  # the thumb's
     last = touched[-1]
     assert np.abs(capsule_distance(last.location, caps)).max() < 0.01  # on the thumb's surface only
     assert last.location[:, 2].min() < 0.77  # down to the table top (0.75 m)
