@@ -151,6 +151,34 @@ def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: 
 
 
 @njit(cache=True, nogil=True)
+def compact_rows(rec: np.ndarray, center: np.ndarray, row_keys: np.ndarray, ncol: int, n: int) -> int:
+    """Move the live rows of ``[0, n)`` (an entry of any column not expired) down over the dead ones, in order,
+    with their centres and keys, and empty the records left behind; returns the live count. One pass in memory
+    order, in place (the index is rebuilt from ``row_keys`` after it)."""
+    w = 0
+    for r in range(n):
+        alive = False
+        for c in range(ncol):
+            alive |= rec[r, c, STAMP] < np.inf
+        if not alive:
+            continue
+        if w != r:
+            for c in range(ncol):
+                for f in range(FIELDS):
+                    rec[w, c, f] = rec[r, c, f]
+            for a in range(3):
+                center[a, w] = center[a, r]
+            row_keys[w] = row_keys[r]
+        w += 1
+    for r in range(w, n):
+        for c in range(ncol):
+            for f in range(FIELDS):
+                rec[r, c, f] = 0.0
+            rec[r, c, STAMP] = np.inf
+    return w
+
+
+@njit(cache=True, nogil=True)
 def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than: float):
     """Expire the entries stamped before ``older_than``, then eq. 4.14 with the type rules over
     rows ``[0, n)`` of the first ``ncol`` columns.

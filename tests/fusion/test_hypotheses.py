@@ -100,6 +100,11 @@ def test_space_expiry_in_the_fused_pass_and_compact_keep_rows_consistent():
     rows = sp.index.lookup(keys_new)
     assert (rows >= 0).all() and np.allclose(sp.lik[1, rows], 0.7)
     assert np.allclose(sp.centers(rows), voxel_centers(keys_new, 0.005))
+    # compacted in place, in order: the rows left behind are empty records, the index knows only the live keys
+    assert np.array_equal(np.sort(rows), np.arange(keys_new.size))
+    assert np.isinf(sp.rec[sp.n:300, :, kernels.STAMP]).all() and not sp.rec[sp.n:300, :, kernels.LIK].any()
+    assert (sp.index.lookup(np.setdiff1d(voxel_keys(pts[:200], 0.005), keys_new)) == -1).all()
+    assert sp.index.count == sp.n and not sp.compact(live_rows=sp.n)  # nothing left to drop
 
 
 def test_kernel_type_codes_and_point_keys_match_the_numpy_definitions():
