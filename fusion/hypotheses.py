@@ -248,19 +248,17 @@ class VoxelIndex:
             size *= 2
         self.rebuild(self.row_keys[: self.count].copy(), size)
 
-    def reindex(self, n: int) -> None:
-        """Start over with the first ``n`` of ``row_keys`` (unique) as rows 0..n-1, in the same table."""
-        self.table.fill(kernels.EMPTY)
-        rows = np.empty(n, dtype=np.int64)
-        self.count = kernels.index_insert(self.table, self.shift, self.row_keys, 0, self.row_keys[:n], rows)
-
     def rebuild(self, keys: np.ndarray, size: int | None = None) -> None:
-        """Start over with ``keys`` as rows 0..n-1 (keys must be unique)."""
+        """Start over with ``keys`` as rows 0..n-1 (keys must be unique; they may be the first n of ``row_keys``:
+        each lands on its own row). A table of the same size is emptied in place."""
         n = keys.shape[0]
         size = size or self.size
         while n > size // 2:
             size *= 2
-        self._alloc(size)
+        if size == self.size:
+            self.table.fill(kernels.EMPTY)
+        else:
+            self._alloc(size)
         self.count = 0
         if n:
             rows = self.insert(keys)
@@ -388,9 +386,8 @@ class HypothesisSpace:
             live = int(np.count_nonzero(self.live())) if live_rows is None else live_rows
             if self.n - live <= self.DEAD_SHARE * max(self.n, 64):
                 return False
-        idx = self.index
-        self.n = kernels.compact_rows(self.rec, self.center, idx.row_keys, self.ncol, self.n)
-        idx.reindex(self.n)
+        self.n = kernels.compact_rows(self.rec, self.center, self.index.row_keys, self.ncol, self.n)
+        self.index.rebuild(self.index.row_keys[: self.n])
         return True
 
     @property

@@ -85,12 +85,10 @@ def cue_clouds(robot: object, cue: Cue, now: float) -> list[tuple[str, Hypothese
 class FingerCue:
     """Finger pose feedback (thesis §4.4.5) of one cue's multi-finger hand: a finger its drive does not move
     that the hand's encoders show moved since the hand came to rest is bent by a contact, somewhere on its
-    surface (:class:`~contactflow.fusion.generators.finger.FingerPoseGenerator`). The hand is driven while
-    its last command runs, and until its fingers are still after it; each finger's surface is the bi-spheres of
-    its joints' links in the posed model.
+    surface (:class:`~contactflow.fusion.generators.finger.FingerPoseGenerator`, which takes its reference once
+    the fingers are still). The hand is driven while its last command runs; each finger's surface is the
+    bi-spheres of its joints' links in the posed model.
     """
-
-    STILL = 0.005  # rad between two readings: fingers that move less have come to rest (a reference is taken)
 
     def __init__(self, robot: object, cue: Cue, params: FingerParams | None = None) -> None:
         from contactflow.embodiments.primitives.hands import finger_groups
@@ -104,7 +102,6 @@ class FingerCue:
         hung = np.array([st.joint for st in sph.stopes])
         self.stopes = [np.flatnonzero(np.isin(hung, sorted(ids))) for ids in joints]
         self.core = FingerPoseGenerator(fingers, params or FingerParams(robot=robot.name))
-        self._last: np.ndarray | None = None
 
     @staticmethod
     def applies(robot: object, cue: Cue) -> bool:
@@ -120,9 +117,4 @@ class FingerCue:
         def surface(finger: int) -> np.ndarray:
             return capsule_surface(stope_capsules(robot.spherical, self.stopes[finger]), self.core.params.voxel_size)
 
-        q = hand.positions()
-        # a hand whose command ended still settles onto its goal: the reference waits until its fingers are still
-        moving = self._last is not None and float(np.abs(q - self._last).max()) > self.STILL
-        self._last = q.copy()
-        driven = hand.status is Status.RUNNING or (self.core.reference is None and moving)
-        return self.core.update(q, surface, now, actuated=driven)
+        return self.core.update(hand.positions(), surface, now, actuated=hand.status is Status.RUNNING)

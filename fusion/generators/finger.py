@@ -4,7 +4,7 @@ On compliant hands a contact bends a finger that is not being driven. The encode
 each finger are compared with a reference taken while the hand was still; a finger whose
 joints moved more than ``joint_threshold`` gets hypotheses over its whole surface, each with
 likelihood 1/n. While the hand is driven the generator is disabled, and it takes a new
-reference once the hand stops. The shell reads the encoders from the robot's joint state and
+reference once the hand stops (its joints move less than ``still`` between two readings). The shell reads the encoders from the robot's joint state and
 samples each finger's surface from the bi-spheres of its links in the posed robot model.
 """
 
@@ -32,6 +32,7 @@ class FingerParams:
     rate_hz: float = 30.0  # Hz
     robot: str = "robot"
     joint_threshold: float = 0.03  # rad, involuntary joint deflection that means contact
+    still: float = 0.005  # rad, the largest joint change between two readings of a hand at rest (a reference is taken)
     finger_of_joint: tuple[float, ...] = ()  # finger index of each encoder joint (-1: none); () = one finger per joint
     voxel_size: float = VOXEL_SIZE  # m
     joints: tuple[str, ...] = ()  # encoder joints of the hand in the joint state; () = every joint
@@ -57,6 +58,7 @@ class FingerPoseGenerator:
         self.fingers = [np.asarray(f, dtype=int) for f in fingers]
         self.params = params or FingerParams()
         self.reference: np.ndarray | None = None
+        self._last: np.ndarray | None = None  # the previous reading: whether the fingers still move
 
     def deflected(self, q: np.ndarray) -> list[int]:
         """Fingers whose joints moved away from the reference."""
@@ -70,11 +72,15 @@ class FingerPoseGenerator:
         top = max(int(f.max()) for f in self.fingers)
         if q.size <= top:
             raise ValueError(f"finger_pose: {q.size} joint values, finger joint index {top} needs more")
+        still = self._last is None or float(np.abs(q - self._last).max()) <= self.params.still
+        self._last = q.copy()
         if actuated:
             self.reference = None
             return Hypotheses.empty(stamp)
         if self.reference is None:
-            self.reference = q.copy()
+            # a hand whose command ended still settles onto its goal: the reference waits until it is at rest
+            if still:
+                self.reference = q.copy()
             return Hypotheses.empty(stamp)
         clouds = []
         for i in self.deflected(q):

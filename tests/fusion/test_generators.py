@@ -164,6 +164,12 @@ def test_finger_pose_feedback():
     assert (h.location[:, 1] > 0.04).all()  # on finger 1 only
     assert len(gen.update(bent, surfaces.__getitem__, 0.3, actuated=True)) == 0
     assert len(gen.update(bent, surfaces.__getitem__, 0.4)) == 0  # new reference after actuation
+    # a hand whose command ended still settles: no reference while its joints move, then one once they are still
+    gen.update(q, surfaces.__getitem__, 0.5, actuated=True)
+    assert len(gen.update(q + 0.02, surfaces.__getitem__, 0.6)) == 0 and gen.reference is None
+    assert len(gen.update(q + 0.04, surfaces.__getitem__, 0.7)) == 0 and gen.reference is None
+    assert len(gen.update(q + 0.042, surfaces.__getitem__, 0.8)) == 0 and gen.reference == pytest.approx(q + 0.042)
+    assert len(gen.update(q + 0.042 + bent, surfaces.__getitem__, 0.9)) == 2  # bent from where it came to rest
 
 
 def test_motion_support_eq_4_12_4_13():
