@@ -119,25 +119,25 @@ def in_box(robot: SimRobot, names: list[str]) -> int:
     return count_in_box(robot.ground_truth().object_poses, names)
 
 
-@functools.lru_cache(maxsize=1)
-def _closed_hand() -> np.ndarray:
+@functools.lru_cache(maxsize=2)
+def _closed_hand(robot_name: str = ROBOT, arm: str = ARM) -> np.ndarray:
     """Surface points (N, 3) of the closed exploring hand in its controlled frame, faces sliced every 2 mm."""
     from contactflow.embodiments.hand_geometry import hand_points
 
-    robot = SimRobot(World(WorldParams()), ROBOT)
-    robot.hand(robot.spec.arm(ARM).hand).preshape("closed")
+    robot = SimRobot(World(WorldParams()), robot_name)
+    robot.hand(robot.spec.arm(arm).hand).preshape("closed")
     robot.step(1.5)
-    return hand_points(robot, ARM, edge_step=0.002)  # the sloped faces crossing a band's top too
+    return hand_points(robot, arm, edge_step=0.002)  # the sloped faces crossing a band's top too
 
 
-@functools.lru_cache(maxsize=2)
-def hand_footprint(band: float = HEIGHT) -> tuple[float, ...]:
+@functools.lru_cache(maxsize=4)
+def hand_footprint(band: float = HEIGHT, robot_name: str = ROBOT, arm: str = ARM) -> tuple[float, ...]:
     """Box [lo x, y, z, hi x, y, z] (m), in the controlled frame, of the closed exploring hand's lowest ``band`` m.
 
     Measured on the collision shapes. Only that part of a top-down hand goes below the walls'
     top and meets the objects: the wider palm and wrist above it pass over the walls.
     """
-    pts = _closed_hand()
+    pts = _closed_hand(robot_name, arm)
     low = pts[pts[:, 2] >= pts[:, 2].max() - band]  # the approach axis (z) points down
     return tuple(float(v) for v in np.concatenate([low.min(axis=0), low.max(axis=0)]))
 
@@ -184,7 +184,7 @@ def _world_extent(footprint: tuple[float, ...], yaw: float = np.pi / 2) -> tuple
     return w.min(axis=0), w.max(axis=0)
 
 
-def _inside(footprint: tuple[float, ...], clearance: float, yaw: float) -> tuple[float, float, float, float, float]:
+def hand_range(footprint: tuple[float, ...], clearance: float, yaw: float) -> tuple[float, float, float, float, float]:
     """(x0, x1, y0, y1, z): the controlled frame's range that keeps ``footprint`` ``clearance`` inside the box."""
     cx, cy = BOX_CENTER
     lo, hi = _world_extent(footprint, yaw)
@@ -208,7 +208,7 @@ def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float 
     unswept. ``reverse`` runs the
     serpentine from its other end (the loop stays last). ``yaw`` is the exploring hand's (top grasp).
     """
-    x0, x1, y0, y1, z = _inside(footprint, clearance, yaw)
+    x0, x1, y0, y1, z = hand_range(footprint, clearance, yaw)
     pts: list[float] = []
     for k, x in enumerate(np.linspace(x0, x1, lines)):
         ya, yb = (y0, y1) if k % 2 == 0 else (y1, y0)
@@ -216,7 +216,7 @@ def sweep_points(footprint: tuple[float, ...], lines: int = 3, clearance: float 
     if reverse:
         pts = [v for k in range(len(pts) - 3, -1, -3) for v in pts[k:k + 3]]
     if edge:
-        ex0, ex1, ey0, ey1, _ = _inside(edge, clearance, yaw)
+        ex0, ex1, ey0, ey1, _ = hand_range(edge, clearance, yaw)
         loop = [(ex0, ey0), (ex1, ey0), (ex1, ey1), (ex0, ey1)]
         end = np.array(pts[-3:-1])
         first = int(np.argmin([np.linalg.norm(end - c) for c in loop]))
@@ -293,7 +293,7 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
 
     def count(p: Progress) -> None:
         nonlocal attempts
-        if _attempt(p):
+        if attempt_started(p):
             attempts += 1
             if attempts > max_attempts or in_box(robot, names) == 0:
                 stop["now"] = True
@@ -307,7 +307,7 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
             "left": left, "success": left == 0, "result": str(res), "executor": "local", "sensor": sensor}
 
 
-def _in_box_poses(names: list[str], msg) -> int:
+def in_box_poses(names: list[str], msg) -> int:
     """:func:`in_box` from one ground-truth message of the world (``eval/<cell>/object_poses``)."""
     return count_in_box(dict(zip(msg.names, msg.poses.numpy(), strict=True)), names)
 
@@ -339,10 +339,10 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
             time.sleep(0.2)
             poses = cell.poses()
             if emptied is None:
-                emptied = next((m.hdr.t_sim for m in poses if _in_box_poses(names, m) == 0), None)
+                emptied = next((m.hdr.t_sim for m in poses if in_box_poses(names, m) == 0), None)
             now = poses[-1].hdr.t_sim if poses else 0.0
             until = min(emptied if emptied is not None else np.inf, max_time)
-            attempts = sum(m.hdr.t_sim <= until for m in cell.progress() if _attempt(m))
+            attempts = sum(m.hdr.t_sim <= until for m in cell.progress() if attempt_started(m))
             if cell.outcome() is not None:
                 why = "the task ended"
             elif emptied is not None and now - emptied > 8.0:
@@ -351,13 +351,13 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
                 why = "supervisor: attempt limit"
             elif now >= max_time:
                 why = f"supervisor: {max_time:g} s of simulated time"
-        left = _in_box_poses(names, poses[-1]) if emptied is None else 0
+        left = in_box_poses(names, poses[-1]) if emptied is None else 0
     end = emptied if emptied is not None else min(now, max_time)
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": min(attempts, max_attempts + 1),
             "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime", "sensor": sensor}
 
 
-def _attempt(m) -> bool:
+def attempt_started(m) -> bool:
     """A progress report (the engine's, or its wire message) of a grasp attempt starting: ``grasp`` entered in an ``attempt``."""
     return m.kind == str(ProgressKind.ENTERED) and m.node == "grasp" and bool(m.path) and m.path[-1].startswith("attempt")
 

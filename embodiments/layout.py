@@ -109,12 +109,13 @@ def contact_modules(robot: str, embodiment: str = "", predictor: bool = False) -
                         "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3}}]
 
 
-def cell_map_module(cell: str, robots: tuple[str, ...]) -> dict:
+def cell_map_module(cell: str, robots: tuple[str, ...], **params: Any) -> dict:
     """The module entry of a cell's contact map (``cell_fusion``): the clouds of every generator of ``robots`` fused
-    into one map, out on ``contacts/fused/<cell>/...``, at the pace of a robot's own fusion (:func:`contact_modules`)."""
+    into one map, out on ``contacts/fused/<cell>/...``, at the pace of a robot's own fusion (:func:`contact_modules`);
+    ``params``: more of its Params (a ``map_region``: the objects its contacts touch there)."""
     return {"name": "cell_map", "type": "cell_fusion", "robot": "site", "autostart": True,
             "params": {"robot": cell, "robots": list(robots), "publish_hypotheses": False, "timeout": 0.3,
-                       "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3}}
+                       "wait_timeout": 0.05, "source_timeout": 0.5, "hold": 0.3, **_plain(params)}}
 
 
 def _plain(v: Any) -> Any:
@@ -423,15 +424,16 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         stop_nodes(started, watch, processes)
 
 
-def write_cell(path: Path, robot: str, objects: list, bottles: list = (), cameras: list = ()) -> Path:
-    """A scene file at ``path``: ``robot`` at its own placement, the table, ``objects`` (ObjectSpecs), ``bottles``
-    (ScrewBottleSpecs) and fixed ``cameras`` (CameraPlacements)."""
+def write_cell(path: Path, robot: str | list[Mapping[str, Any]], objects: list, bottles: list = (),
+               cameras: list = ()) -> Path:
+    """A scene file at ``path``: ``robot`` at its own placement (or the scene file's robot entries), the table,
+    ``objects`` (ObjectSpecs), ``bottles`` (ScrewBottleSpecs) and fixed ``cameras`` (CameraPlacements)."""
     import dataclasses
 
     from contactflow.embodiments.scene_file import bottle_entry, object_entry
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    doc = {"scene": "table", "robots": [{"name": robot}],
+    doc = {"scene": "table", "robots": [{"name": robot}] if isinstance(robot, str) else _plain(robot),
            "objects": [object_entry(o) for o in objects] + [bottle_entry(b) for b in bottles]}
     if cameras:
         doc["cameras"] = [_plain(dataclasses.asdict(c)) for c in cameras]

@@ -1,4 +1,4 @@
-"""Wire messages of contact fusion: hypothesis clouds, fused clouds, contacts, contact events.
+"""Wire messages of contact fusion: hypothesis clouds, fused clouds, contacts, contact events, object maps.
 
 Arrays travel as :class:`~contactflow.nodes.wire.NDArray` in float32 (5 mm voxels need no
 more) except time stamps and bitmasks. Every location is in the one world frame.
@@ -13,6 +13,7 @@ from contactflow.fusion.condensation import Contact
 from contactflow.fusion.events import ContactEvent
 from contactflow.fusion.hypotheses import Hypotheses, HypothesisType
 from contactflow.fusion.integrator import Fused
+from contactflow.fusion.object_map import MappedObject
 from contactflow.nodes.status import Event
 from contactflow.nodes.wire import Message, NDArray, WireError
 
@@ -174,4 +175,37 @@ class ContactEventMsg(Message, tag="contact_event"):
                    region=region[0], part=region[1])
 
 
-__all__ = ["ContactEventMsg", "ContactInfo", "ContactList", "FusedCloud", "HypothesisCloud", "HypothesisType"]
+class MappedObjectInfo(msgspec.Struct, frozen=True, kw_only=True):
+    """One object of an object map: where the contacts that touched it place it."""
+
+    id: int  # the map's id of the object (kept while it is mapped)
+    location: list[float]  # m, world frame: the mean of its last sightings
+    sightings: int  # fusion cycles in which a contact lay on it
+    touched: dict[str, float]  # robot -> s, when that robot last touched it
+    claims: int  # claims since it was last touched (hands that went for it and found nothing)
+
+    @classmethod
+    def of(cls, o: MappedObject) -> MappedObjectInfo:
+        return cls(id=o.id, location=[float(v) for v in o.location], sightings=o.sightings, touched=dict(o.touched),
+                   claims=o.claims)
+
+
+class ObjectMapMsg(Message, tag="object_map"):
+    """The objects a fusion's contacts touched in its map region, on ``KeySpace.fused(robot, "objects")``."""
+
+    map: str  # the map's name: its fusion's robot param (a robot's, or a cell's)
+    stamp: float  # s, time of the cycle
+    objects: list[MappedObjectInfo] = []  # the mapped objects
+
+
+class MapClaim(Message, tag="map_claim"):
+    """A robot goes for an object of a map, on ``KeySpace.fused(robot, "claims")`` (the map of that name counts it)."""
+
+    map: str  # the map's name (its ObjectMapMsg's)
+    robot: str  # the robot that goes for it
+    object_id: int  # the object's id in the map
+    location: list[float]  # m, world frame: where the robot goes
+
+
+__all__ = ["ContactEventMsg", "ContactInfo", "ContactList", "FusedCloud", "HypothesisCloud", "HypothesisType",
+           "MapClaim", "MappedObjectInfo", "ObjectMapMsg"]

@@ -4,7 +4,7 @@ Its ``hypotheses`` input is bound to a key expression over generator clouds, e.g
 generator of every robot of the site (``KeySpace.hypotheses("*", "*")``); each
 ``robot/generator`` pair is a source, plugged on its first cloud and unplugged after
 ``drop_after`` seconds of silence. Each cycle publishes the fused cloud, the condensed
-contacts and the contact events on ``KeySpace.fused(robot, stream)`` (see
+contacts, the contact events and, with a ``map_region``, the object map on ``KeySpace.fused(robot, stream)`` (see
 :meth:`ContactFusion.default_output_keys`) and raises the events for the task engine.
 """
 
@@ -27,9 +27,13 @@ from contactflow.fusion.messages import (
     ContactList,
     FusedCloud,
     HypothesisCloud,
+    MapClaim,
+    MappedObjectInfo,
+    ObjectMapMsg,
 )
+from contactflow.fusion.object_map import ObjectMap, ObjectMapParams
 from contactflow.fusion.regions import RegionParams, classify
-from contactflow.nodes.keys import KeySpace
+from contactflow.nodes.keys import ANY, KeySpace
 from contactflow.nodes.module import Layer, Module, Port
 from contactflow.nodes.status import Event, Status
 from contactflow.nodes.wire import WireError
@@ -58,6 +62,9 @@ class FusionParams:
     publish_hypotheses: bool = True
     region_margin: float = 0.015  # m, a contact this close to a hand link of the robot's posed model lies on it (fusion.regions)
     region_reach: float = 0.12  # m, farther out but this close to the hand: on what the hand holds
+    map_region: tuple[float, ...] = ()  # m, world box [xmin, ymin, zmin, xmax, ymax, zmax]: map what the contacts touch in it (objects output); (): no map
+    map_merge: float = 0.04  # m, a contact this close to a mapped object is on it
+    map_memory: int = 8  # sightings averaged into a mapped object's location (a carried object is followed)
 
     def validate(self) -> None:
         parts = self.sources.split("/")
@@ -70,6 +77,10 @@ class FusionParams:
         self.condensation().validate()
         self.tracker().validate()
         self.regions().validate()
+        self.object_map().validate()
+
+    def object_map(self) -> ObjectMapParams:
+        return ObjectMapParams(self.map_region, self.map_merge, self.map_memory)
 
     def regions(self) -> RegionParams:
         return RegionParams(self.region_margin, self.region_reach)
@@ -91,22 +102,24 @@ class ContactFusion(Module):
     layer = Layer.SERVICE
     Params = FusionParams
     inputs = (Port("hypotheses", HypothesisCloud, "clouds of any set of generators, world frame"),
-              Port("robot_model", RobotModel, "the robot's posed model: where on the hand each contact lies (optional)"))
+              Port("robot_model", RobotModel, "the robot's posed model: where on the hand each contact lies (optional)"),
+              Port("claims", MapClaim, "robots going for an object of the map (with map_region)"))
     outputs = (
         Port("hypotheses", FusedCloud, "fused hypotheses H(x)"),
         Port("contacts", ContactList, "condensed contacts"),
         Port("events", ContactEventMsg, "contact made / broken"),
+        Port("objects", ObjectMapMsg, "the objects the contacts touched in map_region"),
     )
     events = (Event.CONTACT_MADE, Event.CONTACT_BROKEN)
 
     @classmethod
     def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: FusionParams) -> dict[str, str]:
         robot, generator = params.sources.split("/")
-        return {"hypotheses": ks.hypotheses(robot, generator)}
+        return {"hypotheses": ks.hypotheses(robot, generator), "claims": ks.fused(ANY, "claims")}
 
     @classmethod
     def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: FusionParams) -> dict[str, str]:
-        return {stream: ks.fused(params.robot, stream) for stream in ("hypotheses", "contacts", "events")}
+        return {stream: ks.fused(params.robot, stream) for stream in ("hypotheses", "contacts", "events", "objects")}
 
     def setup(self, io) -> None:  # type: ignore[no-untyped-def]
         super().setup(io)
@@ -119,6 +132,7 @@ class ContactFusion(Module):
         p = self.params
         self.loop = FusionLoop(p.integrator(), p.condensation(), p.tracker(), drop_after=p.drop_after)
         self.rejected = 0
+        self.objects = ObjectMap(p.object_map()) if p.map_region else None
         self._model_msg: object = None  # the RobotModel last read, and its (robot, bi-spheres, links, regions)
         self._model: tuple[str, np.ndarray, list[str], list[str]] | None = None
 
@@ -135,6 +149,8 @@ class ContactFusion(Module):
         p.validate()
         self.loop.drop_after = p.drop_after
         self.loop.retune(p.integrator(), p.condensation(), p.tracker())
+        if p.object_map() != old.object_map():
+            self.objects = ObjectMap(p.object_map()) if p.map_region else None
 
     def admit(self, msg: HypothesisCloud, now: float) -> Hypotheses | None:
         """The cloud of ``msg`` for the next cycle (None: not fused); a malformed cloud raises WireError."""
@@ -144,6 +160,7 @@ class ContactFusion(Module):
         assert self.io is not None
         now = self.io.now
         only = self.params.generators
+        self._claims()
         for msg in self.io.take("hypotheses"):
             assert isinstance(msg, HypothesisCloud)
             if only and msg.generator not in only:
@@ -174,7 +191,19 @@ class ContactFusion(Module):
             on = f"{e.robot}/{e.link}" if e.link else e.robot
             self.io.emit(e.event, f"{on} {region} ({part})" if region else on,
                          {"id": float(e.id), "x": x, "y": y, "z": z, "likelihood": float(e.likelihood)})
+        if self.objects is not None:
+            self.objects.touch([c.location for c in contacts], [c.robot for c in contacts], now)
+            self.io.publish("objects", ObjectMapMsg(map=self.params.robot, stamp=now, objects=[MappedObjectInfo.of(o) for o in self.objects.objects]))
         return Status.RUNNING
+
+    def _claims(self) -> None:
+        """Count the robots' claims on the objects of this map (claims on other maps, or without a map, are dropped)."""
+        assert self.io is not None
+        for msg in self.io.take("claims"):
+            if self.objects is None or not isinstance(msg, MapClaim) or msg.map != self.params.robot:
+                continue
+            if not self.objects.claim(msg.object_id):
+                self.io.log(f"{msg.robot} claimed object {msg.object_id}, which the map does not hold")
 
     def _regions(self, locations: list[np.ndarray], robots: list[str], spread: list[float]) -> list[tuple[str, str]]:
         """Where on the hand each contact (location, robot, spread in m) lies, by the latest posed model. Untold,

@@ -8,7 +8,7 @@ Layout (``docs/protocol.md`` documents it with examples)::
     cf/<site>/m/<robot>/<node>/<module>/status             module status
     cf/<site>/m/<robot>/<node>/<module>/ctl                control queryable
     cf/<site>/contacts/<robot>/<generator>                 contact hypothesis clouds
-    cf/<site>/contacts/fused/<robot>/{hypotheses,contacts,events}
+    cf/<site>/contacts/fused/<robot>/{hypotheses,contacts,events,objects,claims}
     cf/<site>/broker/dispatch                              broker queryable (ATD in)
     cf/<site>/broker/progress/<task_id>                    abstract progress stream
     cf/<site>/broker/robots/<robot>/{caps,translate,run}   per-robot broker queryables
@@ -53,6 +53,9 @@ ROBOT_STREAMS = ("state", "joints", "command", "camera", "depth", "info")
 PREDICT_STREAMS = ("state", "mismatch", "ask", "ahead")
 """A robot's predictor: what its simulation predicts each tick, where prediction and sensing disagree, and
 look-ahead questions (``ask``) and their answers (``ahead``)."""
+FUSED_STREAMS = ("hypotheses", "contacts", "events", "objects", "claims")
+"""A fusion's (a robot's or a cell's): fused cloud, contacts, contact events, the objects its contacts touched
+(its object map) and the robots' claims on them."""
 
 
 class KeyExprError(ValueError):
@@ -134,8 +137,8 @@ class KeySpace:
         return f"{self.prefix}/contacts/{segment(robot, 'robot')}/{segment(generator, 'generator')}"
 
     def fused(self, robot: str = ANY, stream: str = "events") -> str:
-        if stream not in ("hypotheses", "contacts", "events"):
-            raise KeyExprError(f"stream={stream!r}: fused streams are hypotheses, contacts, events")
+        if stream not in FUSED_STREAMS:
+            raise KeyExprError(f"stream={stream!r}: fused streams are {', '.join(FUSED_STREAMS)}")
         return f"{self.prefix}/contacts/fused/{segment(robot, 'robot')}/{stream}"
 
     # -- broker ------------------------------------------------------------------------

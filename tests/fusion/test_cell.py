@@ -32,7 +32,7 @@ def test_the_cell_map_fuses_every_robot_of_the_cell_and_goes_out_under_the_cells
     assert resolve("cell_fusion") is CellFusion
     ks = KeySpace("lab")
     p = CellFusionParams(robot="table", robots=("baxter", "melfa"))
-    assert CellFusion.default_input_keys(ks, "site", "cell_map", p) == {"hypotheses": "cf/lab/contacts/*/*"}
+    assert CellFusion.default_input_keys(ks, "site", "cell_map", p)["hypotheses"] == "cf/lab/contacts/*/*"
     assert CellFusion.default_output_keys(ks, "site", "cell_map", p)["events"] == "cf/lab/contacts/fused/table/events"
     fusion, io = cell()
     io.feed("hypotheses", cloud(A, "baxter"))
@@ -99,3 +99,38 @@ def test_a_flooding_robot_is_throttled_and_the_others_clouds_come_through():
 def test_bad_parameters_are_named(params, match):
     with pytest.raises(ValueError, match=match):
         cell(**params)
+
+
+def test_a_cell_map_with_a_region_keeps_the_objects_any_robot_touched_and_counts_the_claims_on_them():
+    from contactflow.fusion.messages import MapClaim, ObjectMapMsg
+
+    ks = KeySpace("lab")
+    p = CellFusionParams(robot="table", robots=("baxter", "melfa"))
+    assert CellFusion.default_input_keys(ks, "site", "cell_map", p)["claims"] == "cf/lab/contacts/fused/*/claims"
+    assert CellFusion.default_output_keys(ks, "site", "cell_map", p)["objects"] == "cf/lab/contacts/fused/table/objects"
+    fusion, io = cell(map_region=(0.4, 0.2, 0.75, 0.6, 0.4, 0.9))
+    io.feed("hypotheses", cloud(A, "baxter"))  # in the region
+    io.feed("hypotheses", cloud(B, "melfa"))  # outside it
+    fusion.step()
+    (objects,) = io.published["objects"]
+    assert isinstance(objects, ObjectMapMsg) and objects.map == "table"
+    (o,) = objects.objects
+    assert o.location == pytest.approx(A[0], abs=0.01) and o.touched == {"baxter": 0.0} and o.claims == 0
+    for m in ("table", "table", "elsewhere"):  # a claim on another map is not this map's
+        io.feed("claims", MapClaim(map=m, robot="melfa", object_id=o.id, location=o.location))
+    io.feed("claims", MapClaim(map="table", robot="melfa", object_id=99, location=o.location))
+    io.t = 1.0  # the touch is over: the next cycle, of melfa's cloud alone, counts the claims and keeps the object
+    io.feed("hypotheses", cloud(B, "melfa", t=1.0))
+    fusion.step()
+    io.t = 1.3  # baxter's source was waited for (wait_timeout) and is late
+    fusion.step()
+    assert len(io.published["objects"]) == 2
+    assert io.published["objects"][-1].objects[0].claims == 2
+    assert any("object 99" in line for line in io.logs)
+
+
+def test_without_a_region_the_fusion_keeps_no_object_map():
+    fusion, io = cell()
+    io.feed("hypotheses", cloud(A, "baxter"))
+    fusion.step()
+    assert "objects" not in io.published and fusion.objects is None

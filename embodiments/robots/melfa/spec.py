@@ -32,7 +32,8 @@ SPEC = RobotSpec(
     fts=(FTSpec(name="wrist_ft", link="panda_hand"),),
     capabilities=Capabilities(
         primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "watch_prediction", "detect_objects",
-                              "place_location", "close_until_force", "robust_grasp"}),
+                              "place_location", "close_until_force", "robust_grasp",
+                              "poke", "choose_mapped"}),
         workspace_min=(0.2, -0.5, 0.75),
         workspace_max=(0.75, 0.5, 1.3),
         payload=3.0,

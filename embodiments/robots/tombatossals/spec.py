@@ -68,7 +68,7 @@ SPEC = RobotSpec(
     capabilities=Capabilities(
         primitives=frozenset({"transport", "move_to", "release", "hold", "lift", "wait_event", "watch_prediction", "detect_objects", "place_location",
                               "robust_grasp", "naive_grasp", "place", "slide", "explore", "unscrew", "push", "pull",
-                              "touch"}),
+                              "touch", "poke", "choose_mapped"}),
         workspace_min=(0.2, -0.8, 0.75),
         workspace_max=(0.85, 0.8, 1.35),
         payload=2.0,

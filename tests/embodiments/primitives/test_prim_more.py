@@ -309,3 +309,24 @@ def test_a_primitive_run_again_with_another_arm_drives_that_arm(tomba) -> None:
     hold.set_params({"arm": "right"})
     hold.start()
     assert (hold.arm_name, hold.hand_name, hold.ee_frame) == ("right", "right_hand", "right_grasp")
+
+
+def test_poke_touches_down_at_each_spot_and_counts_what_stood_there() -> None:
+    world = World(WorldParams())
+    world.add_table()
+    world.add_object(box("cube", (0.045, 0.045, 0.045), xyz=(0.45, 0.1, 0.7725), mass=0.1, friction=0.8))
+    robot = SimRobot(world, "melfa")
+    runner = LocalPrimitiveRunner(robot)
+    floor, height = 0.75 + 0.035 + 0.005, 0.75 + 0.035 + 0.09  # the closed gripper's tips 3.5 cm below its frame
+    start = vec(top_grasp_pose((0.45, 0.0, height), 0.0))
+    assert outcome(run_primitive(runner, "move_to", {"target": start})).event is Event.SUCCESS
+    poked = run_primitive(runner, "poke", {"spots": [0.45, 0.0, 0.45, 0.1, 0.45, 0.2], "height": height, "floor_z": floor},
+                          max_time=60)
+    assert outcome(poked).event is Event.SUCCESS and outcome(poked).values["touches"] == 1.0
+    (touch,) = [e for e in poked if e.event is Event.CONTACT]
+    assert touch.values["spot"] == 1.0  # the cube's, not the bare table's beside it
+    cube = robot.ground_truth().object_poses["cube"][:3, 3]
+    assert np.linalg.norm(cube[:2] - (0.45, 0.1)) < 0.01  # touched, not pushed away
+    assert robot.arm("arm").ee_pose()[2, 3] == pytest.approx(height, abs=0.01)  # back up at the end
+    nothing = run_primitive(runner, "poke", {"spots": [0.45, 0.2], "height": height, "floor_z": floor}, max_time=30)
+    assert Event.OBJECT_NOT_FOUND in labels(nothing)
