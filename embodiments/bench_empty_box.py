@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from contactflow.embodiments.parallel import run_all
+from contactflow.embodiments.parallel import run_logged
 from contactflow.embodiments.primitives.base import pose6, top_grasp_pose
 from contactflow.embodiments.primitives.fused import CONTACT_SENSORS
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner
@@ -410,7 +410,6 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     what the exploration's guarded moves stop on, own or fused or both side by side (default own; the other
     strategies do not explore, and run once)."""
     from rich.console import Console
-    from rich.progress import Progress as Bar
     from rich.table import Table
 
     from contactflow.nodes.params import ParamError
@@ -436,17 +435,9 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     variants = [(s, sn) for s in chosen for sn in (sensors if s == "exploration" else sensors[:1])]
     plan = [(ex, s, first_seed + k, n_objects, max_attempts, max_time, sn)
             for ex in executors for s, sn in variants for k in range(n_runs)]
-    partial = out_dir / "empty_box_runs.jsonl"  # one line per finished run, for long benchmarks
-    partial.write_text("")
-    with Bar(transient=True) as bar:
-        job = bar.add_task(f"empty the box ({jobs} process{'es' if jobs > 1 else ''})", total=len(plan))
-
-        def done(_: int, r: dict) -> None:
-            with partial.open("a") as f:
-                f.write(json.dumps(r) + "\n")
-            bar.update(job, advance=1, description=f"{r['executor']}: {r['strategy']} seed {r['seed']}: {r['left']} left")
-
-        results = run_all(_run_once, plan, jobs, done, fresh=True)
+    # one line per finished run, for long benchmarks
+    results = run_logged(_run_once, plan, jobs, out_dir / "empty_box_runs.jsonl", "empty the box",
+                         lambda r: f"{r['executor']}: {r['strategy']} seed {r['seed']}: {r['left']} left")
     rows = []
     for ex in executors:
         for s, sn in variants:

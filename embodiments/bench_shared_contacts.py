@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from contactflow.embodiments import bench_empty_box as box
-from contactflow.embodiments.parallel import run_all
+from contactflow.embodiments.parallel import run_logged
 from contactflow.embodiments.primitives.base import top_grasp_pose
 from contactflow.nodes.stats import rate, rate_text
 
@@ -236,7 +236,6 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     ``jobs`` processes; caps per run on the taker's simulated s and grasp attempts. ``quick``: one run of each with
     one object."""
     from rich.console import Console
-    from rich.progress import Progress as Bar
     from rich.table import Table
 
     out_dir = pathlib.Path(out_dir)
@@ -247,17 +246,8 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     max_attempts = max_attempts if max_attempts is not None else (4 if quick else MAX_ATTEMPTS)
     plan = [(v, first_seed + k, n_objects, max_attempts, max_time) for k in range(n_runs) for v in VARIANTS]
     t0 = time.perf_counter()
-    partial = out_dir / "shared_contacts_runs.jsonl"  # one line per finished run
-    partial.write_text("")
-    with Bar(transient=True) as bar:
-        job = bar.add_task(f"shared contacts ({jobs} process{'es' if jobs > 1 else ''})", total=len(plan))
-
-        def done(_: int, r: dict) -> None:
-            with partial.open("a") as f:
-                f.write(json.dumps(r) + "\n")
-            bar.update(job, advance=1, description=f"{r['variant']} seed {r['seed']}: {r['left']} left")
-
-        results = run_all(run_once, plan, jobs, done, fresh=True)
+    results = run_logged(run_once, plan, jobs, out_dir / "shared_contacts_runs.jsonl", "shared contacts",
+                         lambda r: f"{r['variant']} seed {r['seed']}: {r['left']} left")
     rows = [_row(v, [r for r in results if r["variant"] == v]) for v in VARIANTS]
     summary = {"benchmark": "shared_contacts", "explorer": EXPLORER, "taker": TAKER, "objects": n_objects,
                "runs_per_variant": n_runs, "first_seed": first_seed, "quick": quick, "max_time": max_time,

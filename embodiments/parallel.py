@@ -65,3 +65,25 @@ def run_all(fn: Callable[..., dict], plan: Sequence[tuple[Any, ...]], jobs: int 
                 if on_done is not None:
                     on_done(i, results[i])
     return [r for r in results if r is not None]
+
+
+def run_logged(fn: Callable[..., dict], plan: Sequence[tuple[Any, ...]], jobs: int, log: Any, title: str,
+               describe: Callable[[dict], str]) -> list[dict]:
+    """:func:`run_all` with fresh processes behind a progress bar (``title``; each finished run's ``describe``),
+    each run's result appended to the JSON lines file ``log`` as it finishes: a long benchmark's runs so far."""
+    import json
+    import pathlib
+
+    from rich.progress import Progress as Bar
+
+    path = pathlib.Path(log)
+    path.write_text("")
+    with Bar(transient=True) as bar:
+        job = bar.add_task(f"{title} ({jobs} process{'es' if jobs > 1 else ''})", total=len(plan))
+
+        def done(_: int, r: dict) -> None:
+            with path.open("a") as f:
+                f.write(json.dumps(r) + "\n")
+            bar.update(job, advance=1, description=describe(r))
+
+        return run_all(fn, plan, jobs, done, fresh=True)

@@ -11,7 +11,7 @@ import numpy as np
 class ObjectMapParams:
     region: tuple[float, ...] = ()  # m, world box [xmin, ymin, zmin, xmax, ymax, zmax] whose touched things are objects; (): no map
     merge: float = 0.04  # m, a contact this close to an object's estimate is on that object
-    memory: int = 8  # the last this many sightings average into an estimate: a carried object's estimate follows it
+    memory: int = 8  # an estimate moves 1/min(sightings, memory) of the way to each sighting: a carried object is followed
 
     def validate(self) -> None:
         if self.region and (len(self.region) != 6 or any(lo >= hi for lo, hi in zip(self.region[:3], self.region[3:], strict=True))):
@@ -35,9 +35,10 @@ class ObjectMap:
     """Touched objects of a region, from the contacts of every fusion cycle.
 
     A contact inside the region and farther than ``merge`` from every estimate starts an object;
-    one within ``merge`` of an estimate is a sighting of it, and the estimate is the running mean
-    of its last ``memory`` sightings, so an object a hand carries is followed, and dropped once it
-    left the region (taken away). A robot *claims* an object before it goes for it: the claims
+    one within ``merge`` of an estimate is a sighting of it, and the estimate moves 1/n of the way
+    to it, n its sightings up to ``memory`` (the mean of its first sightings, then a moving
+    average), so an object a hand carries is followed, and dropped once it left the region (taken
+    away). A robot *claims* an object before it goes for it: the claims
     since its last touch tell the robots how often a hand went for it and found nothing there.
     """
 

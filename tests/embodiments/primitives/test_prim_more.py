@@ -163,12 +163,17 @@ def test_slide_moves_an_object_pressed_in_the_force_band() -> None:
     assert robot.ground_truth().object_poses["pad"][1, 3] > -0.297  # the pad slid along with the hand
 
 
-def test_gripper_close_until_force_hold_lift_on_melfa() -> None:
+def _melfa_at_a_cube(size: float, friction: float) -> tuple[SimRobot, LocalPrimitiveRunner]:
+    """Melfa at the table, a cube of ``size`` m standing at (0.45, 0.1) in front of it."""
     world = World(WorldParams())
     world.add_table()
-    world.add_object(box("cube", (0.04, 0.04, 0.04), xyz=(0.45, 0.1, 0.77), mass=0.1, friction=1.0))
+    world.add_object(box("cube", (size,) * 3, xyz=(0.45, 0.1, 0.75 + size / 2), mass=0.1, friction=friction))
     robot = SimRobot(world, "melfa")
-    runner = LocalPrimitiveRunner(robot)
+    return robot, LocalPrimitiveRunner(robot)
+
+
+def test_gripper_close_until_force_hold_lift_on_melfa() -> None:
+    robot, runner = _melfa_at_a_cube(0.04, 1.0)
     T = robot.arm("arm").ee_pose()
     T[:3, 3] = (0.45, 0.1, 0.775)
     assert outcome(run_primitive(runner, "move_to", {"target": vec(T)})).event is Event.SUCCESS
@@ -312,11 +317,7 @@ def test_a_primitive_run_again_with_another_arm_drives_that_arm(tomba) -> None:
 
 
 def test_poke_touches_down_at_each_spot_and_counts_what_stood_there() -> None:
-    world = World(WorldParams())
-    world.add_table()
-    world.add_object(box("cube", (0.045, 0.045, 0.045), xyz=(0.45, 0.1, 0.7725), mass=0.1, friction=0.8))
-    robot = SimRobot(world, "melfa")
-    runner = LocalPrimitiveRunner(robot)
+    robot, runner = _melfa_at_a_cube(0.045, 0.8)
     floor, height = 0.75 + 0.035 + 0.005, 0.75 + 0.035 + 0.09  # the closed gripper's tips 3.5 cm below its frame
     start = vec(top_grasp_pose((0.45, 0.0, height), 0.0))
     assert outcome(run_primitive(runner, "move_to", {"target": start})).event is Event.SUCCESS
