@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
@@ -10,6 +11,16 @@ from contactflow.embodiments.primitives.base import Capability, Primitive
 from contactflow.nodes.status import Event
 
 CLOSE = 0.004  # m, the controlled frame is at a spot (or its height) this close to it
+
+
+class Phase(Enum):
+    """Where a poke is: the hand taking its preshape, moving over a spot, coming down, leaning on a touch, going up."""
+
+    SHAPE = "shape"
+    OVER = "over"
+    DOWN = "down"
+    LEAN = "lean"
+    UP = "up"
 
 
 class Poke(Primitive):
@@ -56,45 +67,45 @@ class Poke(Primitive):
         if p.floor_z >= p.height:
             raise ValueError(f"{self.name}.params.floor_z={p.floor_z} must be below height={p.height} m")
         self.spots = np.asarray(p.spots, dtype=np.float64).reshape(-1, 2)
-        self.k, self.touches, self.phase, self.since = 0, 0, "shape", self.r.time
+        self.k, self.touches, self.phase, self.since = 0, 0, Phase.SHAPE, self.r.time
         if p.preshape and self.hand_name:
             self.hand.preshape(p.preshape)
 
     def update(self) -> None:
         p = self.params
         pos = self.r.frame_pose(self.ee_frame)[:3, 3]
-        if self.phase == "shape":
+        if self.phase == Phase.SHAPE:
             if not self.hand_name or self.hand.done() or self.elapsed > 1.5:
-                self.phase = "over"
-        elif self.phase == "over":
+                self.phase = Phase.OVER
+        elif self.phase == Phase.OVER:
             err = np.array([*(self.spots[self.k] - pos[:2]), p.height - pos[2]])
             if np.linalg.norm(err) < CLOSE:
                 self.halt()
                 self.r.tare_ft(self.arm_name)
-                self.phase = "down"
+                self.phase = Phase.DOWN
             else:
                 self.twist(np.concatenate([err / np.linalg.norm(err) * min(p.travel, 2.0 * float(np.linalg.norm(err)) + 0.01),
                                            np.zeros(3)]))
-        elif self.phase == "down":
+        elif self.phase == Phase.DOWN:
             if np.linalg.norm(self.wrench_in("world")[:3]) > p.force_threshold or self.pads_in_contact():
                 self.halt()
                 self.touches += 1
                 self.emit_once(Event.CONTACT, f"spot {self.k + 1}: touched at {pos[2]:.3f} m", {"spot": float(self.k)})
-                self.phase, self.since = "dwell", self.r.time
+                self.phase, self.since = Phase.LEAN, self.r.time
             elif pos[2] <= p.floor_z:
                 self.halt()
-                self.phase = "up"
+                self.phase = Phase.UP
             else:
                 self.twist(np.array([0.0, 0.0, -p.velocity, 0.0, 0.0, 0.0]))
-        elif self.phase == "dwell":
+        elif self.phase == Phase.LEAN:
             # a touch stopped at its first newtons springs back off the object within a few ms, too briefly for a
             # wrist cue at a fusion's pace: the hand leans on at a crawl, up to press N
             if self.r.time - self.since >= p.dwell or np.linalg.norm(self.wrench_in("world")[:3]) >= p.press:
                 self.halt()
-                self.phase = "up"
+                self.phase = Phase.UP
             else:
                 self.twist(np.array([0.0, 0.0, -p.lean, 0.0, 0.0, 0.0]))
-        elif p.height - pos[2] < CLOSE:
+        elif p.height - pos[2] < CLOSE:  # Phase.UP: up
             self.halt()
             self.k += 1
             if self.k == len(self.spots):
@@ -104,6 +115,6 @@ class Poke(Primitive):
                     self.fail(f"nothing above the support at {len(self.spots)} spots", event=Event.OBJECT_NOT_FOUND,
                               touches=0.0)
                 return
-            self.phase = "over"
+            self.phase = Phase.OVER
         else:
             self.twist(np.array([0.0, 0.0, min(p.travel, 2.0 * (p.height - pos[2]) + 0.01), 0.0, 0.0, 0.0]))
