@@ -313,7 +313,8 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
           executor: Annotated[str | None, typer.Option(help="local (primitives in this process), runtime (world and control nodes over zenoh) or both side by side (grasp, unscrew, empty-box, catch-zone, vision, contacts)")] = None,
           preshape: Annotated[list[str] | None, typer.Option(help="the hand preshape both grasp controllers close from, repeatable for side by side (grasp; default claw)")] = None,
           rig: Annotated[str | None, typer.Option(help="the robot whose hand touches: tombatossals (the thesis's Allegro hand), melfa, or both side by side (contacts; default both)")] = None,
-          sensor: Annotated[list[str] | None, typer.Option(help="what the exploration's guarded moves stop on: own (wrist and pads) or fused (the robot's fused contacts), repeatable for side by side (empty-box; default own)")] = None) -> None:
+          sensor: Annotated[list[str] | None, typer.Option(help="what the exploration's guarded moves stop on: own (wrist and pads) or fused (the robot's fused contacts), repeatable for side by side (empty-box; default own)")] = None,
+          objects: Annotated[int | None, typer.Option(help="objects in the box (shared-contacts; default 5)")] = None) -> None:
     """Run a benchmark: prints a table and writes JSON (and plots) under OUT."""
     path = BENCHMARKS.get(name)
     if path is None:
@@ -326,7 +327,7 @@ def bench(name: Annotated[str, typer.Argument(help=f"one of: {', '.join(BENCHMAR
         raise typer.Exit(1) from None
     given = {"jobs": jobs if jobs != 1 else None, "runs": runs, "trials": trials, "max_time": max_time, "max_attempts": max_attempts,
              "strategy": strategy or None, "first_seed": first_seed, "executor": executor, "preshape": preshape or None, "rig": rig,
-             "sensor": sensor or None}
+             "sensor": sensor or None, "objects": objects}
     extra = {k: v for k, v in given.items() if v is not None}
     accepted = inspect.signature(mod.run).parameters
     for key in extra:

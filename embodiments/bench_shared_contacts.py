@@ -231,17 +231,22 @@ def _supervise(watch, cmap: _Map, controls: list[dict], names: list[str], mapped
 
 
 def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, jobs: int = 1,
-        max_time: float | None = None, max_attempts: int | None = None, first_seed: int = 100) -> dict:
-    """Both variants ``runs`` times each (seeds ``first_seed``, +1, ...; the same contents per seed in both), on
-    ``jobs`` processes; caps per run on the taker's simulated s and grasp attempts. ``quick``: one run of each with
-    one object."""
+        max_time: float | None = None, max_attempts: int | None = None, first_seed: int = 100,
+        objects: int | None = None) -> dict:
+    """Both variants ``runs`` times each (seeds ``first_seed``, +1, ...; the same contents per seed in both) with
+    ``objects`` in the box (default 5, the thesis's), on ``jobs`` processes; caps per run on the taker's simulated s
+    and grasp attempts. ``quick``: one run of each with one object."""
     from rich.console import Console
     from rich.table import Table
+
+    from contactflow.nodes.params import ParamError
 
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     n_runs = runs if runs is not None else (1 if quick else 10)
-    n_objects = 1 if quick else 5
+    n_objects = objects if objects is not None else (1 if quick else 5)
+    if not 1 <= n_objects <= len(box.CELLS):
+        raise ParamError(f"bench shared-contacts: --objects {n_objects} is not 1 to {len(box.CELLS)}")
     max_time = max_time if max_time is not None else (300.0 if quick else MAX_TIME)
     max_attempts = max_attempts if max_attempts is not None else (4 if quick else MAX_ATTEMPTS)
     plan = [(v, first_seed + k, n_objects, max_attempts, max_time) for k in range(n_runs) for v in VARIANTS]

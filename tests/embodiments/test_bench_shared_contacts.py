@@ -7,6 +7,7 @@ import json
 import pytest
 
 from contactflow.embodiments import bench_shared_contacts as bench
+from contactflow.nodes.params import ParamError
 
 
 def test_the_taker_empties_the_box_from_the_cell_map_of_the_explorers_touches_and_alone_from_its_own(tmp_path) -> None:
@@ -27,7 +28,7 @@ def test_the_taker_empties_the_box_from_the_cell_map_of_the_explorers_touches_an
     assert (tmp_path / "shared_contacts.png").stat().st_size > 0
 
 
-def test_the_poke_grid_keeps_each_hand_inside_the_box_and_the_map_region_is_inside_its_walls() -> None:
+def test_the_poke_grid_keeps_each_hand_inside_the_box_and_the_map_region_is_inside_its_walls(tmp_path) -> None:
     cx, cy = bench.box.BOX_CENTER
     for robot, arm in ((bench.EXPLORER, bench.EXPLORER_ARM), (bench.TAKER, bench.box.ARM)):
         plan = bench.poke_plan(robot, arm)
@@ -40,3 +41,5 @@ def test_the_poke_grid_keeps_each_hand_inside_the_box_and_the_map_region_is_insi
     assert got["nearest"] == pytest.approx({"cube": 0.01, "ball": 0.2})
     assert (got["estimates"], got["localised"], got["objects"], got["spurious"]) == (1, 1, 2, 0)
     assert got["error"] == pytest.approx(0.01)
+    with pytest.raises(ParamError, match="--objects 7 is not 1 to 6"):
+        bench.run(tmp_path, objects=7)
