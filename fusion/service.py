@@ -115,7 +115,10 @@ class ContactFusion(Module):
     @classmethod
     def default_input_keys(cls, ks: KeySpace, robot: str, name: str, params: FusionParams) -> dict[str, str]:
         robot, generator = params.sources.split("/")
-        return {"hypotheses": ks.hypotheses(robot, generator), "claims": ks.fused(ANY, "claims")}
+        keys = {"hypotheses": ks.hypotheses(robot, generator)}
+        if params.map_region:  # a fusion without an object map has no claims to count: it does not hear them
+            keys["claims"] = ks.fused(ANY, "claims")
+        return keys
 
     @classmethod
     def default_output_keys(cls, ks: KeySpace, robot: str, name: str, params: FusionParams) -> dict[str, str]:

@@ -105,7 +105,7 @@ def test_a_cell_map_with_a_region_keeps_the_objects_any_robot_touched_and_counts
     from contactflow.fusion.messages import MapClaim, ObjectMapMsg
 
     ks = KeySpace("lab")
-    p = CellFusionParams(robot="table", robots=("baxter", "melfa"))
+    p = CellFusionParams(robot="table", robots=("baxter", "melfa"), map_region=(0.4, 0.2, 0.75, 0.6, 0.4, 0.9))
     assert CellFusion.default_input_keys(ks, "site", "cell_map", p)["claims"] == "cf/lab/contacts/fused/*/claims"
     assert CellFusion.default_output_keys(ks, "site", "cell_map", p)["objects"] == "cf/lab/contacts/fused/table/objects"
     fusion, io = cell(map_region=(0.4, 0.2, 0.75, 0.6, 0.4, 0.9))

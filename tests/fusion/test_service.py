@@ -24,9 +24,11 @@ def start(module, io):
 def test_keys_of_the_fusion_service():
     ks = KeySpace("lab")
     p = FusionParams(robot="site", sources="*/*")
-    # the claims of every robot on any object map: the fusion counts those on its own (with a map_region)
-    assert ContactFusion.default_input_keys(ks, "site", "fusion", p) == {"hypotheses": "cf/lab/contacts/*/*",
-                                                                         "claims": "cf/lab/contacts/fused/*/claims"}
+    assert ContactFusion.default_input_keys(ks, "site", "fusion", p) == {"hypotheses": "cf/lab/contacts/*/*"}
+    # with an object map, the claims of every robot on any map: the fusion counts those on its own
+    mapping = FusionParams(robot="site", sources="*/*", map_region=(0.0, 0.0, 0.0, 1.0, 1.0, 1.0))
+    assert ContactFusion.default_input_keys(ks, "site", "fusion", mapping) == {
+        "hypotheses": "cf/lab/contacts/*/*", "claims": "cf/lab/contacts/fused/*/claims"}
     assert ContactFusion.default_output_keys(ks, "site", "fusion", p)["events"] == "cf/lab/contacts/fused/site/events"
     assert ContactFusion.default_output_keys(ks, "site", "fusion", p)["objects"] == "cf/lab/contacts/fused/site/objects"
 
