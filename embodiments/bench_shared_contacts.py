@@ -39,6 +39,7 @@ EXPLORER_BASE = (1.12, -0.32, 0.75, 0.0, 0.0, np.pi)  # m, rad: melfa across the
 CELL = "box_cell"
 VARIANTS = ("alone", "with_map")
 PITCH = 0.04  # m between poke spots
+QUICK_PITCH = 0.06  # m between poke spots in a quick run (one object in the box; the hands' footprints are >= 2 cm)
 POKE_YAW = 0.0  # rad, the poking hand's top-grasp yaw
 POKE_RISE = 0.09  # m, the poking hand moves between spots this far above where it meets the bottom (objects are <= 7 cm)
 LOCALISED = 0.03  # m, an object with a map estimate this close (in the plane) is localised
@@ -56,14 +57,14 @@ def map_region() -> list[float]:
     return [cx - hx, cy - hy, box.BOTTOM + 0.02, cx + hx, cy + hy, box.BOTTOM + 0.08]
 
 
-def poke_plan(robot: str, arm: str, home: tuple[float, float, float] | None = None) -> dict:
-    """``poke_box``'s params for ``robot``'s closed hand: a grid of spots PITCH apart over the box bottom that keeps the
-    hand's lowest part inside the walls, the height it moves at and where it meets the bottom; ``home``: where the
-    hand goes after (default: back over the first spot)."""
+def poke_plan(robot: str, arm: str, home: tuple[float, float, float] | None = None, pitch: float = PITCH) -> dict:
+    """``poke_box``'s params for ``robot``'s closed hand: a grid of spots at most ``pitch`` apart over the box bottom
+    that keeps the hand's lowest part inside the walls, the height it moves at and where it meets the bottom;
+    ``home``: where the hand goes after (default: back over the first spot)."""
     fp = box.hand_footprint(box.HEIGHT, robot, arm)
     x0, x1, y0, y1, floor = box.hand_range(fp, box.SWEEP_CLEARANCE, POKE_YAW)
-    xs = np.linspace(x0, x1, max(2, int(np.ceil((x1 - x0) / PITCH)) + 1))
-    ys = np.linspace(y0, y1, max(2, int(np.ceil((y1 - y0) / PITCH)) + 1))
+    xs = np.linspace(x0, x1, max(2, int(np.ceil((x1 - x0) / pitch)) + 1))
+    ys = np.linspace(y0, y1, max(2, int(np.ceil((y1 - y0) / pitch)) + 1))
     spots = [float(v) for i, x in enumerate(xs) for y in (ys if i % 2 == 0 else ys[::-1]) for v in (x, y)]
     height = floor + POKE_RISE
     start = box.vec6(top_grasp_pose((x0, ys[0], height), POKE_YAW))
@@ -115,7 +116,7 @@ def localisation(estimates: list[tuple[int, float, float, float]], truth: dict[s
             "nearest": {n: (d if np.isfinite(d) else None) for n, d in nearest.items()}}
 
 
-def run_once(variant: str, seed: int, n_objects: int, max_attempts: int, max_time: float) -> dict:
+def run_once(variant: str, seed: int, n_objects: int, max_attempts: int, max_time: float, pitch: float = PITCH) -> dict:
     """One run on the runtime, all nodes in this worker process (a zenoh session each); see the module docstring."""
     from contactflow.embodiments.layout import (
         cell_map_module,
@@ -143,7 +144,7 @@ def run_once(variant: str, seed: int, n_objects: int, max_attempts: int, max_tim
         task, plan = "empty_box_mapped", take
     else:  # it explores first: the poke's height, and the take's as approach_height
         task = "poke_and_empty_box"
-        plan = {**{k: v for k, v in take.items() if k != "height"}, **poke_plan(TAKER, box.ARM),
+        plan = {**{k: v for k, v in take.items() if k != "height"}, **poke_plan(TAKER, box.ARM, pitch=pitch),
                 "approach_height": take["height"]}
     with tempfile.TemporaryDirectory(prefix="shared-contacts-") as d:
         folder = pathlib.Path(d)
@@ -155,7 +156,7 @@ def run_once(variant: str, seed: int, n_objects: int, max_attempts: int, max_tim
         controls[0]["modules"].append(cell_map_module(CELL, tuple(r["name"] for r in robots), map_region=map_region()))
         if mapped:
             home = (box.BOX_CENTER[0] + 0.3, box.BOX_CENTER[1], box.BOTTOM + 0.3)
-            controls.append(control_node(site, EXPLORER, EXPLORER, tasks, "poke_box", poke_plan(EXPLORER, EXPLORER_ARM, home),
+            controls.append(control_node(site, EXPLORER, EXPLORER, tasks, "poke_box", poke_plan(EXPLORER, EXPLORER_ARM, home, pitch),
                                          connect=(endpoint,), autostart=True, contacts=True))
         cell = write_cell(folder / "cell.yaml", robots, [box.container(), *objs])
         world = world_node(site, cell, listen=endpoint, wait_for=tuple(c["node"] for c in controls), seed=seed,
@@ -235,7 +236,7 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
         objects: int | None = None) -> dict:
     """Both variants ``runs`` times each (seeds ``first_seed``, +1, ...; the same contents per seed in both) with
     ``objects`` in the box (default 5, the thesis's), on ``jobs`` processes; caps per run on the taker's simulated s
-    and grasp attempts. ``quick``: one run of each with one object."""
+    and grasp attempts. ``quick``: one run of each with one object, poked at QUICK_PITCH."""
     from rich.console import Console
     from rich.table import Table
 
@@ -249,14 +250,15 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
         raise ParamError(f"bench shared-contacts: --objects {n_objects} is not 1 to {len(box.CELLS)}")
     max_time = max_time if max_time is not None else (300.0 if quick else MAX_TIME)
     max_attempts = max_attempts if max_attempts is not None else (4 if quick else MAX_ATTEMPTS)
-    plan = [(v, first_seed + k, n_objects, max_attempts, max_time) for k in range(n_runs) for v in VARIANTS]
+    pitch = QUICK_PITCH if quick else PITCH
+    plan = [(v, first_seed + k, n_objects, max_attempts, max_time, pitch) for k in range(n_runs) for v in VARIANTS]
     t0 = time.perf_counter()
     results = run_logged(run_once, plan, jobs, out_dir / "shared_contacts_runs.jsonl", "shared contacts",
                          lambda r: f"{r['variant']} seed {r['seed']}: {r['left']} left")
     rows = [_row(v, [r for r in results if r["variant"] == v]) for v in VARIANTS]
     summary = {"benchmark": "shared_contacts", "explorer": EXPLORER, "taker": TAKER, "objects": n_objects,
                "runs_per_variant": n_runs, "first_seed": first_seed, "quick": quick, "max_time": max_time,
-               "max_attempts": max_attempts, "localised_within": LOCALISED, "rows": rows,
+               "max_attempts": max_attempts, "poke_pitch": pitch, "localised_within": LOCALISED, "rows": rows,
                "wall_time": time.perf_counter() - t0, "runs": results}
     (out_dir / "shared_contacts.json").write_text(json.dumps(summary, indent=1))
     caps = (f"{n_objects} object{'s' if n_objects > 1 else ''} per box, {n_runs} seeded runs per variant; a run ends "

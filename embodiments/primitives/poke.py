@@ -49,14 +49,15 @@ class Poke(Primitive):
         force_threshold: float = 2.0  # N, a touch on the wrist
         velocity: float = 0.05  # m/s, coming down
         travel: float = 0.12  # m/s, going up and between spots
+        slow_down: float = 4.0  # 1/s, going up and between spots the speed falls to this much per m left (arrives without overshoot)
         dwell: float = 0.4  # s on a touch, leaning on
         lean: float = 0.004  # m/s, down while it leans on a touch
         press: float = 15.0  # N, it leans on a touch up to this force
         preshape: str = "closed"  # hand preshape while poking ("" = keep)
 
         def validate(self) -> None:
-            if min(self.velocity, self.travel, self.force_threshold, self.lean) <= 0 or self.dwell < 0:
-                raise ValueError("velocity, travel, lean and force_threshold must be > 0, dwell >= 0")
+            if min(self.velocity, self.travel, self.slow_down, self.force_threshold, self.lean) <= 0 or self.dwell < 0:
+                raise ValueError("velocity, travel, slow_down, lean and force_threshold must be > 0, dwell >= 0")
             if self.press <= self.force_threshold:
                 raise ValueError(f"press={self.press} N must be over force_threshold={self.force_threshold} N")
 
@@ -84,7 +85,7 @@ class Poke(Primitive):
                 self.r.tare_ft(self.arm_name)
                 self.phase = Phase.DOWN
             else:
-                self.twist(np.concatenate([err / np.linalg.norm(err) * min(p.travel, 2.0 * float(np.linalg.norm(err)) + 0.01),
+                self.twist(np.concatenate([err / np.linalg.norm(err) * min(p.travel, p.slow_down * float(np.linalg.norm(err)) + 0.01),
                                            np.zeros(3)]))
         elif self.phase == Phase.DOWN:
             if np.linalg.norm(self.wrench_in("world")[:3]) > p.force_threshold or self.pads_in_contact():
@@ -117,4 +118,4 @@ class Poke(Primitive):
                 return
             self.phase = Phase.OVER
         else:
-            self.twist(np.array([0.0, 0.0, min(p.travel, 2.0 * (p.height - pos[2]) + 0.01), 0.0, 0.0, 0.0]))
+            self.twist(np.array([0.0, 0.0, min(p.travel, p.slow_down * (p.height - pos[2]) + 0.01), 0.0, 0.0, 0.0]))

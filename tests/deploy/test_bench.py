@@ -8,7 +8,7 @@ from contactflow.deploy.bench_deploy import run
 from contactflow.deploy.manifest import DEFAULT_MANIFEST, load_manifest
 
 
-@pytest.mark.heavy(seconds=55)
+@pytest.mark.heavy(seconds=50)
 def test_bench_deploy_quick_writes_bring_up_and_fused_event_latencies(tmp_path):
     summary = run(tmp_path, quick=True)
     saved = json.loads((tmp_path / "deploy.json").read_text())

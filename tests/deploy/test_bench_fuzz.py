@@ -7,7 +7,7 @@ import pytest
 from contactflow.deploy.bench_fuzz import run
 
 
-@pytest.mark.heavy(seconds=40)
+@pytest.mark.heavy(seconds=30)
 def test_hostile_payloads_on_every_key_kill_no_node_and_stall_no_loop(tmp_path):
     result = run(tmp_path, quick=True, per_key=3)
     assert json.loads((tmp_path / "fuzz.json").read_text()) == result

@@ -17,7 +17,7 @@ def kept_logs(out) -> str:
                      for line in log.read_text().splitlines()[-20:])
 
 
-@pytest.mark.heavy(seconds=60)
+@pytest.mark.heavy(seconds=65)
 def test_quick_bench_writes_its_summary(tmp_path):
     summary = run(tmp_path, quick=True)
     saved = json.loads((tmp_path / "sim.json").read_text())

@@ -28,7 +28,7 @@ def test_quick_catch_zone_holds_the_centred_can_and_not_the_one_under_the_wall_s
     assert (tmp_path / "catch_zone.png").stat().st_size > 0
 
 
-@pytest.mark.heavy(seconds=66)
+@pytest.mark.heavy(seconds=75)
 def test_on_the_runtime_the_centred_can_is_held_and_the_one_beside_the_wall_is_not(tmp_path) -> None:
     """The attempt task run by a control node against a world node, judged from the progress stream and eval/."""
     summary = cz.run(tmp_path, quick=True, executor="runtime")  # the same grasps in process: the test above

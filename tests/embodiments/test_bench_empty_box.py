@@ -121,7 +121,7 @@ def test_corner_probes_come_down_into_every_corner_with_the_low_hand_inside_the_
         assert shift == pytest.approx(-b.CORNER_DRAG * np.array([sx, sy]) / np.sqrt(2.0))  # dragged toward the middle
 
 
-@pytest.mark.heavy(seconds=100)
+@pytest.mark.heavy(seconds=130)
 def test_the_exploring_sweeps_pass_an_empty_box_without_a_contact() -> None:
     """Both sweeps, with their loops along the walls, and the corner probes find nothing in an empty box: it is "done".
 

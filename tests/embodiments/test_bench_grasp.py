@@ -10,7 +10,7 @@ import pytest
 from contactflow.embodiments import bench_grasp
 
 
-@pytest.mark.heavy(seconds=165)
+@pytest.mark.heavy(seconds=250)
 def test_bench_grasp_quick_runs_the_same_trials_in_process_and_on_the_runtime(tmp_path) -> None:
     summary = bench_grasp.run(tmp_path, quick=True, executor="both")
     assert {r["controller"] for r in summary["rows"]} == {"naive", "robust", "naive + error", "robust + error"}

@@ -10,6 +10,7 @@ from contactflow.embodiments import bench_shared_contacts as bench
 from contactflow.nodes.params import ParamError
 
 
+@pytest.mark.heavy(seconds=135)
 def test_the_taker_empties_the_box_from_the_cell_map_of_the_explorers_touches_and_alone_from_its_own(tmp_path) -> None:
     # one object, each variant in a worker process of its own: melfa pokes the box and tombatossals takes from the
     # cell's map; tombatossals pokes the box itself and takes from the map its own touches made
@@ -35,6 +36,9 @@ def test_the_poke_grid_keeps_each_hand_inside_the_box_and_the_map_region_is_insi
         xs, ys = plan["spots"][0::2], plan["spots"][1::2]
         assert abs(max(xs) - cx) < bench.box.INNER[0] / 2 and abs(min(ys) - cy) < bench.box.INNER[1] / 2
         assert plan["floor"] < plan["height"] and max(abs(x - y) for x, y in zip(xs, xs[1:], strict=False)) <= bench.PITCH + 1e-9
+        coarse = bench.poke_plan(robot, arm, pitch=bench.QUICK_PITCH)["spots"]  # a quick run's: fewer, as far out
+        assert len(coarse) < len(plan["spots"]) and max(coarse[0::2]) == pytest.approx(max(xs))
+        assert max(abs(x - y) for x, y in zip(coarse[0::2], coarse[2::2], strict=False)) <= bench.QUICK_PITCH + 1e-9
     x0, y0, z0, x1, y1, z1 = bench.map_region()
     assert x1 - x0 < bench.box.INNER[0] and y1 - y0 < bench.box.INNER[1] and z0 > bench.box.BOTTOM
     got = bench.localisation([(1, cx, cy, 0.8)], {"cube": [cx + 0.01, cy, 0.78], "ball": [cx + 0.2, cy, 0.78]})

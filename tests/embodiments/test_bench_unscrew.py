@@ -9,7 +9,7 @@ import pytest
 from contactflow.embodiments import bench_unscrew
 
 
-@pytest.mark.heavy(seconds=30)
+@pytest.mark.heavy(seconds=45)
 def test_bench_unscrew_quick_removes_the_cap_found_by_the_kinect_with_the_re_centring_off_and_on(tmp_path) -> None:
     summary = bench_unscrew.run(tmp_path, quick=True)
     trials = summary["trials"]

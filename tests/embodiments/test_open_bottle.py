@@ -13,7 +13,7 @@ from contactflow.nodes.procs import free_port
 ROBOT = "tombatossals"
 
 
-@pytest.mark.heavy(seconds=45)
+@pytest.mark.heavy(seconds=50)
 def test_the_left_hand_holds_the_free_bottle_up_while_the_right_hand_unscrews_its_cap(tmp_path) -> None:
     endpoint, site = f"tcp/127.0.0.1:{free_port()}", f"bottle{free_port()}"
     control = control_node(site, ROBOT, ROBOT, TASKS_DIR / "unscrew.yaml", connect=(endpoint,), autostart=True)

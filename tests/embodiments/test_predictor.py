@@ -24,7 +24,7 @@ from contactflow.nodes.status import Event
 ROBOT = "tombatossals"
 BELIEF = CELLS / "pick_place.yaml"  # what the robot believes: the can of 0.2 kg where the cell file puts it
 
-pytestmark = pytest.mark.heavy(seconds=90)
+pytestmark = pytest.mark.heavy(seconds=95)
 
 
 def run(tmp_path, site: str, world_scene, task_file=None, task: str = "pick_and_place", pushes: tuple[str, ...] = ()):

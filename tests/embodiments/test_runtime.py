@@ -9,6 +9,8 @@ from contactflow.embodiments.layout import TAP_ABOVE, run_cell, table_cell
 from contactflow.nodes.procs import free_port
 from contactflow.nodes.status import Event
 
+pytestmark = pytest.mark.heavy(seconds=120)
+
 ROBOT = "tombatossals"
 
 

@@ -10,7 +10,7 @@ from contactflow.nodes.procs import free_port
 from contactflow.nodes.status import Event
 
 ROBOT = "tombatossals"
-pytestmark = pytest.mark.heavy(seconds=100)
+pytestmark = pytest.mark.heavy(seconds=70)
 
 
 def test_world_control_and_vision_pick_and_place_what_the_vision_node_segmented_and_repeat_in_three_processes(tmp_path):

@@ -170,7 +170,7 @@ def test_robust_grasp_alignment_fires_when_offset_3cm() -> None:
     assert robot.ground_truth().object_poses["cyl"][2, 3] > 0.87
 
 
-@pytest.mark.heavy(seconds=80)
+@pytest.mark.heavy(seconds=110)
 def test_robust_grasp_that_closed_on_nothing_looks_for_the_object_and_grasps_it() -> None:
     def block_scene() -> tuple[SimRobot, LocalPrimitiveRunner]:
         world = World(WorldParams())
