@@ -39,7 +39,7 @@ EXPLORER_BASE = (1.12, -0.32, 0.75, 0.0, 0.0, np.pi)  # m, rad: melfa across the
 CELL = "box_cell"
 VARIANTS = ("alone", "with_map")
 PITCH = 0.04  # m between poke spots
-QUICK_PITCH = 0.06  # m between poke spots in a quick run (one object in the box; the hands' footprints are >= 2 cm)
+QUICK_PITCH = 0.06  # m between poke spots in a quick run (one object): melfa's 2.2 cm wide gripper still lands on anything 2.4 cm across
 POKE_YAW = 0.0  # rad, the poking hand's top-grasp yaw
 POKE_RISE = 0.09  # m, the poking hand moves between spots this far above where it meets the bottom (objects are <= 7 cm)
 LOCALISED = 0.03  # m, an object with a map estimate this close (in the plane) is localised
