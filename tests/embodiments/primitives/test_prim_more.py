@@ -9,9 +9,11 @@ from contactflow.embodiments import registry
 from contactflow.embodiments.primitives.base import matrix6, pose6, top_grasp_pose
 from contactflow.embodiments.primitives.detect_objects import observed_fraction, top_centred
 from contactflow.embodiments.primitives.explore import Explore, wrench_contact
+from contactflow.embodiments.primitives.poke import Poke
 from contactflow.embodiments.primitives.runner import LocalPrimitiveRunner, outcome, run_primitive
 from contactflow.embodiments.sim_robot import SimRobot
 from contactflow.embodiments.world import World, WorldParams, box, cylinder
+from contactflow.nodes.params import ParamError, replace_params
 from contactflow.nodes.status import Event
 
 TOMB = registry.home("tombatossals")
@@ -331,3 +333,5 @@ def test_poke_touches_down_at_each_spot_and_counts_what_stood_there() -> None:
     assert robot.arm("arm").ee_pose()[2, 3] == pytest.approx(height, abs=0.01)  # back up at the end
     nothing = run_primitive(runner, "poke", {"spots": [0.45, 0.2], "height": height, "floor_z": floor}, max_time=30)
     assert Event.OBJECT_NOT_FOUND in labels(nothing)
+    with pytest.raises(ParamError, match="slow_down"):  # at 0 every move would crawl at 1 cm/s
+        replace_params(Poke.Params(), {"slow_down": 0.0})
