@@ -64,7 +64,7 @@ class FusionParams:
     region_reach: float = 0.12  # m, farther out but this close to the hand: on what the hand holds
     map_region: tuple[float, ...] = ()  # m, world box [xmin, ymin, zmin, xmax, ymax, zmax]: map what the contacts touch in it (objects output); (): no map
     map_merge: float = 0.04  # m, a contact this close to a mapped object is on it
-    map_memory: int = 8  # touches a mapped object's location averages (each touch the mean of its sightings; a carried one is followed)
+    map_memory: int = 8  # a mapped object moves 1/min(sightings, map_memory) of the way to each sighting (a carried one is followed)
 
     def validate(self) -> None:
         parts = self.sources.split("/")

@@ -20,21 +20,6 @@ def test_touches_inside_the_region_become_objects_and_touches_nearby_refine_them
     assert second.location == pytest.approx([0.60, -0.40, 0.80])
 
 
-def test_each_touch_weighs_the_same_however_long_it_is_held():
-    # a poke grid's touches on one can: a brief one on its -x side, then one held for 14 cycles on its +x side (a
-    # lean and the fusion's hold); per cycle the last touch outweighed the first and the estimate sat 1.3 cm from their middle
-    m = ObjectMap(ObjectMapParams(region=REGION, merge=0.04, memory=8))
-    m.touch([np.array([0.49, -0.30, 0.80])], ["melfa"], 0.0)
-    m.touch([], [], 0.05)
-    for k in range(14):
-        m.touch([np.array([0.52, -0.30, 0.80]), np.array([0.52, -0.31, 0.80])], ["melfa"] * 2, 1.0 + 0.05 * k)
-    (o,) = m.objects
-    assert o.location == pytest.approx([0.505, -0.3025, 0.80])  # the two touches' mean (two contacts at once: theirs)
-    assert o.sightings == 15
-    m.touch([], [], 2.0)  # the touch ended: the same estimate
-    assert m.objects[0].location == pytest.approx([0.505, -0.3025, 0.80])
-
-
 def test_a_carried_object_is_followed_out_of_the_region_and_dropped():
     m = ObjectMap(ObjectMapParams(region=REGION, merge=0.04, memory=4))
     at = np.array([0.55, -0.35, 0.80])
