@@ -200,7 +200,7 @@ class ContactFusion(Module):
         return Status.RUNNING
 
     def _claims(self) -> None:
-        """Count the robots' claims on the objects of this map (claims on other maps, or without a map, are dropped)."""
+        """Count the robots' claims on the objects of this map (claims on other maps are dropped; without a map none come)."""
         assert self.io is not None
         for msg in self.io.take("claims"):
             if self.objects is None or not isinstance(msg, MapClaim) or msg.map != self.params.robot:

@@ -85,8 +85,7 @@ class Poke(Primitive):
                 self.r.tare_ft(self.arm_name)
                 self.phase = Phase.DOWN
             else:
-                self.twist(np.concatenate([err / np.linalg.norm(err) * min(p.travel, p.slow_down * float(np.linalg.norm(err)) + 0.01),
-                                           np.zeros(3)]))
+                self.twist(np.concatenate([err / np.linalg.norm(err) * self._speed(float(np.linalg.norm(err))), np.zeros(3)]))
         elif self.phase == Phase.DOWN:
             if np.linalg.norm(self.wrench_in("world")[:3]) > p.force_threshold or self.pads_in_contact():
                 self.halt()
@@ -118,4 +117,8 @@ class Poke(Primitive):
                 return
             self.phase = Phase.OVER
         else:
-            self.twist(np.array([0.0, 0.0, min(p.travel, p.slow_down * (p.height - pos[2]) + 0.01), 0.0, 0.0, 0.0]))
+            self.twist(np.array([0.0, 0.0, self._speed(p.height - pos[2]), 0.0, 0.0, 0.0]))
+
+    def _speed(self, left: float) -> float:
+        """m/s toward a spot or the height ``left`` m away: travel, slowing down near it (1 cm/s at the end)."""
+        return min(self.params.travel, self.params.slow_down * left + 0.01)
