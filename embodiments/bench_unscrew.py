@@ -93,7 +93,7 @@ def cap_estimate(robot: SimRobot, spec: ScrewBottleSpec) -> np.ndarray:
     """Where the Kinect sees the cap: the centroid of the bottle's points within :data:`CAP_BAND` of their top,
     :data:`CAP_DEPTH` below the top (the visual pipeline of §6.3.3 on a region around the bottle, the robot's own points removed)."""
     pts = np.asarray(robot.camera("kinect").points)
-    pts = pts[robot.spherical.distance(pts) > SELF_MARGIN]  # the arm and hand are not the bottle
+    pts = pts[robot.spherical.clear_of(pts, SELF_MARGIN)]  # the arm and hand are not the bottle
     x, y, z = spec.xyz
     near = pts[(np.abs(pts[:, 0] - x) < 0.1) & (np.abs(pts[:, 1] - y) < 0.1) & (pts[:, 2] > z + 0.02)]
     if len(near) < 10:

@@ -194,6 +194,11 @@ class SphericalModel:
             out[s:s + chunk] = d[np.arange(len(d)), arg[s:s + chunk]]
         return (out, arg) if return_link else out
 
-    def inside(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Mask of points within ``margin`` of the robot (self-filtering of point clouds)."""
-        return self.distance(points) <= margin
+    def clear_of(self, points: np.ndarray, margin: float) -> np.ndarray:
+        """Mask of the points (N, 3) farther than ``margin`` from the robot (self-filtering of point clouds):
+        ``distance(points) > margin``, each point evaluated only on the s-topes whose box grown by ``margin`` holds
+        it (a camera frame's points are mostly far from every link: the full distance of each to every s-tope
+        was most of a tracked frame's cost)."""
+        from contactflow.recognition.pipeline import culled_distance
+
+        return culled_distance(self.C1, self.C2, self.r1, self.r2, margin)(points) > margin

@@ -473,7 +473,7 @@ def sensed_cloud(robot, camera: str = "kinect", self_margin: float = 0.03, fixtu
     """Obstacle points seen by ``camera``: the robot removed by its spherical model (App. B), fixtures removed, voxelised."""
     pts = np.asarray(robot.camera(camera).points, dtype=np.float64)
     if len(pts):
-        pts = pts[robot.spherical.distance(pts) > self_margin]
+        pts = pts[robot.spherical.clear_of(pts, self_margin)]
     if len(pts):
         pts = pts[~inside_obstacles(pts, robot.fixtures(), fixture_margin)]
     if len(pts) and voxel > 0:

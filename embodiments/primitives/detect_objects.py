@@ -311,7 +311,7 @@ class DetectObjects(Primitive):
         pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
         model = getattr(self.r, "spherical", None)
         if model is not None and len(pts):
-            pts = pts[model.distance(pts) > p.self_margin]  # the robot's own arms are not objects
+            pts = pts[model.clear_of(pts, p.self_margin)]  # the robot's own arms are not objects
         plane, clusters = segment_scene(pts, self.region, p.support_z if p.support_z >= 0 else None,
                                         min_size=p.min_size)
         return View(plane, clusters, pts, f"camera {p.camera} at {frame.t:.2f} s")
@@ -337,7 +337,7 @@ class DetectObjects(Primitive):
             if p.support_z >= 0:
                 keep &= c.points[:, 2] > p.support_z + MIN_HEIGHT
             if model is not None and keep.any():
-                keep[keep] = model.distance(c.points[keep]) > p.self_margin  # the robot's own arms are not objects
+                keep[keep] = model.clear_of(c.points[keep], p.self_margin)  # the robot's own arms are not objects
             if keep.all():
                 clusters.append(c)
             else:  # the parts of a cut cluster: the chain may have joined objects through what was cut away

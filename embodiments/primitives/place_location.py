@@ -74,7 +74,7 @@ class PlaceLocation(Primitive):
         sel = (pts[:, 2] > p.support_z + 0.01) & (pts[:, 2] < p.support_z + 0.5)
         pts = pts[sel]
         if model is not None and len(pts):
-            pts = pts[model.distance(pts) > 0.02]
+            pts = pts[model.clear_of(pts, 0.02)]
         spot = free_spot(pts[:, :2], region, p.clearance)
         if spot is None:
             self.fail("no free place in the region")

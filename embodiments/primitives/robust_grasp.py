@@ -510,7 +510,7 @@ class RobustGrasp(Primitive):
         pts = np.asarray(frame.points) if frame is not None else np.zeros((0, 3))
         model = getattr(self.r, "spherical", None)
         if model is not None and len(pts):
-            pts = pts[model.distance(pts) > p.self_margin]  # the arm and hand are not the object
+            pts = pts[model.clear_of(pts, p.self_margin)]  # the arm and hand are not the object
         found = look_pose(pts, self.T_start, self.pivot, p.search_radius)
         if found is not None:
             goal, d = found

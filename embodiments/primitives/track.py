@@ -79,7 +79,7 @@ class Track(Primitive):
         pts = pts[np.linalg.norm(pts - self.where, axis=1) < p.radius]
         model = getattr(self.r, "spherical", None)
         if model is not None and len(pts):
-            pts = pts[model.distance(pts) > p.self_margin]
+            pts = pts[model.clear_of(pts, p.self_margin)]
         if self.support is not None and len(pts):
             pts = pts[self.support.height(pts) > p.min_height]
         clusters = extract_clusters(pts, min_size=p.min_points) if len(pts) >= p.min_points else []

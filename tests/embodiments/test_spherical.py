@@ -90,3 +90,17 @@ def test_self_filter_of_the_camera_cloud():
     assert np.mean(d[on_robot] < 0.01) > 0.99  # robot points are inside the model
     table = hit == "table"
     assert np.mean(d[table] > 0.01) > 0.95  # the table mostly is not
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.01, 0.05])
+def test_clear_of_is_the_distance_beyond_the_margin_for_points_near_and_far_from_the_robot(margin):
+    robot = make_robot("tombatossals")
+    model = robot.spherical
+    rng = np.random.default_rng(1)
+    # the camera's points (most far from every link, some on the arms and hands) and points around the s-topes
+    near = model.C1[rng.integers(len(model.C1), size=3000)] + rng.normal(0.0, 0.04, (3000, 3))
+    pts = np.vstack([robot.camera("kinect").points[::7], near])
+    d = model.distance(pts)
+    assert (d <= margin).sum() > 500 and (d > margin).sum() > 500
+    assert np.array_equal(model.clear_of(pts, margin), d > margin)
+    assert model.clear_of(np.zeros((0, 3)), margin).shape == (0,)
