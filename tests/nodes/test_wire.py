@@ -127,6 +127,13 @@ def test_a_message_is_refused_exactly_when_it_carries_a_non_finite_number(values
                 decode(payload, type_, "cf/s/k")
 
 
+def test_a_non_finite_number_in_a_list_of_floats_is_named_by_its_index():
+    for bad in (math.nan, math.inf, -math.inf):
+        with pytest.raises(WireError, match=r"Vector\.values\[2\] is not a finite number"):
+            decode(encode(Vector(values=[0.0, 1.5, bad, math.nan])), Vector, "k")
+    assert decode(encode(Vector(values=[0.0, -1e308, 5e-324])), Vector, "k").values == [0.0, -1e308, 5e-324]
+
+
 def test_a_non_finite_header_stamp_is_refused():
     msg = stamp(Vector(values=[1.0]), "a/b/c", 1, float("inf"))
     with pytest.raises(WireError, match=r"Vector.hdr.t_sim is not a finite number"):
