@@ -11,27 +11,38 @@ fingertip pads (unrolled on their sphere), are spread with a Gaussian of width `
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from contactflow.embodiments.registry import HandSpec, PadSpec
 from contactflow.embodiments.transforms import pose_to_matrix
 
 
+def _frozen(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    for a in arrays:
+        a.setflags(write=False)  # shared by every sample of the pad: nobody may change them
+    return arrays
+
+
+@functools.cache
 def _pad_axes(pad: PadSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pad's normal and surface axes (once per pad: a sample with contacts asked for them per contact)."""
     n = np.asarray(pad.normal, dtype=np.float64)
     n /= np.linalg.norm(n)
     u = np.asarray(pad.u_axis, dtype=np.float64)
     u = u - n * (u @ n)
     u /= np.linalg.norm(u)
-    return n, u, np.cross(n, u)
+    return _frozen(n, u, np.cross(n, u))
 
 
+@functools.cache
 def taxel_grid(pad: PadSpec) -> tuple[np.ndarray, np.ndarray]:
     """Taxel centres in pad surface coordinates: u (cols) and v (rows), each (rows, cols)."""
     du, dv = pad.size[0] / pad.cols, pad.size[1] / pad.rows
     u = (np.arange(pad.cols) - (pad.cols - 1) / 2) * du
     v = (np.arange(pad.rows) - (pad.rows - 1) / 2) * dv
-    return np.meshgrid(u, v)
+    return _frozen(*np.meshgrid(u, v))
 
 
 def taxel_positions(pad: PadSpec) -> np.ndarray:
