@@ -3,13 +3,16 @@
 The camera is a ``RenderCameraComponent`` on its own entity, placed every frame at the
 sensor's optical pose (the link pose times the spec's mounting offset, exactly as the
 ray-casting backend computes it) and given the spec's intrinsics, so both backends produce
-the same image geometry. It uses SAPIEN's single-pass ``trivial`` shader pack (no lighting:
-~20 ms a 640x480 frame on lavapipe, <1 s shader compile, where the default pack takes ~45 ms
-and ~5 s). The ``Position`` picture is in the OpenGL camera frame (x right, y up, z
-backwards); SAPIEN's principal point counts from the pixel corner while the spec's counts from
-the pixel centre (cx = 319.5), hence the half-pixel shift. Whether a Vulkan device is usable is
-probed once per process in a subprocess, because a missing device can abort the process that
-creates a render system.
+the same image geometry. It renders with one of two single-pass shader packs cut from
+SAPIEN's ``trivial`` (``shaders/``: its uniforms, no lighting, <1 s to compile where the
+default pack takes ~5 s): ``depth`` writes the Position picture only (a depth stream's
+frame), ``labelled`` Position and Segmentation (a frame with the bodies its pixels hit);
+``trivial`` also writes a textured Color picture nobody reads (640x480 on lavapipe, the same
+pictures: a depth frame 29.4 -> 21.9 ms, a labelled one 30.6 -> 27.1 ms). The ``Position``
+picture is in the OpenGL camera frame (x right, y up, z backwards); SAPIEN's principal point
+counts from the pixel corner while the spec's counts from the pixel centre (cx = 319.5),
+hence the half-pixel shift. Whether a Vulkan device is usable is probed once per process in
+a subprocess, because a missing device can abort the process that creates a render system.
 """
 
 from __future__ import annotations
@@ -24,8 +27,8 @@ import sapien
 
 from contactflow.embodiments.registry import CameraSpec
 
-_SHADER = str(pathlib.Path(sapien.__file__).parent / "vulkan_shader" / "trivial")
-"""SAPIEN's single-pass shader pack: writes position and segmentation, no lighting (depth needs nothing else)."""
+_PACKS = pathlib.Path(__file__).parent / "shaders"
+"""The shader packs: ``depth`` (the Position picture) and ``labelled`` (Position and Segmentation)."""
 _PROBE = "import sapien; sapien.render.RenderSystem(); print('render-ok')"
 _PROBE_TIMEOUT = 60.0  # s; a lavapipe device is created in ~1 s
 _GL_FROM_OPTICAL = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
@@ -47,12 +50,20 @@ class RenderDepth:
 
     def __init__(self, scene: sapien.Scene, spec: CameraSpec) -> None:
         self.scene, self.spec = scene, spec
-        self.camera = sapien.render.RenderCameraComponent(spec.width, spec.height, _SHADER)
-        self.camera.set_perspective_parameters(spec.near, spec.far, spec.fx, spec.fy, spec.cx + 0.5, spec.cy + 0.5, 0.0)
-        self.entity = sapien.Entity()
-        self.entity.set_name(f"camera:{spec.name}")
-        self.entity.add_component(self.camera)
-        scene.add_entity(self.entity)
+        self._cameras: dict[str, tuple[sapien.Entity, sapien.render.RenderCameraComponent]] = {}  # pack -> its camera
+
+    def _camera(self, pack: str) -> tuple[sapien.Entity, sapien.render.RenderCameraComponent]:
+        """The camera rendering with shader pack ``pack``, added to the scene at its first frame."""
+        if pack not in self._cameras:
+            s = self.spec
+            camera = sapien.render.RenderCameraComponent(s.width, s.height, str(_PACKS / pack))
+            camera.set_perspective_parameters(s.near, s.far, s.fx, s.fy, s.cx + 0.5, s.cy + 0.5, 0.0)
+            entity = sapien.Entity()
+            entity.set_name(f"camera:{s.name}:{pack}")
+            entity.add_component(camera)
+            self.scene.add_entity(entity)
+            self._cameras[pack] = (entity, camera)
+        return self._cameras[pack]
 
     def _names(self) -> tuple[dict[int, int], list[str]]:
         """Label of every entity with a physics body (per-scene id -> index) and the label names."""
@@ -65,14 +76,15 @@ class RenderDepth:
             names.append(body.get_name() or body.entity.get_name())
         return ids, names
 
-    def _position(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Render from ``T_world_cam``: (Position picture, depth (H, W) along the optical axis with 0 =
-        none, valid pixels)."""
+    def _position(self, T_world_cam: np.ndarray, pack: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Render from ``T_world_cam`` with ``pack``: (Position picture, depth (H, W) along the optical axis with
+        0 = none, valid pixels)."""
         s = self.spec
-        self.entity.set_pose(sapien.Pose(np.asarray(T_world_cam, dtype=np.float64) @ _GL_FROM_OPTICAL))
+        entity, camera = self._camera(pack)
+        entity.set_pose(sapien.Pose(np.asarray(T_world_cam, dtype=np.float64) @ _GL_FROM_OPTICAL))
         self.scene.update_render()
-        self.camera.take_picture()
-        pos = self.camera.get_picture("Position")
+        camera.take_picture()
+        pos = camera.get_picture("Position")
         z = -pos[..., 2]
         # the trivial shader writes w = 1 on geometry and clears the background to 0
         valid = (pos[..., 3] > 0.0) & (z >= s.near) & (z <= s.far)
@@ -80,13 +92,13 @@ class RenderDepth:
 
     def depth(self, T_world_cam: np.ndarray) -> np.ndarray:
         """Depth (H, W) along the optical axis (0 = none) only: no segmentation picture, points or labels."""
-        return self._position(T_world_cam)[1]
+        return self._position(T_world_cam, "depth")[1]
 
     def shoot(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
         """Depth (H, W) along the optical axis (0 = none), world points of the depth > 0 pixels in
         row-major order (N, 3), labels (H, W) and label names."""
-        pos, depth, valid = self._position(T_world_cam)
-        seg = self.camera.get_picture("Segmentation")[..., 1]
+        pos, depth, valid = self._position(T_world_cam, "labelled")
+        seg = self._camera("labelled")[1].get_picture("Segmentation")[..., 1]
         # the valid pixels' rows gathered by index (a boolean mask over the (H, W, 4) picture costs 3x more), and
         # the GL -> optical flip of y and z folded into the rotation: a sign change is exact, the points the same
         rows = np.take(pos.reshape(-1, 4), np.flatnonzero(valid), axis=0)[:, :3].astype(np.float64)
