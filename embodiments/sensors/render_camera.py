@@ -86,9 +86,9 @@ class RenderDepth:
         camera.take_picture()
         pos = camera.get_picture("Position")
         z = -pos[..., 2]
-        # the trivial shader writes w = 1 on geometry and clears the background to 0
-        valid = (pos[..., 3] > 0.0) & (z >= s.near) & (z <= s.far)
-        return pos, np.where(valid, z, 0.0).astype(np.float32), valid
+        # the packs write w = 1 on geometry and clear the background to 0: its z = 0 is nearer than ``near`` (> 0)
+        valid = (z >= s.near) & (z <= s.far)
+        return pos, np.where(valid, z, np.float32(0.0)), valid
 
     def depth(self, T_world_cam: np.ndarray) -> np.ndarray:
         """Depth (H, W) along the optical axis (0 = none) only: no segmentation picture, points or labels."""
