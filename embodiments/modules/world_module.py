@@ -763,7 +763,7 @@ class WorldModule(Module):
         c.pub(self._encode(DepthImage.of(depth, c.camera.K, Twc, name), f"camera/{name}", c.seq, t))
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:
-        frame = r.sim.camera(msg.camera)
+        frame = r.sim.camera(msg.camera, labels=False)  # a CameraFrame carries no labels (they are evaluation's)
         t = frame.t if np.isfinite(frame.t) else -1.0  # a lost stream that never delivered: stamped -inf here
         out = CameraFrame(robot=r.sim.name, camera=msg.camera, request=msg.request, t=t,
                           depth=NDArray.of(np.asarray(frame.depth, dtype=np.float32)),

@@ -94,15 +94,18 @@ class RenderDepth:
         """Depth (H, W) along the optical axis (0 = none) only: no segmentation picture, points or labels."""
         return self._position(T_world_cam, "depth")[1]
 
-    def shoot(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    def shoot(self, T_world_cam: np.ndarray, labels: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
         """Depth (H, W) along the optical axis (0 = none), world points of the depth > 0 pixels in
-        row-major order (N, 3), labels (H, W) and label names."""
-        pos, depth, valid = self._position(T_world_cam, "labelled")
-        seg = self._camera("labelled")[1].get_picture("Segmentation")[..., 1]
+        row-major order (N, 3), labels (H, W) and label names; without ``labels`` the frame renders
+        with the depth pack and its labels are all -1 (no names)."""
+        pos, depth, valid = self._position(T_world_cam, "labelled" if labels else "depth")
         # the valid pixels' rows gathered by index (a boolean mask over the (H, W, 4) picture costs 3x more), and
         # the GL -> optical flip of y and z folded into the rotation: a sign change is exact, the points the same
         rows = np.take(pos.reshape(-1, 4), np.flatnonzero(valid), axis=0)[:, :3].astype(np.float64)
         points = rows @ (T_world_cam[:3, :3] * (1.0, -1.0, -1.0)).T + T_world_cam[:3, 3]
+        if not labels:
+            return depth, points, np.full(depth.shape, -1, dtype=np.int32), []
+        seg = self._camera("labelled")[1].get_picture("Segmentation")[..., 1]
         ids, names = self._names()
         lookup = np.full(int(seg.max()) + 1, -1, dtype=np.int32)
         for sid, label in ids.items():

@@ -249,6 +249,22 @@ def test_a_depth_read_is_the_full_frames_depth_and_keeps_the_stream_alive(seen, 
     assert again is frame.depth
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_frame_without_labels_is_the_labelled_frame_and_labels_asked_of_it_come_from_a_new_render(seen, backend):
+    robot, cams, _ = seen
+    cam = cams[backend]
+    t = robot.time + 2.0  # past the camera's period: a fresh frame
+    bare = cam.read(t, labels=False)
+    assert cam.read(t, labels=False) is bare  # within the period: the same frame
+    labelled = cam.read(t)  # labels asked of a frame taken without them: rendered again, with them
+    assert labelled is not bare and cam.read(t) is labelled and cam.read(t, labels=False) is labelled
+    assert np.array_equal(bare.depth, labelled.depth) and np.array_equal(bare.points, labelled.points)
+    assert np.array_equal(bare.pixels, labelled.pixels)
+    assert "target" in labelled.label_names and (labelled.labels >= 0).sum() == len(labelled.points)
+    if backend == "render":  # ray casting finds the labels on the way, asked for or not
+        assert bare.label_names == () and (bare.labels == -1).all()
+
+
 def test_camera_backend_choice():
     assert World(WorldParams(camera_backend="raycast")).rendering is False
     with pytest.raises(WorldError, match="camera_backend 'laser'"):
