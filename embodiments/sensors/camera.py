@@ -196,7 +196,7 @@ class DepthCamera:
         rows, cols = np.nonzero(depth > 0)
         frame = DepthFrame(t, depth, points, np.stack([rows, cols], 1).astype(np.int32),
                            self.K, Twc, hit.reshape(s.height, s.width), tuple(names))
-        self._last, self._labelled = frame, labels
+        self._last, self._labelled = frame, labels or bool(names)  # a cast frame has its labels, asked for or not
         return frame
 
     @property

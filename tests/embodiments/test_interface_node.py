@@ -288,7 +288,7 @@ def test_the_planner_service_goes_around_a_sensed_wall_and_refuses_an_unreachabl
     # the executed motion, with the robot's collision meshes, against the wall as solid 1 cm cells: the
     # tcp goes to the other side over the wall or around it (OMPL's route depends on the CPU time it
     # gets), and no state of the way there puts any part of the arm or gripper into the wall
-    wall_cells = CoalChecker(kin, str(spec.urdf()), [], cloud=wall.astype(np.float64), resolution=0.01)
+    wall_cells = CoalChecker(kin, str(spec.urdf()), [], cloud=wall, resolution=0.01)
     path, inside = [], []
     for js in node.of(JointState)[start:]:
         q = kin.q.copy()
@@ -298,7 +298,7 @@ def test_the_planner_service_goes_around_a_sensed_wall_and_refuses_an_unreachabl
         if not wall_cells.valid(q):
             inside.append(path[-1])
     path = np.array(path)
-    assert (path[:, 1] > 0.02).any() and (path[:, 1] < -0.02).any(), "the tcp went from one side of the wall to the other"
+    assert (path[:, 1] > 0.02).any() and (path[:, 1] < -0.02).any(), "the tcp never reached the other side of the wall"
     assert not inside, f"the arm went through the wall with the tcp at {np.array(inside)}"
 
     far = np.eye(4)
