@@ -40,15 +40,23 @@ def _pack(i: int, j: int, k: int) -> int:
 
 @njit(cache=True, nogil=True)
 def point_keys(points: np.ndarray, voxel_size: float, out: np.ndarray) -> bool:
-    """Packed voxel key of each point into ``out``; False when a point lies out of range."""
-    c = np.empty(3, dtype=np.int64)
+    """Packed voxel key of each point (a C-contiguous (n, 3) array) into ``out``; False when a point lies out
+    of range (its key is then meaningless).
+
+    No branch and no exit inside the loop, and the coordinates read from the flat buffer: the loop then
+    vectorises and streams a cold cloud (a fresh cloud every cycle) at memory speed. With an exit at the
+    first point out of range it ran 4x slower on a cold 100k cloud (1.19 against 0.31 ms).
+    """
+    flat = points.ravel()
+    lim = float(KEY_OFFSET)
+    ok = True
     for i in range(points.shape[0]):
-        for a in range(3):
-            c[a] = np.int64(np.floor(points[i, a] / voxel_size))
-            if c[a] >= KEY_OFFSET or c[a] <= -KEY_OFFSET:
-                return False
-        out[i] = _pack(c[0], c[1], c[2])
-    return True
+        a = np.floor(flat[3 * i] / voxel_size)
+        b = np.floor(flat[3 * i + 1] / voxel_size)
+        c = np.floor(flat[3 * i + 2] / voxel_size)
+        ok &= (abs(a) < lim) & (abs(b) < lim) & (abs(c) < lim)
+        out[i] = _pack(np.int64(a), np.int64(b), np.int64(c))
+    return ok
 
 
 @njit(cache=True, nogil=True)
@@ -79,7 +87,7 @@ def _prefetch(typingctx, arr, index):
     return types.void(arr, index), codegen
 
 
-AHEAD = 16  # keys or hypotheses a loop loads ahead (a probe or a record that misses the caches)
+AHEAD = 64  # keys or hypotheses a loop loads ahead (a probe or a record that misses the caches; 3 x 100k moving: 64 puts in 5.8-5.9 ms a cycle, 16 in 6.6-6.9, 128 in 6.0-6.3)
 
 
 @njit(cache=True, nogil=True)

@@ -109,15 +109,18 @@ def test_space_expiry_in_the_fused_pass_and_compact_keep_rows_consistent():
 
 def test_kernel_type_codes_and_point_keys_match_the_numpy_definitions():
     assert (kernels.REGULAR, kernels.NULL) == (HypothesisType.REGULAR, HypothesisType.NULL)
-    pts = np.random.default_rng(3).uniform(-2, 2, (1000, 3))
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-2, 2, (1000, 3))
+    pts[::5] = np.round(pts[::5] / 0.005) * 0.005  # on voxel boundaries, as numpy's floor puts them
     sp = HypothesisSpace(0.005, capacity=16)
     sp.put(0, Hypotheses.make(pts, 0.5))
     keys = np.unique(voxel_keys(pts, 0.005))
     assert np.array_equal(np.sort(sp.keys[: sp.n]), keys)
     assert np.allclose(sp.centers(sp.index.lookup(keys)), voxel_centers(keys, 0.005))
-    with pytest.raises(ValueError, match="out of range"):
-        sp.put(0, Hypotheses.make(np.array([[0.0, 0.0, 0.0], [1e5, 0.0, 0.0]]), 0.5))
-    assert sp.n == keys.size  # the refused cloud added nothing
+    for far in ([1e5, 0.0, 0.0], [0.0, 0.0, -1e5], [0.0, 6e3, 0.0]):  # any axis, either side, the last point
+        with pytest.raises(ValueError, match="out of range"):
+            sp.put(0, Hypotheses.make(np.array([[0.0, 0.0, 0.0], [0.1, 0.2, 0.3], far]), 0.5))
+    assert sp.n == keys.size  # the refused clouds added nothing
 
 
 def test_put_keeps_the_most_likely_of_one_cloud_but_the_newest_cloud_wins():
