@@ -141,6 +141,8 @@ class Predictor(Module):
         self._published_at = -np.inf
         self._resynced_at = 0.0
         self._handles: list[Any] = []
+        self._own_bodies: set[int] = set()
+        self._hand_bodies: dict[int, tuple[str, str]] = {}
         self.log = logging.getLogger(f"contactflow.predictor.{name}")
 
     @classmethod
@@ -369,6 +371,9 @@ class Predictor(Module):
         self._arm_hand = {a.name: a.hand for a in sim.spec.arms}
         self._hand = self._hand_links(sim)
         self._hand_names = set(self._hand.values())
+        # the robot's bodies, and its hands' (id of the physx component -> link, hand): what contacts are read by
+        self._own_bodies = {id(lk) for lk in sim.art.links.values()}
+        self._hand_bodies = {id(sim.art.links[k.split("/", 1)[1]]): (k.split("/", 1)[1], h) for k, h in self._hand.items()}
         self._payload = sim.spec.capabilities.payload if sim.spec.capabilities is not None else 0.0
         from contactflow.fusion.station import robot_cues
 
@@ -519,35 +524,38 @@ class Predictor(Module):
         """Contact points of the robot's hands with anything but the robot (with a force), their links and hands;
         the hands whose contact the robot would feel; and the *steady* hands: touching nothing, or only objects
         that touch nothing but the robot (held aloft). A hand pushing an object over the table, or setting it
-        down, is not steady: there the load follows friction and timing the belief does not know."""
+        down, is not steady: there the load follows friction and timing the belief does not know.
+
+        Only the hands' contacts are read, and those of what they touch (the step's contacts by body,
+        ``World.contacts_of``), not every contact of the scene: this runs at every world tick."""
         from contactflow.embodiments.sensors.ground_truth import body_name
 
         pts, links, hands = [], [], []
-        own = f"{self.robot}/"
-        touching: dict[str, set[str]] = {}  # hand -> the bodies it touches
-        others: dict[str, set[str]] = {}  # body -> the bodies other than the robot it touches
-        for c in self.world.contacts():
-            a, b = body_name(c.bodies[0]), body_name(c.bodies[1])
-            if not any(np.linalg.norm(p.impulse) > 0 for p in c.points):
+        own = self._own_bodies
+        touching: dict[str, dict[int, Any]] = {}  # hand -> the bodies it touches, by id
+        for c in self.world.contacts_of(self._hand_bodies):
+            a, b = c.bodies
+            if (id(a) in own) == (id(b) in own):
+                continue  # the robot with itself
+            link, other = (a, b) if id(a) in own else (b, a)
+            pressed = [p.position for p in c.points if p.impulse.any()]
+            if not pressed:
                 continue
-            if a.startswith(own) == b.startswith(own):
-                if not a.startswith(own):
-                    others.setdefault(a, set()).add(b)
-                    others.setdefault(b, set()).add(a)
-                continue  # the robot with itself, or two other bodies
-            link, other = (a, b) if a.startswith(own) else (b, a)
-            if link not in self._hand:
-                continue
-            touching.setdefault(self._hand[link], set()).add(other)
-            for p in c.points:
-                if np.linalg.norm(p.impulse) > 0:
-                    pts.append(np.asarray(p.position, dtype=np.float64))
-                    links.append(link.split("/", 1)[1])
-                    hands.append(self._hand[link])
+            name, hand = self._hand_bodies[id(link)]
+            touching.setdefault(hand, {})[id(other)] = other
+            pts += pressed
+            links += [name] * len(pressed)
+            hands += [hand] * len(pressed)
+        touched = {i: o for bodies in touching.values() for i, o in bodies.items()}
+        crowded: set[int] = set()  # touched bodies that touch another body than the robot
+        for c in self.world.contacts_of(touched) if touched else ():
+            a, b = c.bodies
+            if id(a) not in own and id(b) not in own and any(p.impulse.any() for p in c.points):
+                crowded |= {id(a), id(b)}
         static = {n for n, o in self.world.objects.items() if o.spec.static}
         steady = {h for h in self._hand_names
-                  if not any(o in static or others.get(o) for o in touching.get(h, ()))}
-        self._held = {h: next(iter(touching[h])) for h in steady if len(touching.get(h, ())) == 1}
+                  if not any(i in crowded or body_name(o) in static for i, o in touching.get(h, {}).items())}
+        self._held = {h: body_name(next(iter(touching[h].values()))) for h in steady if len(touching.get(h, ())) == 1}
         return (np.array(pts, dtype=np.float64).reshape(-1, 3), links, hands, self._felt() if pts else set(),
                 steady)
 
