@@ -184,21 +184,25 @@ def echo(keyexpr: Annotated[str, typer.Argument(help="key expression, e.g. 'cf/d
     t = open_tool_session(connect)
     seen = 0
     done = threading.Event()
+    printing = threading.Lock()
 
     def on_sample(key: str, payload: bytes) -> None:
         nonlocal seen
-        try:
-            view = to_builtins(decode_any(payload, key))
-        except WireError as exc:
-            console.print(f"[red]{escape(str(exc))}[/]")
-            return
-        seen += 1
-        if raw:
-            console.print_json(json.dumps({"key": key, "msg": view}, default=str))
-        else:
-            console.print(f"[cyan]{escape(key)}[/] {escape(str(view))}")
-        if count and seen >= count:
-            done.set()
+        with printing:
+            if done.is_set():
+                return  # the count was reached: a sample that came before the subscriber closed is not printed
+            try:
+                view = to_builtins(decode_any(payload, key))
+            except WireError as exc:
+                console.print(f"[red]{escape(str(exc))}[/]")
+                return
+            seen += 1
+            if raw:
+                console.print_json(json.dumps({"key": key, "msg": view}, default=str))
+            else:
+                console.print(f"[cyan]{escape(key)}[/] {escape(str(view))}")
+            if count and seen >= count:
+                done.set()
 
     sub = t.subscribe(keyexpr, on_sample)
     try:

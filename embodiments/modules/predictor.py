@@ -129,7 +129,7 @@ class Predictor(Module):
         self.resyncs = 0  # times the arms were put back at the measured joints
         self._touching = False  # the predicted hands touch something (no resynchronisation then)
         self._held: dict[str, str] = {}  # hand -> the one object it holds aloft in the prediction
-        self._asked: threading.Thread | None = None  # the look-ahead under way
+        self._looking = False  # a look-ahead is under way, until its answer is queued
         self._asked_request = -1  # its request number
         self._answers: deque[LookAheadReply] = deque()  # look-ahead answers to publish (appended by its thread)
         self._pending: deque = deque()
@@ -251,7 +251,7 @@ class Predictor(Module):
 
         if self.sim is None:
             return refuse("the predictor has no state of the robot yet")
-        if self._asked is not None and self._asked.is_alive():
+        if self._looking:
             if req.request == self._asked_request:
                 return None  # asked again while it runs: the one answer comes when it is done
             return refuse("busy with another look-ahead")
@@ -263,8 +263,8 @@ class Predictor(Module):
                         tuple((o.spec if o.spec.static else replace(o.spec, mass=o.mass()), o.pose())
                               for o in self.world.objects.values()))  # what a load taught of a mass too
         self._asked_request = req.request
-        self._asked = threading.Thread(target=self._look, args=(snap, req), name=f"{self.name}-ahead", daemon=True)
-        self._asked.start()
+        self._looking = True
+        threading.Thread(target=self._look, args=(snap, req), name=f"{self.name}-ahead", daemon=True).start()
 
     def _look(self, snap, req: LookAheadRequest) -> None:  # type: ignore[no-untyped-def]
         from contactflow.embodiments.lookahead import look_ahead
@@ -272,10 +272,14 @@ class Predictor(Module):
         try:
             out = look_ahead(snap, req.primitive, req.params, req.horizon)
         except Exception as exc:  # a bad primitive or parameter, or a world that failed to build: said, not raised
+            self._looking = False
             self._answers.append(LookAheadReply(robot=self.robot, request=req.request, primitive=req.primitive,
                                                 outcome="", duration=0.0, wall=0.0,
                                                 error=f"{type(exc).__name__}: {exc}"[:500]))
             return
+        # done before the answer goes out: a question asked on hearing it is not refused as "busy" by a thread
+        # that has only its return left
+        self._looking = False
         self._answers.append(LookAheadReply(
             robot=self.robot, request=req.request, primitive=req.primitive, outcome=out.outcome,
             duration=out.duration, wall=out.wall,
