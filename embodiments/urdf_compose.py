@@ -44,10 +44,11 @@ def erd_file(rel: str) -> pathlib.Path:
     return p
 
 
-def cache_dir() -> pathlib.Path:
-    """Where composed URDFs are written (``$CONTACTFLOW_CACHE`` or ``~/.cache/contactflow``)."""
+def cache_dir(kind: str = "urdf") -> pathlib.Path:
+    """Where composed URDFs (``kind`` urdf) and other derived robot files are written (``$CONTACTFLOW_CACHE`` or
+    ``~/.cache/contactflow``, a folder per kind)."""
     root = os.environ.get("CONTACTFLOW_CACHE") or str(pathlib.Path.home() / ".cache" / "contactflow")
-    d = pathlib.Path(root) / "urdf"
+    d = pathlib.Path(root) / kind
     d.mkdir(parents=True, exist_ok=True)
     return d
 

@@ -23,6 +23,7 @@ from contactflow.embodiments.registry import RobotSpec, collision_part, get
 from contactflow.embodiments.sensors.render_camera import render_available
 from contactflow.embodiments.transforms import pose_to_matrix, xyz_rpy_to_matrix
 from contactflow.embodiments.urdf_compose import write
+from contactflow.embodiments.visual_meshes import decimated
 
 
 class WorldError(ValueError):
@@ -39,6 +40,7 @@ class WorldParams:
     velocity_iterations: int = 2
     default_friction: float = 0.6
     camera_backend: str = "auto"  # auto | render | raycast: auto renders (SAPIEN) when a Vulkan device exists
+    visual_triangles: int = 2000  # most triangles a robot's visual mesh is drawn with when rendering (0: as it is; visual_meshes)
 
 
 @dataclass(frozen=True)
@@ -186,9 +188,14 @@ class SimArticulation:
         # a rendering world keeps the URDF visuals (same links and collisions, so the same joint order)
         urdf = write(spec.composition, visuals=True) if world.rendering else spec.urdf()
         builder = loader.load_file_as_articulation_builder(str(urdf))
+        files = [r for lb in builder.link_builders for r in lb.visual_records if r.type == "file"]
         if not world.rendering:
             for lb in builder.link_builders:
                 lb.visual_records = []
+        elif world.params.visual_triangles > 0 and files:
+            lighter = decimated([r.filename for r in files], world.params.visual_triangles)
+            for r in files:
+                r.filename = lighter[r.filename]
         self.articulation = builder.build()
         self.articulation.set_name(name)
         self.articulation.set_root_pose(_sapien_pose(self.base))
@@ -463,6 +470,8 @@ class World:
 
     def __init__(self, params: WorldParams | None = None) -> None:
         self.params = params or WorldParams()
+        if not (isinstance(self.params.visual_triangles, int) and self.params.visual_triangles >= 0):
+            raise WorldError(f"WorldParams.visual_triangles {self.params.visual_triangles!r} is not a count >= 0")
         sapien.physx.set_body_config(sleep_threshold=0.0)
         sapien.physx.set_scene_config(gravity=np.array(self.params.gravity, dtype=np.float32))
         sapien.physx.set_default_material(self.params.default_friction, self.params.default_friction, 0.0)
