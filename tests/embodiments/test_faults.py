@@ -72,6 +72,21 @@ def test_a_silent_stream_is_noticed_by_the_watchdog(sensor):
     assert [e for _, e, _ in robot.events] == [Event.HARDWARE_FAILURE]
 
 
+def test_a_robot_that_does_not_watch_its_streams_samples_them_only_when_read_and_still_watches_its_joints():
+    """A predictor's robot (SimRobotParams.watch_streams=False) reads its sensors only when it compares."""
+    from contactflow.embodiments.sim_robot import SimRobot, SimRobotParams
+    from contactflow.embodiments.world import World
+
+    robot = SimRobot(World(), "melfa", params=SimRobotParams(watch_streams=False))
+    ft, tactile = robot._ft_of_arm["arm"], robot._tactile["gripper"]
+    robot.step(0.5)
+    assert ft.stamp == tactile.stamp == -np.inf and not robot.failed  # never sampled, and no sensor_loss for it
+    assert robot.ft("arm").t == pytest.approx(robot.time) and ft.stamp == pytest.approx(robot.time)  # read on demand
+    robot.inject_fault("nan")
+    robot.step(0.1)
+    assert robot.failed and robot.failure.startswith("nan")  # the joint rules still run
+
+
 def test_a_lost_camera_gives_hardware_failure_when_read():
     robot = make_robot("tombatossals")
     first = robot.camera()

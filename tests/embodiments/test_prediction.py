@@ -136,3 +136,12 @@ def test_an_object_seen_farther_than_the_bound_from_its_prediction_is_a_mismatch
     m = det.object(3.0, "cyl", np.array([0.60, -0.3, 0.87]), 0.05)
     assert m is not None and m.kind is MismatchKind.OBJECT and m.part == "cyl" and m.value == 0.05
     assert "5.0 cm" in m.detail and m.location == pytest.approx((0.60, -0.3, 0.87))
+
+
+def test_the_window_median_is_numpys_median():
+    from contactflow.embodiments.prediction import _median
+
+    rng = np.random.default_rng(3)
+    for k in range(1, 42):
+        x = rng.normal(size=(k, 6)) * 10
+        assert np.array_equal(_median(x), np.median(x, axis=0)), k

@@ -233,3 +233,15 @@ def test_the_predictor_looks_ahead_a_transport_from_the_predicted_state_and_says
     finally:
         t.close()
         stop_nodes(started, watch)
+
+
+@pytest.mark.parametrize("field", ["compare_hz", "publish_hz"])
+def test_the_predictor_refuses_a_rate_that_is_not_positive(field):
+    from dataclasses import replace
+
+    from contactflow.embodiments.modules.predictor import Predictor
+    from contactflow.nodes.testing import FakeIO
+
+    module = Predictor("predict", replace(Predictor.Params(), **{field: 0.0}))
+    with pytest.raises(ValueError, match="publish_hz, compare_hz and reach must be > 0"):
+        module.setup(FakeIO())
