@@ -23,7 +23,7 @@ from contactflow.embodiments.registry import RobotSpec, collision_part, get
 from contactflow.embodiments.sensors.render_camera import render_available
 from contactflow.embodiments.transforms import pose_to_matrix, xyz_rpy_to_matrix
 from contactflow.embodiments.urdf_compose import write
-from contactflow.embodiments.visual_meshes import decimated
+from contactflow.embodiments.visual_meshes import MAX_TRIANGLES, decimated
 
 
 class WorldError(ValueError):
@@ -40,7 +40,7 @@ class WorldParams:
     velocity_iterations: int = 2
     default_friction: float = 0.6
     camera_backend: str = "auto"  # auto | render | raycast: auto renders (SAPIEN) when a Vulkan device exists
-    visual_triangles: int = 2000  # most triangles a robot's visual mesh is drawn with when rendering (0: as it is; visual_meshes)
+    visual_triangles: int = MAX_TRIANGLES  # most triangles a robot's visual mesh is drawn with when rendering (0: as it is; visual_meshes)
 
 
 @dataclass(frozen=True)

@@ -290,28 +290,23 @@ class _ChainProbe:
             sub.close()
 
 
-def _heard(stages: dict[str, dict[int, float]], arrived: dict[int, float]) -> list[int]:
-    """The frames whose objects arrived and whose every stage's output the bench heard."""
-    return [q for q in sorted(arrived) if all(q in stages[s] for s in (*CHAIN, "objects"))]
-
-
 def _hops(frames: dict[int, tuple[float, float]], stages: dict[str, dict[int, float]],
-          arrived: dict[int, float]) -> dict[str, dict[str, float]]:
-    """Each hop's median and mean ms over the processed frames the bench heard every stage of: from the
-    frame's stamp to the cloud module's output, on from output to output (each stamped when its module
-    published it), and from the objects' publication to their arrival at the bench.
+          arrived: dict[int, float]) -> tuple[dict[str, dict[str, float]], int]:
+    """Each hop's median and mean ms over the processed frames the bench heard every stage of (and how many
+    those are): from the frame's stamp to the cloud module's output, on from output to output (each stamped
+    when its module published it), and from the objects' publication to their arrival at the bench.
 
     The means add up to the mean latency of those frames; the medians need not: under load a frame
     waits long at one stage or another, so each hop's median stays short while most totals are long.
     """
-    seqs = _heard(stages, arrived)
+    seqs = [q for q in sorted(arrived) if all(q in stages[s] for s in (*CHAIN, "objects"))]
     chain = [("frame", {q: frames[q][0] for q in seqs}), *((s, stages[s]) for s in (*CHAIN, "objects")),
              ("bench", arrived)]
     out = {}
     for (a, ta), (b, tb) in zip(chain[:-1], chain[1:], strict=True):
         d = np.array([(tb[q] - ta[q]) * 1e3 for q in seqs])
         out[f"{a}->{b}"] = {"median": float(np.median(d)), "mean": float(d.mean())} if seqs else {"median": math.nan, "mean": math.nan}
-    return out
+    return out, len(seqs)
 
 
 def _latency(values: list[float]) -> dict[str, float] | None:
@@ -358,7 +353,7 @@ def bench_runtime(folder: pathlib.Path, seconds: float, camera_hz: float = FRAME
     window = {seq: t for seq, (t, _) in frames.items() if t0 <= t < t1}
     done = {seq: objects[seq] for seq in window if seq in objects}
     latency = [done[seq][0] - window[seq] for seq in sorted(done)]
-    arrived = {seq: t for seq, (t, _) in done.items()}
+    hops, heard = _hops(frames, stages, {seq: t for seq, (t, _) in done.items()})
     first, last = (frames[seq] for seq in (min(window), max(window))) if len(window) > 1 else ((0.0, 0.0),) * 2
     rtf = (last[1] - first[1]) / (last[0] - first[0]) if last[0] > first[0] else 0.0
     clusters = [n for _, n in done.values()]
@@ -371,8 +366,8 @@ def bench_runtime(folder: pathlib.Path, seconds: float, camera_hz: float = FRAME
             lost_at[next(s for s in lost_at if seq not in stages[s])] += 1
     return {"seconds": span, "camera_hz": camera_hz, "frames": len(window), "processed": len(done),
             "dropped": len(window) - len(done), "lost_at": lost_at, "world_rtf": rtf, "frames_hz": len(window) / span, "processed_hz": len(done) / span,
-            "latency": _latency(latency), "hops_ms": _hops(frames, stages, arrived),
-            "hops_frames": len(_heard(stages, arrived)), "objects": objs,
+            "latency": _latency(latency), "hops_ms": hops, "hops_frames": heard,
+            "objects": objs,
             "clusters_right": sum(n == objs for n in clusters), "clusters_seen": sorted(set(clusters))}
 
 

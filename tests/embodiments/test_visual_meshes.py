@@ -11,7 +11,8 @@ from contactflow.embodiments.sensors.render_camera import render_available
 from contactflow.embodiments.urdf_compose import erd_file
 from contactflow.embodiments.visual_meshes import decimated
 
-pytestmark = pytest.mark.skipif(not render_available(), reason="no Vulkan device: nothing is rendered")
+# a world without a Vulkan device draws nothing (its cameras cast rays): it has no visual meshes to decimate
+needs_render = pytest.mark.skipif(not render_available(), reason="no Vulkan device: nothing is rendered")
 
 
 def _mesh(path: str) -> tuple[np.ndarray, int]:
@@ -21,6 +22,7 @@ def _mesh(path: str) -> tuple[np.ndarray, int]:
     return np.concatenate([p.get_vertices() for p in parts]), sum(len(p.get_triangles()) for p in parts)
 
 
+@needs_render
 def test_a_decimated_visual_mesh_keeps_its_shape_and_is_written_once(tmp_path, monkeypatch):
     import sapien
 
@@ -42,6 +44,7 @@ def test_a_decimated_visual_mesh_keeps_its_shape_and_is_written_once(tmp_path, m
     assert other != copy and _mesh(other)[1] <= 500  # another bound, another copy
 
 
+@needs_render
 def test_a_depth_frame_with_decimated_robot_meshes_is_the_same_off_the_robot_and_within_a_millimetre_on_it():
     from contactflow.embodiments.sim_robot import SimRobot
     from contactflow.embodiments.world import World, WorldParams
