@@ -251,7 +251,7 @@ class CameraRequest(Message, tag="camera_request"):
 
 
 class CameraFrame(Message, tag="camera_frame"):
-    """One depth frame, answering :class:`CameraRequest` ``request``."""
+    """One depth frame, answering :class:`CameraRequest` ``request``; or, with ``error``, why there is none."""
 
     max_bytes = 32 << 20
     nonfinite = frozenset({"depth"})  # as a depth image's
@@ -264,6 +264,7 @@ class CameraFrame(Message, tag="camera_frame"):
     pixels: NDArray  # (N, 2) int32, (row, col) of each point
     K: list[float]  # 9 values, row-major intrinsics
     pose: list[float]  # 16 values, row-major world pose of the optical frame
+    error: str = ""  # why the camera gave no frame (the arrays are then empty); "": a frame
 
 
 class ObstacleMsg(msgspec.Struct, kw_only=True):

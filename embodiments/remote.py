@@ -180,6 +180,8 @@ class RobotLink:
             msg = self._frames.pop(request)
         if msg is None:
             raise RemoteError(f"robot {self.robot}: no frame of camera {camera!r} within {timeout:g} s")
+        if msg.error:
+            raise RemoteError(f"robot {self.robot}: camera {camera!r} gave no frame: {msg.error}")
         return msg
 
     def close(self) -> None:

@@ -763,13 +763,28 @@ class WorldModule(Module):
         c.pub(self._encode(DepthImage.of(depth, c.camera.K, Twc, name), f"camera/{name}", c.seq, t))
 
     def _camera(self, r: _Robot, msg: CameraRequest) -> None:
-        frame = r.sim.camera(msg.camera, labels=False)  # a CameraFrame carries no labels (they are evaluation's)
+        """Answer ``msg`` with a frame, or with why there is none: a requester waits for its answer (in lockstep
+        with the whole cell), so a camera that cannot render says so at once rather than by a timeout."""
+        try:
+            frame = r.sim.camera(msg.camera, labels=False)  # a CameraFrame carries no labels (they are evaluation's)
+        except Exception as exc:  # as a streamed camera's: a lost frame, not a dead world
+            error = f"{type(exc).__name__}: {exc}"[:500]
+            self._answer(r, msg, CameraFrame(
+                robot=r.sim.name, camera=msg.camera, request=msg.request, t=-1.0,
+                depth=NDArray.of(np.zeros((0, 0), dtype=np.float32)), points=NDArray.of(np.zeros((0, 3))),
+                pixels=NDArray.of(np.zeros((0, 2), dtype=np.int32)), K=[], pose=[], error=error))
+            if isinstance(exc, (ValueError, KeyError)):
+                raise  # a request the robot cannot take (an unknown camera) is refused as well, and logged there
+            self.log.warning("%s: camera %s: %s", r.sim.name, msg.camera, error)
+            return
         t = frame.t if np.isfinite(frame.t) else -1.0  # a lost stream that never delivered: stamped -inf here
-        out = CameraFrame(robot=r.sim.name, camera=msg.camera, request=msg.request, t=t,
-                          depth=NDArray.of(np.asarray(frame.depth, dtype=np.float32)),
-                          points=NDArray.of(np.asarray(frame.points, dtype=np.float64)),
-                          pixels=NDArray.of(np.asarray(frame.pixels, dtype=np.int32)),
-                          K=[float(v) for v in np.asarray(frame.K).ravel()],
-                          pose=[float(v) for v in np.asarray(frame.T_world_cam).ravel()])
+        self._answer(r, msg, CameraFrame(robot=r.sim.name, camera=msg.camera, request=msg.request, t=t,
+                                         depth=NDArray.of(np.asarray(frame.depth, dtype=np.float32)),
+                                         points=NDArray.of(np.asarray(frame.points, dtype=np.float64)),
+                                         pixels=NDArray.of(np.asarray(frame.pixels, dtype=np.int32)),
+                                         K=[float(v) for v in np.asarray(frame.K).ravel()],
+                                         pose=[float(v) for v in np.asarray(frame.T_world_cam).ravel()]))
+
+    def _answer(self, r: _Robot, msg: CameraRequest, out: CameraFrame) -> None:
         # answered before the next tick's clock: the nodes may read it from that tick on
         r.camera_pub(self._encode(out, f"{r.sim.name}/camera", msg.request, self.world.time, clock=self.tick_no + 1))

@@ -11,13 +11,15 @@ frame), ``labelled`` Position and Segmentation (a frame with the bodies its pixe
 pictures: a depth frame 29.4 -> 21.9 ms, a labelled one 30.6 -> 27.1 ms). The ``Position``
 picture is in the OpenGL camera frame (x right, y up, z backwards); SAPIEN's principal point
 counts from the pixel corner while the spec's counts from the pixel centre (cx = 319.5),
-hence the half-pixel shift. Whether a Vulkan device is usable is probed once per process in
-a subprocess, because a missing device can abort the process that creates a render system.
+hence the half-pixel shift. Whether a Vulkan device is usable is probed once in a subprocess,
+because a missing device can abort the process that creates a render system; the processes a
+probed one starts inherit the answer (``CONTACTFLOW_RENDER``).
 """
 
 from __future__ import annotations
 
 import functools
+import os
 import pathlib
 import subprocess
 import sys
@@ -30,6 +32,8 @@ from contactflow.embodiments.registry import CameraSpec
 _PACKS = pathlib.Path(__file__).parent / "shaders"
 """The shader packs: ``depth`` (the Position picture) and ``labelled`` (Position and Segmentation)."""
 _PROBE = "import sapien; sapien.render.RenderSystem(); print('render-ok')"
+RENDER_ENV = "CONTACTFLOW_RENDER"
+"""``1``: a render device was found, ``0``: none (the ray-cast camera); set by the first probe, or by hand."""
 _PROBE_TIMEOUT = 60.0  # s; a lavapipe device is created in ~1 s
 _GL_FROM_OPTICAL = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 """SAPIEN's camera entity frame (x forward, y left, z up) expressed in the optical frame."""
@@ -37,12 +41,19 @@ _GL_FROM_OPTICAL = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0,
 
 @functools.cache
 def render_available() -> bool:
-    """True when a render system can be created here (checked once per process, in a subprocess)."""
+    """True when a render system can be created here: checked in a subprocess once, and the answer left in the
+    environment (:data:`RENDER_ENV`) for the node processes this one starts, which would each probe the same
+    device again (a second or more of a node's start, every time)."""
+    known = os.environ.get(RENDER_ENV)
+    if known in ("0", "1"):
+        return known == "1"
     try:
         out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=_PROBE_TIMEOUT)
+        ok = out.returncode == 0 and "render-ok" in out.stdout
     except (OSError, subprocess.TimeoutExpired):
-        return False
-    return out.returncode == 0 and "render-ok" in out.stdout
+        ok = False
+    os.environ[RENDER_ENV] = "1" if ok else "0"
+    return ok
 
 
 class RenderDepth:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+
 import numpy as np
 import pytest
 
@@ -389,3 +392,27 @@ def test_a_world_meshes_its_robots_hands_without_open3d():
             "print('open3d' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "False", out.stderr[-2000:]
+
+
+def test_the_render_probe_runs_once_and_the_processes_it_starts_inherit_its_answer(monkeypatch):
+    from contactflow.embodiments.sensors import render_camera
+
+    probes: list[list[str]] = []
+
+    def probe(argv, **kw):
+        probes.append(argv)
+        return subprocess.CompletedProcess(argv, 0, stdout="render-ok\n", stderr="")
+
+    monkeypatch.setattr(render_camera.subprocess, "run", probe)
+    monkeypatch.delenv(render_camera.RENDER_ENV, raising=False)
+    render_camera.render_available.cache_clear()
+    try:
+        assert render_camera.render_available() and len(probes) == 1
+        assert os.environ[render_camera.RENDER_ENV] == "1"  # what a node process started now sees
+        render_camera.render_available.cache_clear()  # as a fresh process with that environment
+        assert render_camera.render_available() and len(probes) == 1
+        monkeypatch.setenv(render_camera.RENDER_ENV, "0")  # set by hand: the ray-cast camera, no probe
+        render_camera.render_available.cache_clear()
+        assert not render_camera.render_available() and len(probes) == 1
+    finally:
+        render_camera.render_available.cache_clear()

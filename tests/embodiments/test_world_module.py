@@ -444,15 +444,16 @@ def test_a_camera_request_is_answered_with_a_frame_of_that_tick(tmp_path):
     try:
         c.send(CameraRequest(robot="tombatossals", camera="kinect", request=42))
         c.send(CameraRequest(robot="tombatossals", camera="eye", request=43))  # no such camera: refused
-        assert wait_for(lambda: c.frames, 30)
-        f = c.frames[0]
-        assert f.request == 42 and len(f.points.numpy()) > 1000
+        assert wait_for(lambda: len(c.frames) == 2, 30)
+        f, eye = sorted(c.frames, key=lambda m: m.request)
+        assert f.request == 42 and not f.error and len(f.points.numpy()) > 1000
         pts = f.points.numpy()
         # the cube is in the frame: points on its top face
         top = pts[(np.abs(pts[:, 0] - 0.5) < 0.02) & (np.abs(pts[:, 1] - 0.2) < 0.02)]
         assert len(top) and top[:, 2].max() == pytest.approx(0.80, abs=0.01)
         assert wait_for(lambda: c.state.refused == 1, 10)
-        assert len(c.frames) == 1
+        # the refused request is answered too, with why: its requester does not wait out a timeout
+        assert eye.request == 43 and "eye" in eye.error and eye.t == -1.0 and len(eye.points.numpy()) == 0, eye.error
     finally:
         c.close()
         node.stop()
