@@ -42,8 +42,10 @@ def _paths(filename: str, max_triangles: int) -> tuple[pathlib.Path, pathlib.Pat
 def decimated(filenames: Sequence[str], max_triangles: int = MAX_TRIANGLES) -> dict[str, str]:
     """For each mesh file, one with its shape and at most ``max_triangles`` triangles: the file itself when it has no
     more, else its copy (PLY) in the cache, written at the first call by one process for all of them."""
+    paths = {f: _paths(f, max_triangles) for f in set(filenames)}  # a stat and a hash each, once
+
     def known(f: str) -> str | None:
-        copy, whole = _paths(f, max_triangles)
+        copy, whole = paths[f]
         return str(copy) if copy.exists() else f if whole.exists() else None
 
     todo = sorted({f for f in filenames if known(f) is None})

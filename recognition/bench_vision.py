@@ -304,8 +304,8 @@ def _hops(frames: dict[int, tuple[float, float]], stages: dict[str, dict[int, fl
              ("bench", arrived)]
     out = {}
     for (a, ta), (b, tb) in zip(chain[:-1], chain[1:], strict=True):
-        d = np.array([(tb[q] - ta[q]) * 1e3 for q in seqs])
-        out[f"{a}->{b}"] = {"median": float(np.median(d)), "mean": float(d.mean())} if seqs else {"median": math.nan, "mean": math.nan}
+        d = np.array([(tb[q] - ta[q]) * 1e3 for q in seqs]) if seqs else np.full(1, math.nan)  # none: nan
+        out[f"{a}->{b}"] = {"median": float(np.median(d)), "mean": float(d.mean())}
     return out, len(seqs)
 
 
