@@ -79,6 +79,11 @@ class _Job:
     attempt: int
     cancel: threading.Event
     thread: threading.Thread
+    ended: bool = False  # its final report is going out: the robot takes the next task (the thread only returns)
+
+    @property
+    def running(self) -> bool:
+        return not self.ended and self.thread.is_alive()
 
 
 class RobotAgent:
@@ -102,7 +107,7 @@ class RobotAgent:
     @property
     def busy(self) -> bool:
         with self._lock:
-            return self._job is not None and self._job.thread.is_alive()
+            return self._job is not None and self._job.running
 
     def start(self) -> None:
         """Warm the translation path, then answer on the key space and announce the robot."""
@@ -163,7 +168,7 @@ class RobotAgent:
             self.log.warning("%s", exc)
             return RunReply(ok=False, robot=self.profile.name, error=str(exc))
         with self._lock:
-            if self._job is not None and self._job.thread.is_alive():
+            if self._job is not None and self._job.running:
                 return RunReply(ok=False, robot=self.profile.name, error=f"busy with task {self._job.task_id}")
             cancel = threading.Event()
             thread = threading.Thread(target=self._execute, args=(req, tr, cancel),
@@ -203,4 +208,8 @@ class RobotAgent:
             detail = ""
         final = AbstractProgressMsg(task_id=req.task_id, robot=self.profile.name, kind="finished",
                                     final=True, outcome=str(outcome), detail=detail, attempt=req.attempt)
+        with self._lock:
+            # free before the report: a broker that hears the end may send the next task at once
+            if self._job is not None and self._job.thread is threading.current_thread():
+                self._job.ended = True
         pub(encode(self.stamp(final, key, run)))

@@ -1,6 +1,8 @@
 """The ESTD on the wire: the broker sends the bid's translation, the robot checks it and never re-translates."""
 
 
+import time
+
 import pytest
 
 from contactflow.abstraction.agent import EXAMPLES, RobotAgent, dry_run
@@ -151,3 +153,40 @@ def test_the_robot_runs_the_bid_time_translation():
     finally:
         agent.stop()
         broker.stop()
+
+
+def test_a_robot_that_reported_its_task_finished_takes_the_next_one_at_once():
+    # the broker hears the final report and may send the next task before the job's thread has returned: the
+    # robot is free from its final report on (it answered "busy" while the thread only had its return left)
+    from contactflow.abstraction.messages import AbstractProgressMsg
+
+    t = LocalTransport()
+    agent = RobotAgent(PROFILES["melfa"], t, KS, fake_executor(duration=0.05))
+    estd = estd_message(translation("melfa"))
+    at_end: list[tuple[bool, RunReply]] = []
+    second: list[str] = []
+
+    def on_progress(key, payload):
+        msg = decode(payload, AbstractProgressMsg, key)
+        if msg.final and msg.task_id == "t2":
+            second.append(msg.outcome)
+        if msg.final and msg.task_id == "t1":  # delivered in the job's thread, as its report goes out
+            busy = agent.busy
+            ((k, p),) = t.query(KS.robot_service("melfa", "run"), encode(RunRequest(task_id="t2", estd=estd)))
+            at_end.append((busy, decode(p, RunReply, k)))
+
+    subs = [t.subscribe(KS.progress(task), on_progress) for task in ("t1", "t2")]
+    agent.start()
+    try:
+        ((key, payload),) = t.query(KS.robot_service("melfa", "run"), encode(RunRequest(task_id="t1", estd=estd)))
+        assert decode(payload, RunReply, key).ok
+        deadline = time.monotonic() + 30.0
+        while not second and not (at_end and not at_end[0][1].ok) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        ((busy, reply),) = at_end
+        assert not busy and reply.ok, reply.error
+        assert second == ["success"]  # and it ran the next task to its end
+    finally:
+        for sub in subs:
+            sub.close()
+        agent.stop()
