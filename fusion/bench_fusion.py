@@ -4,8 +4,8 @@ Each source sends a voxelised cloud every cycle (two regular sources and one sup
 over a common region, so clouds overlap about half); a cycle is three ``offer`` calls and one
 ``cycle`` of the :class:`~contactflow.fusion.integrator.Integrator` (Alg. 4.1 + eq. 4.14 with
 the type rules, likelihood-weighted force, timeouts). Two scenes: ``static`` (the same voxels
-every cycle, e.g. taxels) and ``moving`` (every cloud shifts by one voxel per cycle, so voxels
-are created and expire all the time). The reference is the same maths written as one numpy
+every cycle, e.g. taxels) and ``moving`` (every cloud shifts by one voxel per cycle, out over 64
+positions and back, so voxels are created and expire all the time and a cloud never jumps). The reference is the same maths written as one numpy
 expression over the concatenated clouds (unique + bincount), stateless, in the same run; the
 two results are compared on the first cycle. The integrator's rate comes from its median cycle
 and from its mean: on moving clouds the mean pays the compactions that drop expired voxels.
@@ -94,7 +94,7 @@ def run_size(n: int, moving: bool, min_time: float, rng: np.random.Generator) ->
 
     def fuse(k: int):
         now = k * dt
-        batch = frames[k % 64] if frames is not None else _shifted(clouds, 0, now, False)
+        batch = frames[63 - abs(63 - k % 126)] if frames is not None else _shifted(clouds, 0, now, False)
         for name, c in zip(names, batch, strict=True):
             if frames is not None:
                 c = Hypotheses(c.location, c.likelihood, c.kind, c.force, c.direction, now)

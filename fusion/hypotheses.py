@@ -199,16 +199,20 @@ def normalise(v: np.ndarray) -> np.ndarray:
 class VoxelIndex:
     """Open-addressing (linear probing) hash table: packed voxel key -> row number.
 
-    Lookups and insertions take whole key arrays and run as one compiled loop
-    (:mod:`~contactflow.fusion.kernels`); the load factor stays under one half. Rows are
-    numbered densely in insertion order.
+    Lookups, insertions and releases take whole arrays and run as one compiled loop
+    (:mod:`~contactflow.fusion.kernels`); the load factor stays under one half. A new key takes the
+    row released last, or with none free the next row: rows are numbered densely, in insertion order
+    until a row is released.
     """
 
     def __init__(self, capacity: int = 1024) -> None:
         self._alloc(max(16, 1 << int(np.ceil(np.log2(max(capacity, 1) * 2)))))
         self.row_keys = np.zeros(max(capacity, 16), dtype=np.int64)
-        """Key of each row, in row order (valid up to ``count``)."""
+        """Key of each row, in row order (valid up to ``count``, and not for free rows)."""
+        self.free = np.zeros(self.row_keys.shape[0], dtype=np.int64)
+        """Released rows, a stack (valid up to ``nfree``)."""
         self.count = 0
+        self.nfree = 0
 
     def _alloc(self, size: int) -> None:
         self.size = size
@@ -232,6 +236,9 @@ class VoxelIndex:
             grown = np.zeros(max(end, 2 * self.row_keys.shape[0]), dtype=np.int64)
             grown[: self.count] = self.row_keys[: self.count]
             self.row_keys = grown
+            free = np.zeros(grown.shape[0], dtype=np.int64)
+            free[: self.nfree] = self.free[: self.nfree]
+            self.free = free
         return end
 
     def insert(self, keys: np.ndarray) -> np.ndarray:
@@ -239,14 +246,22 @@ class VoxelIndex:
         keys = np.ascontiguousarray(keys, dtype=np.int64)
         self.reserve(keys.shape[0])
         out = np.empty(keys.shape[0], dtype=np.int64)
-        self.count = kernels.index_insert(self.table, self.shift, self.row_keys, self.count, keys, out)
+        self.count, self.nfree, _ = kernels.index_insert(self.table, self.shift, self.row_keys, self.count, self.free,
+                                                         self.nfree, keys, out, np.empty_like(out))
         return out
+
+    def release(self, rows: np.ndarray) -> None:
+        """Forget the keys of ``rows`` (rows in the index, each once); new keys take these rows first."""
+        self.nfree = kernels.index_release(self.table, self.shift, self.row_keys, self.free, self.nfree,
+                                           np.ascontiguousarray(rows, dtype=np.int64))
 
     def _grow(self, needed: int) -> None:
         size = self.size
         while needed > size // 2:
             size *= 2
-        self.rebuild(self.row_keys[: self.count].copy(), size)
+        old = self.table
+        self._alloc(size)
+        kernels.index_move(old, self.table, self.shift)
 
     def rebuild(self, keys: np.ndarray, size: int | None = None) -> None:
         """Start over with ``keys`` as rows 0..n-1 (keys must be unique; they may be the first n of ``row_keys``:
@@ -259,7 +274,7 @@ class VoxelIndex:
             self.table.fill(kernels.EMPTY)
         else:
             self._alloc(size)
-        self.count = 0
+        self.count = self.nfree = 0
         if n:
             rows = self.insert(keys)
             if not np.array_equal(rows, np.arange(n)):
@@ -274,8 +289,10 @@ class HypothesisSpace:
     so that writing a hypothesis touches one cache line and the fused pass reads the records in
     memory order; ``center[axis, row]`` holds the voxel centres. An entry is empty when its stamp is
     ``+inf`` and its likelihood 0. Entries expire in the fused pass (:meth:`fuse`), which reads every
-    record anyway. Rows whose every column is empty are dead; they are dropped in bulk, in place, when they
-    are over ``DEAD_SHARE`` of the rows.
+    record anyway. Rows whose every column is empty are dead. A row whose last entry expires there is
+    released at once, and the next new voxel takes it: on moving clouds, where voxels die and are born every
+    cycle, the rows stay as many as the live voxels. Dead rows left otherwise (a cleared column, clouds that
+    shrink) are dropped in bulk, in place, when they are over ``DEAD_SHARE`` of the rows.
     """
 
     MAX_SOURCES = 64
@@ -296,6 +313,7 @@ class HypothesisSpace:
         self.center = np.zeros((3, 0))
         self._keys = np.zeros(0, dtype=np.int64)  # a put's scratch: the packed key of each hypothesis
         self._rows = np.zeros(0, dtype=np.int64)  # and its row
+        self._born = np.zeros(0, dtype=np.int64)  # and the rows it gave new voxels
         self._alloc_rows(max(capacity, 16), columns)
 
     @staticmethod
@@ -354,16 +372,17 @@ class HypothesisSpace:
         if self._keys.shape[0] < m:
             self._keys = np.empty(max(m, 2 * self._keys.shape[0]), dtype=np.int64)
             self._rows = np.empty(self._keys.shape[0], dtype=np.int64)
+            self._born = np.empty(self._keys.shape[0], dtype=np.int64)
         keys = self._keys[:m]
         if not kernels.point_keys(np.ascontiguousarray(h.location, dtype=np.float64), self.voxel_size, keys):
             raise ValueError(f"voxel coordinates out of range ±{_OFFSET} (point too far from the origin)")
         self._room(m)
         self._tag += 1.0
         idx = self.index
-        idx.count = kernels.cloud_put(idx.table, idx.shift, idx.row_keys, idx.count, self.rec, self.center,
-                                      self.voxel_size, col, keys, h.likelihood, h.kind, h.force,
-                                      np.ascontiguousarray(h.direction), float(h.stamp), self._tag,
-                                      self._rows[:m])
+        idx.count, idx.nfree = kernels.cloud_put(idx.table, idx.shift, idx.row_keys, idx.count, idx.free, idx.nfree,
+                                                 self.rec, self.center, self.voxel_size, col, keys, h.likelihood,
+                                                 h.kind, h.force, np.ascontiguousarray(h.direction), float(h.stamp),
+                                                 self._tag, self._rows[:m], self._born[:m])
         self.n = idx.count
 
     def clear_column(self, col: int) -> None:
@@ -373,8 +392,11 @@ class HypothesisSpace:
 
     def fuse(self, ncol: int, older_than: float) -> tuple:
         """Expire entries stamped before ``older_than`` and fuse the first ``ncol`` columns
-        (:func:`~contactflow.fusion.kernels.fuse_rows`)."""
-        return kernels.fuse_rows(self.rec, self.center, ncol, self.n, older_than)
+        (:func:`~contactflow.fusion.kernels.fuse_rows`); the rows whose last entry expired are released
+        to new voxels. Returns (out, source bits, vetoed, unsupported, live rows)."""
+        *fused, died = kernels.fuse_rows(self.rec, self.center, ncol, self.n, older_than)
+        self.index.release(died)
+        return tuple(fused)
 
     def live(self) -> np.ndarray:
         return (self.rec[: self.n, :, kernels.STAMP] < np.inf).any(axis=1)

@@ -1,5 +1,5 @@
-"""Compiled (numba) kernels of the hypothesis space (voxel hashing, writing a cloud, expiry, the fused pass,
-compaction) and of the robot's shapes (the cells of its surface and interior, for motion support and null hypotheses).
+"""Compiled (numba) kernels of the hypothesis space (voxel hashing and release, writing a cloud, expiry, the fused
+pass, compaction) and of the robot's shapes (the cells of its surface and interior, for motion support and null hypotheses).
 
 Why compiled: on moving clouds every cycle hashes, writes and fuses every hypothesis again,
 and as numpy passes that costs one array temporary per operation: the stateless numpy
@@ -91,26 +91,77 @@ AHEAD = 64  # keys or hypotheses a loop loads ahead (a probe or a record that mi
 
 
 @njit(cache=True, nogil=True)
-def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, keys: np.ndarray,
-                 out: np.ndarray) -> int:
-    """Row of each key into ``out``, numbering absent keys from ``count`` on; returns the new count.
+def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, free: np.ndarray, nfree: int,
+                 keys: np.ndarray, out: np.ndarray, born: np.ndarray) -> tuple[int, int, int]:
+    """Row of each key into ``out``; an absent key takes the row freed last (``free[:nfree]``, a stack) or, with
+    none free, the next new row (``count`` on). The rows taken go to ``born``. Returns (count, nfree, rows taken).
 
     The probe of the key ``AHEAD`` on is loaded early: a probe misses the caches, and its branch
     stalls the loop. The caller keeps the table under half full and ``row_keys`` large enough.
     """
     m = keys.shape[0]
+    nborn = 0
     for i in range(m):
         if i + AHEAD < m:
             _prefetch(table, (np.int64((np.uint64(keys[i + AHEAD]) * GOLDEN) >> shift), 0))
         k = keys[i]
         s = _find(table, shift, k)
         if table[s, 0] == EMPTY:
+            if nfree > 0:
+                nfree -= 1
+                r = free[nfree]
+            else:
+                r = count
+                count += 1
             table[s, 0] = k
-            table[s, 1] = count
-            row_keys[count] = k
-            count += 1
+            table[s, 1] = r
+            row_keys[r] = k
+            born[nborn] = r
+            nborn += 1
         out[i] = table[s, 1]
-    return count
+    return count, nfree, nborn
+
+
+@njit(cache=True, nogil=True)
+def index_release(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, free: np.ndarray, nfree: int,
+                  rows: np.ndarray) -> int:
+    """Forget the voxel of each of ``rows`` (rows in the table) and push the rows on the free stack; returns nfree.
+
+    Deletion by backward shift: each entry after the hole in its probe chain that may sit in it moves in, so
+    no tombstone is left to lengthen later probes.
+    """
+    mask = table.shape[0] - 1
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        s = _find(table, shift, row_keys[r])
+        j = s
+        while True:
+            j = (j + 1) & mask
+            kj = table[j, 0]
+            if kj == EMPTY:
+                break
+            h = np.int64((np.uint64(kj) * GOLDEN) >> shift)
+            # the entry at j may fill the hole at s unless its home slot h lies cyclically in (s, j]
+            if (h <= s or h > j) if j > s else (h <= s and h > j):
+                table[s, 0] = kj
+                table[s, 1] = table[j, 1]
+                s = j
+        table[s, 0] = EMPTY
+        table[s, 1] = EMPTY
+        free[nfree] = r
+        nfree += 1
+    return nfree
+
+
+@njit(cache=True, nogil=True)
+def index_move(old: np.ndarray, table: np.ndarray, shift: np.uint64) -> None:
+    """Insert every (key, row) entry of the table ``old`` into the empty ``table`` (a larger one), rows kept."""
+    for s in range(old.shape[0]):
+        k = old[s, 0]
+        if k != EMPTY:
+            t = _find(table, shift, k)
+            table[t, 0] = k
+            table[t, 1] = old[s, 1]
 
 
 @njit(cache=True, nogil=True)
@@ -121,23 +172,24 @@ def index_lookup(table: np.ndarray, shift: np.uint64, keys: np.ndarray, out: np.
 
 
 @njit(cache=True, nogil=True)
-def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, rec: np.ndarray,
-              center: np.ndarray, voxel_size: float, col: int, keys: np.ndarray, h_lik: np.ndarray,
+def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, free: np.ndarray, nfree: int,
+              rec: np.ndarray, center: np.ndarray, voxel_size: float, col: int, keys: np.ndarray, h_lik: np.ndarray,
               h_kind: np.ndarray, h_force: np.ndarray, h_dir: np.ndarray, h_stamp: float, tag: float,
-              rows: np.ndarray) -> int:
-    """Write one cloud (its packed voxel ``keys``) into column ``col`` of the records, adding a row
-    (and its centre) for each new voxel; returns the new row count. Several hypotheses of the cloud
-    in one voxel keep the most likely: the entry's TAG field tells this write (``tag``) from an older one.
+              rows: np.ndarray, born: np.ndarray) -> tuple[int, int]:
+    """Write one cloud (its packed voxel ``keys``) into column ``col`` of the records, giving each new voxel a
+    row (a free one first, :func:`index_insert`) and its centre; returns the new (row count, free rows). Several
+    hypotheses of the cloud in one voxel keep the most likely: the entry's TAG field tells this write (``tag``)
+    from an older one.
 
     Two passes, each with one random access per hypothesis, loaded ``AHEAD`` hypotheses early: the
     probes (:func:`index_insert`, rows into ``rows``), then the records. A record holds all fields of
     an entry, so a write touches one cache line, not one per field. The caller keeps the table under
     half full and the rows large enough for every key to be new.
     """
-    first = count
-    count = index_insert(table, shift, row_keys, count, keys, rows)
+    count, nfree, nborn = index_insert(table, shift, row_keys, count, free, nfree, keys, rows, born)
     mask = (1 << KEY_BITS) - 1
-    for r in range(first, count):  # the new voxels' rows, numbered on from the last
+    for b in range(nborn):  # the new voxels' rows
+        r = born[b]
         for a in range(3):
             center[a, r] = (((row_keys[r] >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
     m = keys.shape[0]
@@ -155,7 +207,7 @@ def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: 
         rec[r, col, DY] = h_dir[i, 1]
         rec[r, col, DZ] = h_dir[i, 2]
         rec[r, col, KIND] = h_kind[i]
-    return count
+    return count, nfree
 
 
 @njit(cache=True, nogil=True)
@@ -191,8 +243,9 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
     """Expire the entries stamped before ``older_than``, then eq. 4.14 with the type rules over
     rows ``[0, n)`` of the first ``ncol`` columns.
 
-    Returns (out (k, OUT_SOURCES + ncol), source bits (k,), vetoed, unsupported, live rows) for the k
-    kept voxels: those with a regular hypothesis, no null one and a fused likelihood above zero. A row
+    Returns (out (k, OUT_SOURCES + ncol), source bits (k,), vetoed, unsupported, live rows, died) for the k
+    kept voxels, ``died`` being the rows whose last entry expired in this pass. Kept are the voxels with a
+    regular hypothesis, no null one and a fused likelihood above zero. A row
     of ``out`` holds the location, the fused likelihood, force and direction, then each column's
     likelihood (0 where absent). Force and direction average, weighted by likelihood, over the entries
     that carry a force. Expiry rides on this pass so the records are read once per cycle.
@@ -203,7 +256,9 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
     # and the next row overwrites it unless it was kept.
     out = np.empty((n + 1, OUT_SOURCES + ncol))
     kbits = np.empty(n + 1, dtype=np.uint64)
+    died = np.empty(n + 1, dtype=np.int64)
     k = 0
+    nd = 0
     vetoed = 0
     unsupported = 0
     live = 0
@@ -217,9 +272,11 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
         bits = np.uint64(0)
         regular = False
         null = False
+        expired = False
         for c in range(ncol):
             st = rec[r, c, STAMP]
             if st < older_than:  # expired: emptied for good (a store on every entry would dirty every line)
+                expired = True
                 st = np.inf
                 rec[r, c, STAMP] = st
                 rec[r, c, LIK] = 0.0
@@ -239,6 +296,8 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
             dz += w * rec[r, c, DZ]
             out[k, OUT_SOURCES + c] = p
         live += bits != 0
+        died[nd] = r
+        nd += expired & (bits == 0)
         vetoed += null
         unsupported += (bits != 0) & (not regular) & (not null)
         for a in range(3):
@@ -252,7 +311,7 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
         out[k, 7] = dz * scale
         kbits[k] = bits
         k += regular & (not null) & (miss < 1.0)
-    return out[:k], kbits[:k], vetoed, unsupported, live
+    return out[:k], kbits[:k], vetoed, unsupported, live, died[:nd]
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -56,6 +56,25 @@ def test_index_insert_lookup_duplicates_and_growth():
     assert np.array_equal(idx.insert(more), np.arange(5000, 5010))
 
 
+def test_released_rows_leave_every_probe_chain_whole_and_are_taken_first():
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        idx = VoxelIndex(8)  # 16 slots, up to 8 keys: long probe chains that wrap around the table's end
+        keys = rng.choice(1 << 40, 8, replace=False)
+        rows = idx.insert(keys)
+        gone = rng.choice(8, rng.integers(1, 8), replace=False)
+        idx.release(rows[gone])
+        kept = np.setdiff1d(np.arange(8), gone)
+        assert np.array_equal(idx.lookup(keys[kept]), rows[kept]), trial
+        assert (idx.lookup(keys[gone]) == -1).all(), trial
+        # new keys take the rows released, the last one first, before any new row; growth keeps every row
+        new = rng.choice(1 << 40, gone.size + 20, replace=False) + (1 << 41)
+        got = idx.insert(new)
+        assert np.array_equal(got[: gone.size], rows[gone][::-1]) and np.array_equal(got[gone.size:], np.arange(8, 28))
+        assert idx.count == 28 and idx.nfree == 0 and idx.size > 16
+        assert np.array_equal(idx.lookup(np.concatenate([keys[kept], new])), np.concatenate([rows[kept], got]))
+
+
 def test_voxelize_sum_keeps_single_contact_mass_and_max_for_multi():
     pts = np.array([[0.001, 0.001, 0.001], [0.002, 0.002, 0.002], [0.1, 0.1, 0.1]])
     h = Hypotheses.make(pts, [0.25, 0.25, 0.5], force=[2.0, 4.0, 1.0], direction=[[1, 0, 0]] * 3)
