@@ -5,10 +5,11 @@ over a common region, so clouds overlap about half); a cycle is three ``offer`` 
 ``cycle`` of the :class:`~contactflow.fusion.integrator.Integrator` (Alg. 4.1 + eq. 4.14 with
 the type rules, likelihood-weighted force, timeouts). Two scenes: ``static`` (the same voxels
 every cycle, e.g. taxels) and ``moving`` (every cloud shifts by one voxel per cycle, out over 64
-positions and back, so voxels are created and expire all the time and a cloud never jumps). The reference is the same maths written as one numpy
-expression over the concatenated clouds (unique + bincount), stateless, in the same run; the
-two results are compared on the first cycle. The integrator's rate comes from its median cycle
-and from its mean: on moving clouds the mean pays the compactions that drop expired voxels.
+positions and back, so voxels are created and expire all the time and a cloud never jumps). The
+reference is the same maths written as one numpy expression over the concatenated clouds (unique +
+bincount), stateless, in the same run; the two results are compared on the first cycle. The
+integrator's rate comes from its median cycle and from its mean: the mean pays the rare long
+cycles too (the space growing to the clouds' size, a compaction).
 """
 
 from __future__ import annotations

@@ -196,6 +196,13 @@ def normalise(v: np.ndarray) -> np.ndarray:
     return np.divide(v, norm, out=np.zeros_like(v), where=norm > 1e-12)
 
 
+def _grown(a: np.ndarray, valid: int, size: int) -> np.ndarray:
+    """A zeroed array of ``size`` starting with the first ``valid`` entries of ``a``."""
+    out = np.zeros(size, dtype=a.dtype)
+    out[:valid] = a[:valid]
+    return out
+
+
 class VoxelIndex:
     """Open-addressing (linear probing) hash table: packed voxel key -> row number.
 
@@ -233,12 +240,9 @@ class VoxelIndex:
         if end > self.size // 2:
             self._grow(end)
         if end > self.row_keys.shape[0]:
-            grown = np.zeros(max(end, 2 * self.row_keys.shape[0]), dtype=np.int64)
-            grown[: self.count] = self.row_keys[: self.count]
-            self.row_keys = grown
-            free = np.zeros(grown.shape[0], dtype=np.int64)
-            free[: self.nfree] = self.free[: self.nfree]
-            self.free = free
+            size = max(end, 2 * self.row_keys.shape[0])
+            self.row_keys = _grown(self.row_keys, self.count, size)
+            self.free = _grown(self.free, self.nfree, size)
         return end
 
     def insert(self, keys: np.ndarray) -> np.ndarray:

@@ -1,5 +1,6 @@
 """Compiled (numba) kernels of the hypothesis space (voxel hashing and release, writing a cloud, expiry, the fused
-pass, compaction) and of the robot's shapes (the cells of its surface and interior, for motion support and null hypotheses).
+pass, compaction) and of the robot's shapes (the cells of its surface and interior, for motion support and null
+hypotheses).
 
 Why compiled: on moving clouds every cycle hashes, writes and fuses every hypothesis again,
 and as numpy passes that costs one array temporary per operation: the stateless numpy

@@ -191,7 +191,7 @@ def test_moving_clouds_reuse_the_rows_of_the_voxels_they_leave(monkeypatch):
         assert len(f) == live and np.isclose(f.likelihood, 0.5).all()  # each live voxel once, none lost
         assert integ.space.n - integ.space.index.nfree == live  # every dead row is free for the next voxels
         rows.append(integ.space.n)
-    # about 40 % of the voxels die and as many are born every cycle; with no compaction the rows stop growing
+    # over a third of the voxels die and as many are born every cycle; with no compaction the rows stop growing
     # once a cycle's deaths have freed enough for the next cycle's births
     assert len(set(rows[3:])) == 1 and rows[-1] < 2 * live
 
