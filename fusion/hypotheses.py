@@ -250,8 +250,9 @@ class VoxelIndex:
         keys = np.ascontiguousarray(keys, dtype=np.int64)
         self.reserve(keys.shape[0])
         out = np.empty(keys.shape[0], dtype=np.int64)
-        self.count, self.nfree, _ = kernels.index_insert(self.table, self.shift, self.row_keys, self.count, self.free,
-                                                         self.nfree, keys, out, np.empty_like(out))
+        self.count, self.nfree, _, _ = kernels.index_insert(self.table, self.shift, self.row_keys, self.count,
+                                                            self.free, self.nfree, keys, out, np.empty_like(out),
+                                                            self.row_keys.shape[0])
         return out
 
     def release(self, rows: np.ndarray) -> None:
@@ -380,14 +381,20 @@ class HypothesisSpace:
         keys = self._keys[:m]
         if not kernels.point_keys(np.ascontiguousarray(h.location, dtype=np.float64), self.voxel_size, keys):
             raise ValueError(f"voxel coordinates out of range ±{_OFFSET} (point too far from the origin)")
-        self._room(m)
         self._tag += 1.0
         idx = self.index
-        idx.count, idx.nfree = kernels.cloud_put(idx.table, idx.shift, idx.row_keys, idx.count, idx.free, idx.nfree,
-                                                 self.rec, self.center, self.voxel_size, col, keys, h.likelihood,
-                                                 h.kind, h.force, np.ascontiguousarray(h.direction), float(h.stamp),
-                                                 self._tag, self._rows[:m], self._born[:m])
-        self.n = idx.count
+        lik, kind, force, direction = h.likelihood, h.kind, h.force, np.ascontiguousarray(h.direction)
+        done = 0
+        while True:  # the rows grow when a new voxel finds no room, by doubling at most, so to what the clouds need
+            idx.count, idx.nfree, wrote = kernels.cloud_put(
+                idx.table, idx.shift, idx.row_keys, idx.count, idx.free, idx.nfree, self.rec, self.center,
+                self.voxel_size, col, keys[done:], lik[done:], kind[done:], force[done:], direction[done:],
+                float(h.stamp), self._tag, self._rows[done:m], self._born[done:m], min(self.cap, idx.row_keys.shape[0]))
+            done += wrote
+            self.n = idx.count  # the rows a growth keeps
+            if done == m:
+                break
+            self._room(min(m - done, max(idx.count, 1024)))
 
     def clear_column(self, col: int) -> None:
         if col < self.ncol:

@@ -93,14 +93,19 @@ AHEAD = 64  # keys or hypotheses a loop loads ahead (a probe or a record that mi
 
 @njit(cache=True, nogil=True)
 def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, free: np.ndarray, nfree: int,
-                 keys: np.ndarray, out: np.ndarray, born: np.ndarray) -> tuple[int, int, int]:
+                 keys: np.ndarray, out: np.ndarray, born: np.ndarray, max_rows: int) -> tuple[int, int, int, int]:
     """Row of each key into ``out``; an absent key takes the row freed last (``free[:nfree]``, a stack) or, with
-    none free, the next new row (``count`` on). The rows taken go to ``born``. Returns (count, nfree, rows taken).
+    none free, the next new row (``count`` on). The rows taken go to ``born``. Returns (count, nfree, rows taken,
+    keys done).
 
+    It stops before the first absent key that finds no room: the table at half full, or no free row and
+    ``count`` at ``max_rows`` (the rows the caller has). The caller grows them and goes on from the keys
+    done, so the rows grow to what the clouds need, not to a bound that takes every key for new.
     The probe of the key ``AHEAD`` on is loaded early: a probe misses the caches, and its branch
-    stalls the loop. The caller keeps the table under half full and ``row_keys`` large enough.
+    stalls the loop.
     """
     m = keys.shape[0]
+    half = table.shape[0] >> 1
     nborn = 0
     for i in range(m):
         if i + AHEAD < m:
@@ -108,6 +113,8 @@ def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, coun
         k = keys[i]
         s = _find(table, shift, k)
         if table[s, 0] == EMPTY:
+            if count - nfree >= half or (nfree == 0 and count >= max_rows):
+                return count, nfree, nborn, i
             if nfree > 0:
                 nfree -= 1
                 r = free[nfree]
@@ -120,7 +127,7 @@ def index_insert(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, coun
             born[nborn] = r
             nborn += 1
         out[i] = table[s, 1]
-    return count, nfree, nborn
+    return count, nfree, nborn, m
 
 
 @njit(cache=True, nogil=True)
@@ -176,24 +183,24 @@ def index_lookup(table: np.ndarray, shift: np.uint64, keys: np.ndarray, out: np.
 def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: int, free: np.ndarray, nfree: int,
               rec: np.ndarray, center: np.ndarray, voxel_size: float, col: int, keys: np.ndarray, h_lik: np.ndarray,
               h_kind: np.ndarray, h_force: np.ndarray, h_dir: np.ndarray, h_stamp: float, tag: float,
-              rows: np.ndarray, born: np.ndarray) -> tuple[int, int]:
+              rows: np.ndarray, born: np.ndarray, max_rows: int) -> tuple[int, int, int]:
     """Write one cloud (its packed voxel ``keys``) into column ``col`` of the records, giving each new voxel a
-    row (a free one first, :func:`index_insert`) and its centre; returns the new (row count, free rows). Several
-    hypotheses of the cloud in one voxel keep the most likely: the entry's TAG field tells this write (``tag``)
-    from an older one.
+    row (a free one first, :func:`index_insert`) and its centre; returns the new (row count, free rows,
+    hypotheses written). Several hypotheses of the cloud in one voxel keep the most likely: the entry's TAG
+    field tells this write (``tag``) from an older one.
 
     Two passes, each with one random access per hypothesis, loaded ``AHEAD`` hypotheses early: the
     probes (:func:`index_insert`, rows into ``rows``), then the records. A record holds all fields of
-    an entry, so a write touches one cache line, not one per field. The caller keeps the table under
-    half full and the rows large enough for every key to be new.
+    an entry, so a write touches one cache line, not one per field. It writes the hypotheses up to the
+    first new voxel that found no room (the table half full, or ``max_rows`` rows and none free): the
+    caller grows them and writes the rest with the same ``tag``.
     """
-    count, nfree, nborn = index_insert(table, shift, row_keys, count, free, nfree, keys, rows, born)
+    count, nfree, nborn, m = index_insert(table, shift, row_keys, count, free, nfree, keys, rows, born, max_rows)
     mask = (1 << KEY_BITS) - 1
     for b in range(nborn):  # the new voxels' rows
         r = born[b]
         for a in range(3):
             center[a, r] = (((row_keys[r] >> (KEY_BITS * (2 - a))) & mask) - KEY_OFFSET + 0.5) * voxel_size
-    m = keys.shape[0]
     for i in range(m):
         if i + AHEAD < m:
             _prefetch(rec, (rows[i + AHEAD], col, 0))
@@ -208,7 +215,7 @@ def cloud_put(table: np.ndarray, shift: np.uint64, row_keys: np.ndarray, count: 
         rec[r, col, DY] = h_dir[i, 1]
         rec[r, col, DZ] = h_dir[i, 2]
         rec[r, col, KIND] = h_kind[i]
-    return count, nfree
+    return count, nfree, m
 
 
 @njit(cache=True, nogil=True)

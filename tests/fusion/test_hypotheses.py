@@ -149,3 +149,31 @@ def test_put_keeps_the_most_likely_of_one_cloud_but_the_newest_cloud_wins():
     assert sp.lik[0, 0] == pytest.approx(0.8)
     sp.put(0, Hypotheses.make(pts[:1], 0.2, stamp=2.0))
     assert sp.lik[0, 0] == pytest.approx(0.2) and sp.stamp[0, 0] == 2.0
+
+
+def test_a_put_that_grows_the_rows_midway_keeps_what_it_wrote_before_and_grows_only_to_what_it_needs():
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(0, 0.5, (4000, 3))
+    lik = rng.uniform(0.1, 0.9, 4000)
+    # the first 500 again at the end, half less likely and half more: one cloud keeps the most likely per voxel
+    again = np.where(np.arange(500) % 2 == 0, lik[:500] * 0.5, lik[:500] + 0.05)
+    cloud = Hypotheses.make(np.concatenate([pts, pts[:500]]), np.concatenate([lik, again]),
+                            force=rng.uniform(0, 5, 4500), stamp=3.0)
+    small, large = HypothesisSpace(0.005, capacity=16), HypothesisSpace(0.005, capacity=1 << 14)
+    for sp in (small, large):
+        sp.put(0, cloud)
+    keys = np.unique(voxel_keys(pts, 0.005))
+    assert small.n == large.n == keys.size and small.cap < large.cap  # the small space grew during the put
+    a, b = small.index.lookup(keys), large.index.lookup(keys)
+    assert np.array_equal(small.rec[a, 0], large.rec[b, 0])
+    assert np.allclose(small.centers(a), voxel_centers(keys, 0.005)) and np.allclose(large.centers(b), small.centers(a))
+    top = large.lik[0, large.index.lookup(voxel_keys(pts[:500], 0.005))]
+    assert np.allclose(top, np.maximum(lik[:500], again))
+    # a grid moved by one voxel adds one face of new voxels: the rows grow for those, not for the whole cloud
+    grid = (np.stack(np.meshgrid(np.arange(20), np.arange(20), np.arange(8), indexing="ij"), -1).reshape(-1, 3) + 0.5) * 0.005
+    sp = HypothesisSpace(0.005, capacity=16)
+    sp.put(0, Hypotheses.make(grid, 0.5, stamp=0.0))
+    cap, size = sp.cap, sp.index.size
+    assert (sp.n, cap) == (3200, 4096)
+    sp.put(0, Hypotheses.make(grid + [0.005, 0.0, 0.0], 0.5, stamp=1.0))
+    assert sp.n == 3360 and (sp.cap, sp.index.size) == (cap, size)
