@@ -167,7 +167,7 @@ def test_a_put_that_grows_the_rows_midway_keeps_what_it_wrote_before_and_grows_o
     a, b = small.index.lookup(keys), large.index.lookup(keys)
     assert np.array_equal(small.rec[a, 0], large.rec[b, 0])
     assert np.allclose(small.centers(a), voxel_centers(keys, 0.005)) and np.allclose(large.centers(b), small.centers(a))
-    top = large.lik[0, large.index.lookup(voxel_keys(pts[:500], 0.005))]
+    top = small.lik[0, small.index.lookup(voxel_keys(pts[:500], 0.005))]  # kept across the put's resumes
     assert np.allclose(top, np.maximum(lik[:500], again))
     # a grid moved by one voxel adds one face of new voxels: the rows grow for those, not for the whole cloud
     grid = (np.stack(np.meshgrid(np.arange(20), np.arange(20), np.arange(8), indexing="ij"), -1).reshape(-1, 3) + 0.5) * 0.005
