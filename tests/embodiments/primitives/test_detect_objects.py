@@ -9,6 +9,7 @@ import pytest
 
 from contactflow.embodiments import registry
 from contactflow.embodiments.control.kinematics import Kinematics
+from contactflow.embodiments.control.planning import Obstacle
 from contactflow.embodiments.facade import RobotFacade
 from contactflow.embodiments.primitives.detect_objects import DetectObjects
 from contactflow.embodiments.transforms import xyz_rpy_to_matrix
@@ -19,6 +20,8 @@ from contactflow.recognition.messages import PlaneMsg, SegmentedObjects
 from contactflow.recognition.pipeline import Plane, extract_clusters
 
 TABLE = 0.75  # m, top of tombatossals' table
+TABLE_BOX = Obstacle("table/0", "box", (0.8, 1.4, TABLE), xyz_rpy_to_matrix((0.65, 0.0, TABLE / 2), (0.0, 0.0, 0.0)))
+"""The table of World.add_table, as the world declares it to the planners."""
 REGION = (0.3, -0.6, 0.74, 1.0, 0.1, 1.2)  # m, the pick-and-place region of the thesis tasks
 CAN = (0.55, -0.3)  # m, where the can stands (the pick_place cell's)
 FRAME = MsgId(source="lab/vision3d/kinect/depth", seq=7)
@@ -43,6 +46,7 @@ class StillRobot(RobotFacade):
         self.time = 2.0
         self.frame = None
         self.frames = 0  # camera frames taken
+        self.cell: list[Obstacle] = []  # the fixtures the reachability clears (none: no cell declared)
 
     def _sync_kin(self) -> None:
         return None
@@ -50,6 +54,9 @@ class StillRobot(RobotFacade):
     def camera(self, name: str = "kinect"):
         self.frames += 1
         return self.frame
+
+    def fixtures(self) -> list:
+        return list(self.cell)
 
 
 def can(xy: tuple[float, float], radius: float = 0.03, height: float = 0.12, base: float = TABLE) -> np.ndarray:
@@ -73,9 +80,11 @@ def objects(*clouds: np.ndarray, depth_t: float) -> SegmentedObjects:
     return SegmentedObjects.of(clusters, FRAME, depth_t)
 
 
-def started(wired: bool, **params) -> tuple[DetectObjects, FakeIO, StillRobot]:
+def started(wired: bool, cell: tuple[Obstacle, ...] = (), **params) -> tuple[DetectObjects, FakeIO, StillRobot]:
     robot = StillRobot()
-    prim = DetectObjects("detect_objects", DetectObjects.Params(arm="right", region=REGION, standoff=0.04, **params))
+    robot.cell = list(cell)
+    params = {"arm": "right", "region": REGION, "standoff": 0.04, **params}
+    prim = DetectObjects("detect_objects", DetectObjects.Params(**params))
     io = FakeIO(wired_ports={"objects", "plane"} if wired else set())
     io.module = prim
     prim.setup(io)
@@ -153,3 +162,58 @@ def test_unwired_it_segments_a_camera_frame():
     assert run(prim, robot, 0.2) is Status.SUCCESS
     assert robot.frames == 1 and "camera kinect" in io.events[-1].detail
     assert (io.events[-1].values["cx"], io.events[-1].values["cy"]) == pytest.approx(CAN, abs=0.01)
+
+
+BOTTLE = (0.55, 0.0)  # m, a bottle of bench unscrew (bottle 4: 12 cm body, 3 cm radius) on the table before the left hand
+SIDE = {"arm": "left", "region": (0.3, -0.3, 0.74, 0.8, 0.3, 1.2), "direction": (0.0, -1.0, 0.0), "preshape": "open"}
+
+
+def bottle(xy: tuple[float, float]) -> np.ndarray:
+    """Points of a screw bottle standing on the table as the robot's head camera sees it (the tops and a third of
+    the sides toward -x): a 12 cm body of 3 cm radius, its shoulder, a 4 cm neck and a 2 cm cap (bottle 4 of
+    bench unscrew)."""
+    rng = np.random.default_rng(4)
+
+    def ring(n: int, r0: float, r1: float, z0: float, z1: float) -> np.ndarray:
+        half = z0 != z1  # a side: the near half
+        a = rng.uniform(2 * np.pi / 3, 4 * np.pi / 3, n) if half else rng.uniform(0, 2 * np.pi, n)
+        r, z = np.sqrt(rng.uniform(r0**2, r1**2, n)), rng.uniform(z0, z1, n)
+        return np.column_stack([xy[0] + r * np.cos(a), xy[1] + r * np.sin(a), z])
+
+    body, neck, cap = TABLE + 0.12, TABLE + 0.16, TABLE + 0.18
+    return np.vstack([ring(600, 0.03, 0.03, TABLE + 0.012, body), ring(200, 0.012, 0.03, body, body),
+                      ring(100, 0.012, 0.012, body, neck), ring(60, 0.015, 0.015, neck, cap), ring(100, 0.0, 0.015, cap, cap)])
+
+
+def side_grasp(cell: tuple[Obstacle, ...], **params) -> tuple[Status, dict]:
+    prim, io, robot = started(wired=True, cell=cell, **SIDE, **params)
+    io.feed("objects", objects(bottle(BOTTLE), depth_t=robot.time + 0.2))
+    status = run(prim, robot, 0.3)
+    return status, dict(io.events[-1].values) | {"detail": io.events[-1].detail}
+
+
+def test_a_side_grasp_beside_a_short_object_is_raised_until_the_arm_reaches_it_clear_of_the_table():
+    """At the object's middle the left wrist (panda link 7) and the ring finger of a side grasp are in the table:
+    the approach goes up the object until a posture clear of it exists, and no higher than the grasp height."""
+    from contactflow.recognition.reachability import ArmReach
+
+    free, v_free = side_grasp(cell=())
+    assert free is Status.SUCCESS
+    status, v = side_grasp(cell=(TABLE_BOX,))
+    assert status is Status.SUCCESS
+    centre = v_free["z"] - v_free["cz"]  # the grasp frame's height over the grasp centre (tombatossals' open hand)
+    assert centre == pytest.approx(-0.015, abs=1e-3)  # without a table: the grasp centre level with the centroid
+    raised_by = v["z"] - v_free["z"]
+    assert raised_by > 0.005 and v["z"] - centre <= v["grasp_z"] + 1e-6
+    assert raised_by == pytest.approx(round(raised_by / 0.01) * 0.01, abs=1e-6)  # in steps of raise_step
+    pose = xyz_rpy_to_matrix((v["x"], v["y"], v["z"]), (v["roll"], v["pitch"], v["yaw"]))
+    clear = ArmReach("tombatossals", "left", StillRobot().kin.base, restarts=16, iters=300, obstacles=[TABLE_BOX])
+    assert clear(pose) is not None
+    low = pose.copy()
+    low[2, 3] = v_free["z"]
+    assert clear(low) is None  # the centroid's height: only postures in the table
+
+
+def test_a_side_grasp_that_is_not_raised_finds_no_approach_clear_of_the_table():
+    status, v = side_grasp(cell=(TABLE_BOX,), raise_step=0.0)
+    assert status is Status.FAILURE and "no approach vector" in v["detail"]
