@@ -107,8 +107,9 @@ def raised(avs: list, up_to: float, step: float) -> list:
     below ``up_to`` (world z); top grasps unchanged.
 
     A side approach starts level with the object's centroid. Beside a short object there the
-    hand's lowest finger is in the support (a side grasp of tombatossals' allegro needs its
-    grasp centre 11 cm over the table), so no collision-free arm posture reaches it; higher up the object it may.
+    arm's wrist and the hand's lowest finger are in the support (tombatossals' left side grasp
+    needs its grasp centre 11 cm over the table), so no collision-free arm posture reaches it;
+    higher up the object one may.
     """
     out = []
     for av in avs:
@@ -217,6 +218,8 @@ class DetectObjects(Primitive):
             raise ValueError(f"{self.name}: params.region must be [xmin, ymin, zmin, xmax, ymax, zmax], got {p.region}")
         if len(p.direction) != 3 or not np.all(np.isfinite(p.direction)):
             raise ValueError(f"{self.name}: params.direction must be 3 finite numbers, got {p.direction}")
+        if not p.raise_step >= 0.0:
+            raise ValueError(f"{self.name}: params.raise_step must be >= 0 m, got {p.raise_step}")
         if not 0.0 <= p.min_observed <= 1.0:
             raise ValueError(f"{self.name}: params.min_observed must be a fraction in [0, 1], got {p.min_observed}")
         self.region = region

@@ -217,3 +217,8 @@ def test_a_side_grasp_beside_a_short_object_is_raised_until_the_arm_reaches_it_c
 def test_a_side_grasp_that_is_not_raised_finds_no_approach_clear_of_the_table():
     status, v = side_grasp(cell=(TABLE_BOX,), raise_step=0.0)
     assert status is Status.FAILURE and "no approach vector" in v["detail"]
+
+
+def test_a_negative_raise_step_is_refused_naming_the_parameter():
+    with pytest.raises(ValueError, match="raise_step"):
+        started(wired=True, raise_step=-0.01)
