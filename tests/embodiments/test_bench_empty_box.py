@@ -162,11 +162,12 @@ def test_vision_approach_is_a_filtered_grasp_synthesis_axis_of_the_box() -> None
     """detect_objects (the vision strategy's and the pick tasks' detector) approaches along a box axis."""
     world = World(WorldParams())
     world.add_table()
-    world.add_object(box("slab", (0.05, 0.03, 0.12), xyz=(0.55, -0.25, 0.81), rpy=(0.0, 0.0, 0.5), mass=0.1))
+    # 20 cm tall: a side grasp at the middle of a shorter one puts the wrist in the table (test_detect_objects)
+    world.add_object(box("slab", (0.05, 0.03, 0.2), xyz=(0.55, -0.25, 0.85), rpy=(0.0, 0.0, 0.5), mass=0.1))
     robot = SimRobot(world, bench_empty_box.ROBOT)
     runner = LocalPrimitiveRunner(robot)
     R = robot.ground_truth().object_poses["slab"][:3, :3]
-    top_z = robot.ground_truth().object_poses["slab"][2, 3] + 0.06
+    top_z = robot.ground_truth().object_poses["slab"][2, 3] + 0.1
 
     def detect(**params):
         return outcome(run_primitive(runner, "detect_objects", {"arm": bench_empty_box.ARM, **params}, max_time=2.0))
@@ -185,6 +186,6 @@ def test_vision_approach_is_a_filtered_grasp_synthesis_axis_of_the_box() -> None
     assert abs(direction(side) @ R[:, 1]) > 0.99 and abs(direction(side)[2]) < 0.05
     hand = matrix6(tuple(side.values[k] for k in ("x", "y", "z", "roll", "pitch", "yaw")), "side approach")
     assert hand[:3, 2] @ direction(side) > 0.9999
-    assert sorted((side.values["d1"], side.values["d2"], side.values["d3"])) == pytest.approx([0.03, 0.05, 0.12], abs=0.01)
+    assert sorted((side.values["d1"], side.values["d2"], side.values["d3"])) == pytest.approx([0.03, 0.05, 0.2], abs=0.01)
     up = detect(direction=[0.0, 0.0, 1.0])  # only from below the table: every approach filtered out
     assert up.event is Event.FAILURE and up.values["count"] == 1
