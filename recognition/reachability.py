@@ -17,7 +17,7 @@ class ArmReach:
     pose counts as reachable when the arm's controlled frame gets within ``tol`` of it
     and, with ``obstacles`` (planning ``Obstacle`` records: the cell's fixtures), when that
     solution keeps the robot clear of them and of its other parts, as the planner's goal
-    must (a side grasp low beside an object puts the hand's lowest finger in the table).
+    must (a side grasp low beside a short object puts the wrist and the lowest finger in the table).
     The model is loaded on the first call (constructors do no I/O).
     """
 

@@ -111,10 +111,12 @@ def raised(avs: list, up_to: float, step: float) -> list:
     needs its grasp centre 11 cm over the table), so no collision-free arm posture reaches it;
     higher up the object one may.
     """
+    if step <= 0.0:
+        return list(avs)
     out = []
     for av in avs:
         out.append(av)
-        if is_top_grasp(av.direction) or step <= 0.0:
+        if is_top_grasp(av.direction):
             continue
         lift = step
         while av.position[2] + lift <= up_to + 1e-9:

@@ -175,8 +175,8 @@ def bottle(xy: tuple[float, float]) -> np.ndarray:
     rng = np.random.default_rng(4)
 
     def ring(n: int, r0: float, r1: float, z0: float, z1: float) -> np.ndarray:
-        half = z0 != z1  # a side: the near half
-        a = rng.uniform(2 * np.pi / 3, 4 * np.pi / 3, n) if half else rng.uniform(0, 2 * np.pi, n)
+        side = z0 != z1  # a side: the third the camera sees
+        a = rng.uniform(2 * np.pi / 3, 4 * np.pi / 3, n) if side else rng.uniform(0, 2 * np.pi, n)
         r, z = np.sqrt(rng.uniform(r0**2, r1**2, n)), rng.uniform(z0, z1, n)
         return np.column_stack([xy[0] + r * np.cos(a), xy[1] + r * np.sin(a), z])
 
