@@ -10,7 +10,7 @@ from contactflow.embodiments import bench_catch_zone as cz
 from contactflow.nodes.status import Event
 
 
-@pytest.mark.heavy(seconds=75)
+@pytest.mark.heavy(seconds=50)
 def test_quick_catch_zone_on_the_runtime_holds_the_centred_can_and_not_the_one_beside_the_wall(tmp_path) -> None:
     """The attempt task run by a control node against a world node per grasp, two grasps at once, judged from the
     progress stream and eval/; the summary, table and plot written from those runs."""
