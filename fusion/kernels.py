@@ -258,10 +258,12 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
     likelihood (0 where absent). Force and direction average, weighted by likelihood, over the entries
     that carry a force. Expiry rides on this pass so the records are read once per cycle.
     """
-    # Row by row over the records, each read once in memory order; the kept voxels go to one
-    # output array, row by row too: one stream in, one stream out. Which columns hold an entry
-    # is random from row to row, so the loop has no branch on it: every row's result is written,
-    # and the next row overwrites it unless it was kept.
+    # Row by row over the records in memory order; the kept voxels go to one output array, row by row too: one
+    # stream in, one stream out. A row is read in two passes: its types, stamps and likelihoods (the expiry, the
+    # type rules, eq. 4.14), then, only when it is kept, its forces, directions and per-source likelihoods
+    # (from the cache: the first pass just loaded them). Most rows of a live loop are support and null
+    # hypotheses (the swept and the occupied volume of the arm), never kept: they skip the second pass. Which
+    # columns hold an entry is random from row to row, so the first pass has no branch on it.
     out = np.empty((n + 1, OUT_SOURCES + ncol))
     kbits = np.empty(n + 1, dtype=np.uint64)
     died = np.empty(n + 1, dtype=np.int64)
@@ -272,11 +274,6 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
     live = 0
     for r in range(n):
         miss = 1.0
-        wsum = 0.0
-        fsum = 0.0
-        dx = 0.0
-        dy = 0.0
-        dz = 0.0
         bits = np.uint64(0)
         regular = False
         null = False
@@ -288,13 +285,26 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
                 st = np.inf
                 rec[r, c, STAMP] = st
                 rec[r, c, LIK] = 0.0
-            p = rec[r, c, LIK]
             v = st < np.inf
             kd = rec[r, c, KIND]
             bits |= np.uint64(v) << np.uint64(c)
             regular |= v & (kd == REGULAR)
             null |= v & (kd == NULL)
-            miss *= 1.0 - p
+            miss *= 1.0 - rec[r, c, LIK]
+        live += bits != 0
+        died[nd] = r
+        nd += expired & (bits == 0)
+        vetoed += null
+        unsupported += (bits != 0) & (not regular) & (not null)
+        if not (regular and not null and miss < 1.0):
+            continue
+        wsum = 0.0
+        fsum = 0.0
+        dx = 0.0
+        dy = 0.0
+        dz = 0.0
+        for c in range(ncol):
+            p = rec[r, c, LIK]
             f = rec[r, c, FORCE]
             w = p * (f > 0.0)
             wsum += w
@@ -303,11 +313,6 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
             dy += w * rec[r, c, DY]
             dz += w * rec[r, c, DZ]
             out[k, OUT_SOURCES + c] = p
-        live += bits != 0
-        died[nd] = r
-        nd += expired & (bits == 0)
-        vetoed += null
-        unsupported += (bits != 0) & (not regular) & (not null)
         for a in range(3):
             out[k, a] = center[a, r]
         out[k, 3] = 1.0 - miss
@@ -318,7 +323,7 @@ def fuse_rows(rec: np.ndarray, center: np.ndarray, ncol: int, n: int, older_than
         out[k, 6] = dy * scale
         out[k, 7] = dz * scale
         kbits[k] = bits
-        k += regular & (not null) & (miss < 1.0)
+        k += 1
     return out[:k], kbits[:k], vetoed, unsupported, live, died[:nd]
 
 
