@@ -104,18 +104,18 @@ def list_nodes(site: Site = None, connect: Connect = None, wait: float = 1.3) ->
     sub.close()
     t.close()
     table = Table(title=f"site {ks.site}: {len(nodes)} nodes, {len(modules)} modules")
-    for col in ("host/node", "module", "layer", "state", "rate Hz", "steps", "rejected", "gaps", "dropped", "detail"):
+    for col in ("host/node", "module", "layer", "state", "rate Hz", "steps", "CPU s", "rejected", "gaps", "dropped", "detail"):
         table.add_column(col)
     for n in sorted(nodes):
         host, node_name = n.split("/")[-2:]
-        table.add_row(f"[bold]{host}/{node_name}[/]", "", "", "[green]alive[/]", "", "", "", "", "", "")
+        table.add_row(f"[bold]{host}/{node_name}[/]", "", "", "[green]alive[/]", "", "", "", "", "", "", "")
         for m in sorted(modules):
             robot, mnode, mname = m.split("/")[-3:]
             if mnode != node_name:
                 continue
             s = statuses.get(f"{robot}/{mnode}/{mname}")
             table.add_row("", f"{robot}/{mname}", s.layer if s else "?", str(s.state) if s else "?",
-                          f"{s.rate_hz:g}" if s else "", str(s.steps) if s else "",
+                          f"{s.rate_hz:g}" if s else "", str(s.steps) if s else "", f"{s.cpu_s:.2f}" if s else "",
                           str(s.rejected) if s else "", _per_port(s.gaps) if s else "",
                           _per_port(s.dropped) if s else "", (s.detail[:40] if s else ""))
     console.print(table)

@@ -48,6 +48,8 @@ def _cell_job(args: tuple[bool, bool, str, bool]) -> dict:
             "events": len(run.events), "trace": hashlib.sha1(repr(run.events).encode()).hexdigest()[:16],
             "visited": sorted({m for _, m, _ in run.events}),
             "overruns": sum(m.event is Event.OVERRUN for m in run.messages),
+            # where a tick goes: each module's CPU per tick (ms) as its status says, over the wire in either layout
+            "cpu_ms_per_tick": run.cpu_per_tick(),
             "objects": {n: [round(float(v), 4) for v in T[:3, 3]] for n, T in zip(last.names, last.poses.numpy(),
                                                                                    strict=True)} if last else {}}
 

@@ -108,6 +108,15 @@ def _run_stack(robots, sim_time: float, with_camera: bool = False, warmup: float
     return sim_time / (time.perf_counter() - t0)
 
 
+def _cpu_text(per_module: dict[str, float], top: int = 5) -> str:
+    """The modules that take most of a tick (node/module: ms), the rest summed, and the total."""
+    items = list(per_module.items())
+    shown = [f"{name.split('/', 1)[-1]} {ms:.2f}" for name, ms in items[:top]]
+    rest = sum(ms for _, ms in items[top:])
+    return ", ".join(shown + ([f"{len(items) - top} more {rest:.2f}"] if rest else [])) + \
+        f" (total {sum(per_module.values()):.2f})"
+
+
 def _rtf_job(args) -> dict:
     names, sim_time, core, with_camera = args
     _pin(core)
@@ -281,6 +290,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> dict:
         table.add_row(f"runtime, {label}: the same events in both layouts | overruns",
                       f"{'yes' if row['repeated'] else 'NO'} ({one['events']} events) | "
                       f"{one['overruns']} | {split['overruns']}")
+        table.add_row(f"runtime, {label}, split: CPU ms per tick, by module", _cpu_text(split["cpu_ms_per_tick"]))
     rows = summary["runtime"]["rtf"]
     for label in [k for k in rows if f"{k}, pipelined" in rows]:
         plain, piped = rows[label]["split"]["rtf"], rows[f"{label}, pipelined"]["split"]["rtf"]

@@ -333,10 +333,22 @@ class CellRun:
     poses: list[ObjectPoses]  # the world's ground truth object poses (eval/), as they came
     contacts: list[ContactEventMsg]  # the robots' fused contact events, as they came
     statuses: dict[str, StatusMsg]  # each module's last status (robot/node/module -> status), at the end
+    t0_wall: float = 0.0  # wall s (epoch) of tick 1
 
     @property
     def rtf(self) -> float:
         return self.sim_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    def cpu_per_tick(self, control_rate: float = 200.0) -> dict[str, float]:
+        """Each module's CPU time per world tick (ms, ``control_rate`` ticks per simulated s), from tick 1 to its
+        last status, most first: where a lockstep tick goes. The ticks up to a status come from its wall stamp at
+        the run's pace (the world's own statuses carry no simulated time: its node keeps the wall clock)."""
+        out = {}
+        for name, s in self.statuses.items():
+            ticks = (s.hdr.t_wall - self.t0_wall) * self.rtf * control_rate
+            if ticks >= 1.0:
+                out[name] = 1e3 * s.cpu_s / ticks
+        return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
 
 def start_nodes(folder: Path, configs: list[Mapping[str, Any]], site: str, endpoint: str,
@@ -419,7 +431,7 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         if keep is not None and not processes:
             keep(started[0].host.modules[("site", "world")].module)
         return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, watch.messages(),
-                       watch.object_poses(), watch.contact_events(), watch.statuses())
+                       watch.object_poses(), watch.contact_events(), watch.statuses(), t0_wall)
     finally:
         stop_nodes(started, watch, processes)
 

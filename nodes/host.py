@@ -74,6 +74,7 @@ class Counters:
     rejected: int = 0
     published: int = 0
     steps: int = 0
+    cpu: float = 0.0  # s of CPU time its steps took (the stepping thread's: waits cost none)
     errors: int = 0
     gaps: dict[str, int] = field(default_factory=dict)  # input port -> sequence numbers never received
     dropped: dict[str, int] = field(default_factory=dict)  # input port -> messages pushed out of its full queue
@@ -553,7 +554,7 @@ class ModuleHost:
     def _publish_status(self, hm: HostedModule) -> None:
         m = hm.module
         msg = StatusMsg(module=str(hm.addr), layer=str(m.layer), state=m.state, rate_hz=m.params.rate_hz,
-                        steps=hm.counters.steps, rejected=hm.counters.rejected, detail=hm.detail or self._detail(hm),
+                        steps=hm.counters.steps, cpu_s=hm.counters.cpu, rejected=hm.counters.rejected, detail=hm.detail or self._detail(hm),
                         gaps=dict(hm.counters.gaps), dropped=dict(hm.counters.dropped))
         stamp(msg, f"{hm.addr}/status", hm.io.next_seq("/status"), self.clock.now())
         hm.status_pub(encode(msg))
@@ -599,12 +600,14 @@ class ModuleHost:
                         hm.woken, hm.next_due = False, now + period
                     else:
                         hm.next_due = max(hm.next_due + period, now) if hm.next_due > now - period else now + period
-                    t0 = time.monotonic()
+                    t0, cpu0 = time.monotonic(), time.thread_time()
                     try:
                         status = m.step()
                     except Exception as exc:
                         self._fail(hm, f"step raised {type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
                         continue
+                    finally:
+                        hm.counters.cpu += time.thread_time() - cpu0
                     took = time.monotonic() - t0
                     if took > SLOW_STEP and self.tick_no >= 0:  # what keeps a lockstep world waiting
                         self.log.warning("%s: one step took %.1f s (tick %d)", hm.addr, took, self.tick_no)

@@ -29,6 +29,7 @@ class StatusMsg(Message, tag="status"):
     state: Status  # the module's state
     rate_hz: float  # Hz, the module's step rate
     steps: int = 0  # steps run since it started
+    cpu_s: float = 0.0  # s of CPU time those steps took (the stepping thread's; waiting costs none): what a tick spends where
     rejected: int = 0  # inputs dropped by validation
     detail: str = ""  # why the state is what it is (an error's message)
     gaps: dict[str, int] = {}  # input port -> sequence numbers its sources skipped (lost messages)

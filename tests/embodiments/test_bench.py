@@ -42,6 +42,13 @@ def test_quick_bench_writes_its_summary(tmp_path):
     x, y, z = one["objects"]["cyl"]
     assert z == pytest.approx(0.81, abs=0.015) and np.hypot(x - 0.55, y + 0.3) > 0.1
     assert one["rtf"] > 0 and split["rtf"] > 0
+    # where a tick goes, from the modules' statuses over the wire: the same modules in both layouts, the world's
+    # physics and state over 0.1 ms a tick, the robot's fusion there too; no more CPU than two cores give in a tick
+    for run_ in (one, split):
+        cpu = run_["cpu_ms_per_tick"]
+        assert cpu["site/world/world"] > 0.1 and cpu["tombatossals/control_tombatossals/contacts"] > 0, cpu
+        assert sum(cpu.values()) < 2 * 5.0 / run_["rtf"], (cpu, run_["rtf"])
+    assert set(one["cpu_ms_per_tick"]) == set(split["cpu_ms_per_tick"])
     assert rt["round_trip"]["ticks"] == 90 and 0 < rt["round_trip"]["p50_ms"] <= rt["round_trip"]["p99_ms"]
     assert saved["runtime"]["round_trip"] == rt["round_trip"]
 

@@ -370,6 +370,43 @@ def test_a_source_that_floods_an_input_pushes_out_its_own_messages_not_a_quieter
     assert status.dropped == {"in": 605 - QUEUE_DEPTH}
 
 
+class Burner(Module):
+    """Spins for ``busy_s`` of CPU per step, then sleeps ``idle_s`` (a wait, which costs no CPU)."""
+
+    layer = Layer.SERVICE
+    outputs = (Port("out", Vector),)
+
+    @dataclass(frozen=True)
+    class Params:
+        rate_hz: float = 10.0
+        busy_s: float = 0.0
+        idle_s: float = 0.0
+
+    def step(self) -> Status:
+        end = time.thread_time() + self.params.busy_s
+        while time.thread_time() < end:
+            pass
+        time.sleep(self.params.idle_s)
+        return Status.RUNNING
+
+
+def test_a_module_s_status_says_the_cpu_time_its_steps_took_and_not_its_waits():
+    host, clock, seen = make_host(f"""
+site: t
+node: n
+clock: sim
+modules:
+  - {{name: busy, type: "{__name__}:Burner", params: {{busy_s: 0.004}}}}
+  - {{name: waits, type: "{__name__}:Burner", params: {{idle_s: 0.004}}}}
+""")
+    run_for(host, clock, 1.05)
+    last = {m.module: m for _, m in seen if isinstance(m, StatusMsg)}
+    busy, waits = last["site/n/busy"], last["site/n/waits"]
+    assert busy.steps >= 10 and waits.steps >= 10
+    assert busy.steps * 0.004 <= busy.cpu_s < busy.steps * 0.004 + 0.02, busy  # its spin, and little besides
+    assert waits.cpu_s < 0.005, waits  # 40 ms and more asleep: no CPU
+
+
 def test_sequence_tracker_bounds_its_memory_and_ignores_unnumbered_messages():
     tr = SeqTracker(max_sources=2)
     assert tr.observe(Header(source="a", seq=0)) == 0 and tr.observe(Header(source="a", seq=0)) == 0
