@@ -333,7 +333,7 @@ class CellRun:
     poses: list[ObjectPoses]  # the world's ground truth object poses (eval/), as they came
     contacts: list[ContactEventMsg]  # the robots' fused contact events, as they came
     statuses: dict[str, StatusMsg]  # each module's last status (robot/node/module -> status), at the end
-    t0_wall: float = 0.0  # wall s (epoch) of tick 1
+    t0_wall: float  # wall s (epoch) of tick 1: what a status's wall stamp counts its ticks from
 
     @property
     def rtf(self) -> float:

@@ -384,7 +384,7 @@ class Burner(Module):
 
     def step(self) -> Status:
         end = time.thread_time() + self.params.busy_s
-        while time.thread_time() < end:
+        while time.thread_time() < end:  # a spin: CPU time, not a wait
             pass
         time.sleep(self.params.idle_s)
         return Status.RUNNING
