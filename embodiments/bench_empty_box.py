@@ -13,6 +13,7 @@ import functools
 import json
 import pathlib
 import time
+from collections import Counter
 
 import numpy as np
 
@@ -286,6 +287,7 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
     names = [o.name for o in objs]
     tasks, _ = load()
     attempts = 0
+    outcomes: Counter[str] = Counter()
     runner = LocalPrimitiveRunner(robot)
     if sensor == "fused":
         runner.host_contacts()
@@ -293,6 +295,8 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
 
     def count(p: Progress) -> None:
         nonlocal attempts
+        if (ended := attempt_outcome(p)) is not None:
+            outcomes[ended] += 1
         if attempt_started(p):
             attempts += 1
             if attempts > max_attempts or in_box(robot, names) == 0:
@@ -304,7 +308,8 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
     left = in_box(robot, names)
     end = emptied if left == 0 and emptied is not None else robot.time
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts, "time": end - t0,
-            "left": left, "success": left == 0, "result": str(res), "executor": "local", "sensor": sensor}
+            "left": left, "success": left == 0, "result": str(res), "executor": "local", "sensor": sensor,
+            "outcomes": _with_stopped(outcomes, attempts)}
 
 
 def in_box_poses(names: list[str], msg) -> int:
@@ -352,14 +357,48 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
             elif now >= max_time:
                 why = f"supervisor: {max_time:g} s of simulated time"
         left = in_box_poses(names, poses[-1]) if emptied is None else 0
+        outcomes = Counter(filter(None, map(attempt_outcome, cell.progress())))  # as in-process: up to the stop
     end = emptied if emptied is not None else min(now, max_time)
-    return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": min(attempts, max_attempts + 1),
-            "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime", "sensor": sensor}
+    attempts = min(attempts, max_attempts + 1)
+    return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts,
+            "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime", "sensor": sensor,
+            "outcomes": _with_stopped(outcomes, attempts)}
 
 
 def attempt_started(m) -> bool:
     """A progress report (the engine's, or its wire message) of a grasp attempt starting: ``grasp`` entered in an ``attempt``."""
     return m.kind == str(ProgressKind.ENTERED) and m.node == "grasp" and bool(m.path) and m.path[-1].startswith("attempt")
+
+
+def attempt_outcome(m) -> str | None:
+    """What ended a grasp attempt, told by a progress report (the engine's, or its wire message) of an edge of the
+    ``attempt``: ``placed``, or ``<step>: <event>`` of the step that sent the hand back open (``grasp: failure``,
+    ``lift: grasp_lost``, ...); None for every other report. The attempt's edges are unnamed (``box_attempt``), so
+    an edge's id names where it goes (``<from>-><to>#<k>``)."""
+    if m.kind != str(ProgressKind.EDGE) or not m.path or not m.path[-1].startswith("attempt"):
+        return None
+    to = m.edge.split("->", 1)[-1].split("#", 1)[0]
+    if to == "done":
+        return "placed"
+    return f"{m.node}: {m.event}" if to == "reopen" else None
+
+
+STOPPED = "stopped by the supervisor"
+"""The outcome of an attempt under way when the supervisor stopped the run (the box empty, or a cap reached)."""
+
+
+def _with_stopped(ended: Counter[str], attempts: int) -> dict[str, int]:
+    """A run's attempt outcomes: how those that ended did, and the one under way at the stop as STOPPED."""
+    out = dict(ended)
+    if attempts > sum(ended.values()):
+        out[STOPPED] = attempts - sum(ended.values())
+    return out
+
+
+def outcome_text(outcomes: dict[str, float], top: int = 4) -> str:
+    """The commonest attempt outcomes, most first: ``placed 5.0, grasp: failure 7.2, ...``."""
+    ranked = sorted(outcomes.items(), key=lambda kv: (-kv[1], kv[0]))[:top]
+    return ", ".join(f"{k} {v:.1f}" for k, v in ranked)
 
 
 def _run_until(tasks, name, robot, params, runner, on_progress, stop, max_time, names) -> tuple[str, object, float | None]:
@@ -447,18 +486,21 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
                          "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs),
                          "emptied": rate(sum(r["success"] for r in rs), len(rs)),
                          "attempts_max": int(max(r["attempts"] for r in rs)),
-                         "time_max": float(max(r["time"] for r in rs))})
+                         "time_max": float(max(r["time"] for r in rs)),
+                         "outcomes": {k: v / len(rs) for k, v in sum((Counter(r["outcomes"]) for r in rs), Counter()).items()}})
     summary = {"benchmark": "empty_box", "robot": ROBOT, "objects": n_objects, "runs_per_strategy": n_runs, "first_seed": first_seed,
                "quick": quick, "executors": list(executors), "max_time": max_time, "max_attempts": max_attempts, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
                "runs": results}
     (out_dir / "empty_box.json").write_text(json.dumps(summary, indent=1))
-    md = ["| method | executor | attempts | time (sim s) | boxes emptied [95 % interval] | most attempts | longest (sim s) | thesis attempts"
-          " | thesis time | thesis success |", "|---|---|---|---|---|---|---|---|---|---|"]
+    md = ["| method | executor | attempts | time (sim s) | boxes emptied [95 % interval] | most attempts | longest (sim s) "
+          "| how attempts ended, per box | thesis attempts | thesis time | thesis success |",
+          "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         t = THESIS[r["method"]]
         md.append(f"| {_label(r)} | {r['executor']} | {r['attempts']:.1f} | {r['time']:.1f} | "
                   f"{rate_text(r['emptied']['successes'], r['runs'])} | "
-                  f"{r['attempts_max']} | {r['time_max']:.0f} | {t['attempts']} | {t['time']} s | {100 * t['success']:.0f}% |")
+                  f"{r['attempts_max']} | {r['time_max']:.0f} | {outcome_text(r['outcomes'], top=8)} | {t['attempts']} | "
+                  f"{t['time']} s | {100 * t['success']:.0f}% |")
     caps = f"a run ends after {max_time:g} s of simulated time or {max_attempts} grasp attempt{'s' if max_attempts != 1 else ''}"
     md.append(f"\n{n_objects} objects, {n_runs} runs per strategy (seeds {first_seed}-{first_seed + n_runs - 1}); {caps}"
               " (the thesis had no limit).")
@@ -466,13 +508,13 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     table = Table(title=f"Empty a box (Table 3.6), {n_objects} objects x {n_runs} independent runs (own contents each)",
                   caption=caps)
     for col in ("method", "executor", "attempts", "time (s)", "boxes emptied [95 % interval]", "most attempts", "longest (s)",
-                "thesis"):
+                "how attempts ended, per box", "thesis"):
         table.add_column(col)
     for r in rows:
         t = THESIS[r["method"]]
         table.add_row(_label(r), r["executor"], f"{r['attempts']:.1f}", f"{r['time']:.1f}",
                       rate_text(r["emptied"]["successes"], r["runs"]),
-                      str(r["attempts_max"]), f"{r['time_max']:.0f}",
+                      str(r["attempts_max"]), f"{r['time_max']:.0f}", outcome_text(r["outcomes"]),
                       f"{t['attempts']} / {t['time']} s / {100 * t['success']:.0f}%")
     Console().print(table)
     _plot(rows, out_dir / "empty_box.png")

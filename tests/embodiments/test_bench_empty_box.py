@@ -31,6 +31,12 @@ def test_bench_empty_box_quick_and_the_vision_strategy_on_the_runtime_as_in_proc
     assert all(r["time"] <= saved["max_time"] + 1.0 for r in saved["runs"])
     local = next(r for r in saved["runs"] if r["strategy"] == "vision")
     assert local["success"] and local["left"] == 0, local  # one object in view: seen, grasped and put out
+    # how each attempt ended: the vision's was still placing the object it had taken out when the supervisor stopped
+    assert local["outcomes"] == {bench_empty_box.STOPPED: 1}, local
+    assert all(sum(r["outcomes"].values()) == r["attempts"] for r in saved["runs"])
+    assert any(k != bench_empty_box.STOPPED for r in saved["runs"] for k in r["outcomes"]), saved["runs"]
+    assert next(r for r in saved["rows"] if r["method"] == "vision")["outcomes"] == {bench_empty_box.STOPPED: 1.0}
+    assert f"{bench_empty_box.STOPPED} 1.0" in (tmp_path / "empty_box.md").read_text()
     # one run per strategy: its worst case is that run
     for row, one in zip(saved["rows"], saved["runs"], strict=True):
         assert (row["attempts_max"], row["time_max"]) == (one["attempts"], one["time"])
@@ -45,9 +51,36 @@ def test_bench_empty_box_quick_and_the_vision_strategy_on_the_runtime_as_in_proc
     (runtime,) = on_runtime["runs"]
     assert runtime["executor"] == "runtime" and local["executor"] == "local"
     assert runtime["success"] and runtime["left"] == 0 and runtime["attempts"] == local["attempts"] == 1, runtime
+    assert runtime["outcomes"] == local["outcomes"]  # told by the task's progress on the wire as by the engine
     assert runtime["result"] == "supervisor: the box is empty"
     assert abs(runtime["time"] - local["time"]) < 2.0  # the same task and physics, sampled at 4 Hz on eval/
     assert [(r["method"], r["executor"]) for r in on_runtime["rows"]] == [("vision", "runtime")]
+
+
+def test_an_attempt_s_outcome_is_the_step_that_sent_the_hand_back_open_or_the_place_it_ended_in() -> None:
+    from contactflow.nodes.task_module import TaskProgressMsg
+    from contactflow.nodes.taskengine import Progress, ProgressKind
+
+    def edge(path: tuple[str, ...], node: str, to: str, event: Event) -> Progress:
+        return Progress(ProgressKind.EDGE, "r1", path, 1.0, node=node, edge=f"{node}->{to}#2", event=event)
+
+    attempt = ("empty_box_vision", "attempt")
+    cases = [(edge(attempt, "grasp", "reopen", Event.FAILURE), "grasp: failure"),
+             (edge(attempt, "lift", "reopen", Event.GRASP_LOST), "lift: grasp_lost"),
+             (edge(attempt, "place", "done", Event.SUCCESS), "placed"),
+             (edge(attempt, "grasp", "lift", Event.SUCCESS), None),  # the attempt goes on
+             (edge(attempt, "reopen", "back", Event.SUCCESS), None),
+             (edge((*attempt, "place"), "put", "open", Event.SUCCESS), None),  # the place task's own step
+             (edge(("empty_box_vision",), "attempt", "clear_view", Event.FAILURE), None)]  # the strategy's
+    for report, want in cases:
+        assert bench_empty_box.attempt_outcome(report) == want, report
+        wire = TaskProgressMsg(kind=str(report.kind), run=report.run, path=list(report.path), node=report.node,
+                               edge=report.edge, event=str(report.event))
+        assert bench_empty_box.attempt_outcome(wire) == want, wire  # the runtime's supervisor reads these
+    entered = Progress(ProgressKind.ENTERED, "r1", attempt, 1.0, node="grasp")
+    assert bench_empty_box.attempt_outcome(entered) is None and bench_empty_box.attempt_started(entered)
+    assert bench_empty_box.outcome_text({"placed": 5.0, "grasp: failure": 7.24, "lift: grasp_lost": 1.0}, top=2) == \
+        "grasp: failure 7.2, placed 5.0"
 
 
 def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:
