@@ -14,6 +14,7 @@ import json
 import pathlib
 import time
 from collections import Counter
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -287,7 +288,7 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
     names = [o.name for o in objs]
     tasks, _ = load()
     attempts = 0
-    outcomes: Counter[str] = Counter()
+    edges: list[Progress] = []
     runner = LocalPrimitiveRunner(robot)
     if sensor == "fused":
         runner.host_contacts()
@@ -295,8 +296,8 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
 
     def count(p: Progress) -> None:
         nonlocal attempts
-        if (ended := attempt_outcome(p)) is not None:
-            outcomes[ended] += 1
+        if p.kind is ProgressKind.EDGE:
+            edges.append(p)
         if attempt_started(p):
             attempts += 1
             if attempts > max_attempts or in_box(robot, names) == 0:
@@ -309,7 +310,7 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
     end = emptied if left == 0 and emptied is not None else robot.time
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts, "time": end - t0,
             "left": left, "success": left == 0, "result": str(res), "executor": "local", "sensor": sensor,
-            "outcomes": _with_stopped(outcomes, attempts)}
+            "outcomes": attempt_outcomes(edges, attempts)}
 
 
 def in_box_poses(names: list[str], msg) -> int:
@@ -357,12 +358,12 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
             elif now >= max_time:
                 why = f"supervisor: {max_time:g} s of simulated time"
         left = in_box_poses(names, poses[-1]) if emptied is None else 0
-        outcomes = Counter(filter(None, map(attempt_outcome, cell.progress())))  # as in-process: up to the stop
+        attempts = min(attempts, max_attempts + 1)
+        outcomes = attempt_outcomes(cell.progress(), attempts)  # as in-process: the reports up to the stop
     end = emptied if emptied is not None else min(now, max_time)
-    attempts = min(attempts, max_attempts + 1)
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts,
             "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime", "sensor": sensor,
-            "outcomes": _with_stopped(outcomes, attempts)}
+            "outcomes": outcomes}
 
 
 def attempt_started(m) -> bool:
@@ -387,12 +388,20 @@ STOPPED = "stopped by the supervisor"
 """The outcome of an attempt under way when the supervisor stopped the run (the box empty, or a cap reached)."""
 
 
-def _with_stopped(ended: Counter[str], attempts: int) -> dict[str, int]:
-    """A run's attempt outcomes: how those that ended did, and the one under way at the stop as STOPPED."""
-    out = dict(ended)
-    if attempts > sum(ended.values()):
-        out[STOPPED] = attempts - sum(ended.values())
+def attempt_outcomes(reports: Iterable, attempts: int) -> dict[str, int]:
+    """A run's attempt outcomes, from its progress reports: how those that ended did (:func:`attempt_outcome`), and
+    the rest of its ``attempts`` (the one under way at the stop) as STOPPED."""
+    out = dict(Counter(filter(None, map(attempt_outcome, reports))))
+    ended = sum(out.values())
+    if attempts > ended:
+        out[STOPPED] = attempts - ended
     return out
+
+
+def mean_outcomes(runs: list[dict]) -> dict[str, float]:
+    """The attempt outcomes of ``runs`` per run (per box)."""
+    total = sum((Counter(r["outcomes"]) for r in runs), Counter())
+    return {k: v / len(runs) for k, v in total.items()}
 
 
 def outcome_text(outcomes: dict[str, float], top: int = 4) -> str:
@@ -487,7 +496,7 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
                          "emptied": rate(sum(r["success"] for r in rs), len(rs)),
                          "attempts_max": int(max(r["attempts"] for r in rs)),
                          "time_max": float(max(r["time"] for r in rs)),
-                         "outcomes": {k: v / len(rs) for k, v in sum((Counter(r["outcomes"]) for r in rs), Counter()).items()}})
+                         "outcomes": mean_outcomes(rs)})
     summary = {"benchmark": "empty_box", "robot": ROBOT, "objects": n_objects, "runs_per_strategy": n_runs, "first_seed": first_seed,
                "quick": quick, "executors": list(executors), "max_time": max_time, "max_attempts": max_attempts, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
                "runs": results}

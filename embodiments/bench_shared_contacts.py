@@ -11,7 +11,8 @@ hand). Per seed, on the runtime (world node, each robot's control node, the cell
   melfa is done, takes the objects from the cell's map without exploring.
 
 The cell's map is a ``cell_fusion`` module with a ``map_region`` over the box: the objects the
-fused contacts of either robot touched there. Per run: tombatossals' grasp attempts, its time
+fused contacts of either robot touched there. Per run: tombatossals' grasp attempts and how they
+ended (as ``bench empty-box`` tells them), its time
 (sim s, from its start to the box found empty by the ground truth), success, and the map it
 started taking from against the ground truth of that moment: objects localised (an estimate
 within ``LOCALISED`` m in the plane), their mean error, estimates near no object.
@@ -225,7 +226,9 @@ def _supervise(watch, cmap: _Map, controls: list[dict], names: list[str], mapped
     left = box.in_box_poses(names, poses[-1]) if emptied is None else 0
     end = emptied if emptied is not None else min(now, start + max_time)
     pokes = [e for e in watch.messages() if e.module.endswith("/poke") and e.event in watch.FINAL]
-    return {"attempts": min(attempts, max_attempts + 1), "time": end - start, "explored": explored, "left": left,
+    attempts = min(attempts, max_attempts + 1)
+    return {"attempts": attempts, "outcomes": box.attempt_outcomes(progress, attempts), "time": end - start,
+            "explored": explored, "left": left,
             "touches": [int(e.values.get("touches", 0)) for e in pokes],
             "success": left == 0, "result": why, "map": localisation(cmap.at(at), truth),
             "map_estimates": [list(e) for e in cmap.at(at)], "truth": {n: [float(v) for v in p] for n, p in truth.items()}}
@@ -264,11 +267,11 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     caps = (f"{n_objects} object{'s' if n_objects > 1 else ''} per box, {n_runs} seeded runs per variant; a run ends "
             f"after {max_time:g} s of the taker's simulated time or {max_attempts} attempts")
     table = Table(title=f"{TAKER} empties a box alone, or with the cell's map of {EXPLORER}'s touches", caption=caps)
-    for col in ("variant", "attempts", f"{TAKER} time (s)", f"{EXPLORER} exploring (s)", "boxes emptied [95 %]",
+    for col in ("variant", "attempts", "how attempts ended, per box", f"{TAKER} time (s)", f"{EXPLORER} exploring (s)", "boxes emptied [95 %]",
                 f"objects localised (<= {100 * LOCALISED:g} cm)", "map error (cm)", "spurious estimates"):
         table.add_column(col)
     for r in rows:
-        table.add_row(r["variant"], f"{r['attempts']:.1f}", f"{r['time']:.0f}", f"{r['explored']:.0f}" if r["explored"] else "-",
+        table.add_row(r["variant"], f"{r['attempts']:.1f}", box.outcome_text(r["outcomes"]), f"{r['time']:.0f}", f"{r['explored']:.0f}" if r["explored"] else "-",
                       rate_text(r["emptied"]["successes"], r["runs"]), f"{r['localised']}/{r['objects']}",
                       f"{100 * r['error']:.1f}" if r["error"] is not None else "-", f"{r['spurious']}")
     Console().print(table)
@@ -279,6 +282,7 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
 def _row(variant: str, rs: list[dict]) -> dict:
     errors = [d for r in rs for d in r["map"]["nearest"].values() if d is not None and d <= LOCALISED]
     return {"variant": variant, "runs": len(rs), "attempts": float(np.mean([r["attempts"] for r in rs])),
+            "outcomes": box.mean_outcomes(rs),
             "time": float(np.mean([r["time"] for r in rs])), "explored": float(np.mean([r["explored"] for r in rs])),
             "emptied": rate(sum(r["success"] for r in rs), len(rs)),
             "localised": sum(r["map"]["localised"] for r in rs), "objects": sum(r["map"]["objects"] for r in rs),

@@ -20,6 +20,7 @@ def test_the_taker_empties_the_box_from_the_cell_map_of_the_explorers_touches_an
     for r in runs.values():
         assert r["success"] and r["left"] == 0, r  # taken out of the box by the map's approach
         assert 1 <= r["attempts"] <= 2, r
+        assert sum(r["outcomes"].values()) == r["attempts"], r  # each attempt's end, told by the taker's progress
         assert r["map"]["localised"] == 1 and r["map"]["error"] <= bench.LOCALISED, r["map"]
     mapped, alone = runs["with_map"], runs["alone"]
     assert mapped["explored"] > 30.0 and alone["explored"] == 0.0  # melfa explored before tombatossals began
