@@ -334,18 +334,18 @@ class CellRun:
     contacts: list[ContactEventMsg]  # the robots' fused contact events, as they came
     statuses: dict[str, StatusMsg]  # each module's last status (robot/node/module -> status), at the end
     t0_wall: float  # wall s (epoch) of tick 1: what a status's wall stamp counts its ticks from
+    control_rate: float  # Hz, the world's ticks per simulated s
 
     @property
     def rtf(self) -> float:
         return self.sim_s / self.wall_s if self.wall_s > 0 else 0.0
 
-    def cpu_per_tick(self, control_rate: float = 200.0) -> dict[str, float]:
-        """Each module's CPU time per world tick (ms, ``control_rate`` ticks per simulated s), from tick 1 to its
-        last status, most first: where a lockstep tick goes. The ticks up to a status come from its wall stamp at
-        the run's pace (the world's own statuses carry no simulated time: its node keeps the wall clock)."""
+    def cpu_per_tick(self) -> dict[str, float]:
+        """Each module's CPU time per world tick (ms), from tick 1 to its last status, most first: where a lockstep
+        tick goes. The ticks up to a status come from its wall stamp at the run's pace (the world's own statuses carry no simulated time: its node keeps the wall clock)."""
         out = {}
         for name, s in self.statuses.items():
-            ticks = (s.hdr.t_wall - self.t0_wall) * self.rtf * control_rate
+            ticks = (s.hdr.t_wall - self.t0_wall) * self.rtf * self.control_rate
             if ticks >= 1.0:
                 out[name] = 1e3 * s.cpu_s / ticks
         return dict(sorted(out.items(), key=lambda kv: -kv[1]))
@@ -402,6 +402,14 @@ def stop_nodes(started: list[Any], watch: SiteWatch | None, processes: bool = Fa
         watch.close()
 
 
+def _control_rate(world: Mapping[str, Any]) -> float:
+    """Hz, the ticks per simulated s of the world node's ``world`` module (:func:`world_node`), its default if unset."""
+    from contactflow.embodiments.modules.world_module import WorldModule
+
+    (module,) = (m for m in world["modules"] if m["type"] == "world")
+    return float(module.get("params", {}).get("control_rate", WorldModule.Params.control_rate))
+
+
 def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str, Any]], endpoint: str,
              processes: bool = False, timeout: float = 300.0, keep: Callable[[Any], None] | None = None,
              services: tuple[Mapping[str, Any], ...] = (), after: float = 0.0) -> CellRun:
@@ -431,7 +439,8 @@ def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str,
         if keep is not None and not processes:
             keep(started[0].host.modules[("site", "world")].module)
         return CellRun(outcomes, watch.sequence(), end.hdr.t_sim - t0_sim, end.hdr.t_wall - t0_wall, watch.messages(),
-                       watch.object_poses(), watch.contact_events(), watch.statuses(), t0_wall)
+                       watch.object_poses(), watch.contact_events(), watch.statuses(), t0_wall,
+                       _control_rate(world))
     finally:
         stop_nodes(started, watch, processes)
 

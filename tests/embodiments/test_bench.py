@@ -65,3 +65,10 @@ def test_the_node_logs_of_layouts_that_did_not_repeat_are_kept(tmp_path, monkeyp
     bench_runtime.run(quick=True, out_dir=tmp_path)
     assert (tmp_path / "runtime_logs" / "1_split" / "world.log").read_text() == "tick 11: ..."
     assert not (tmp_path / "runtime_logs" / "1_split" / "cell.yaml").exists()
+
+
+def test_a_cell_run_counts_its_ticks_at_the_rate_its_world_ran():
+    from contactflow.embodiments.layout import _control_rate, world_node
+
+    assert _control_rate(world_node("s", "cell.yaml", control_rate=100.0)) == 100.0
+    assert _control_rate(world_node("s", "cell.yaml")) == 200.0  # the world module's own default (§6.3.1)
