@@ -32,7 +32,7 @@ from contactflow.embodiments.world import (
     cylinder,
     sphere,
 )
-from contactflow.nodes.stats import rate, rate_text
+from contactflow.nodes.stats import mean, mean_text, rate, rate_text
 from contactflow.nodes.taskengine import Progress, ProgressKind
 
 ROBOT = "tombatossals"
@@ -310,7 +310,7 @@ def run_once(strategy: str, seed: int, n_objects: int, max_attempts: int, max_ti
     end = emptied if left == 0 and emptied is not None else robot.time
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts, "time": end - t0,
             "left": left, "success": left == 0, "result": str(res), "executor": "local", "sensor": sensor,
-            "outcomes": attempt_outcomes(edges, attempts)}
+            "outcomes": attempt_outcomes(edges, attempts), "failed_approaches": sum(map(failed_approach, edges))}
 
 
 def in_box_poses(names: list[str], msg) -> int:
@@ -360,10 +360,11 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
         left = in_box_poses(names, poses[-1]) if emptied is None else 0
         attempts = min(attempts, max_attempts + 1)
         outcomes = attempt_outcomes(cell.progress(), attempts)  # as in-process: the reports up to the stop
+        failed = sum(map(failed_approach, cell.progress()))
     end = emptied if emptied is not None else min(now, max_time)
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts,
             "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime", "sensor": sensor,
-            "outcomes": outcomes}
+            "outcomes": outcomes, "failed_approaches": failed}
 
 
 def attempt_started(m) -> bool:
@@ -376,12 +377,26 @@ def attempt_outcome(m) -> str | None:
     ``attempt``: ``placed``, or ``<step>: <event>`` of the step that sent the hand back open (``grasp: failure``,
     ``lift: grasp_lost``, ...); None for every other report. The attempt's edges are unnamed (``box_attempt``), so
     an edge's id names where it goes (``<from>-><to>#<k>``)."""
-    if m.kind != str(ProgressKind.EDGE) or not m.path or not m.path[-1].startswith("attempt"):
+    to = _attempt_edge(m)
+    if to is None or m.node == "approach":  # an approach that failed tried no grasp: no attempt (failed_approach)
         return None
-    to = m.edge.split("->", 1)[-1].split("#", 1)[0]
     if to == "done":
         return "placed"
     return f"{m.node}: {m.event}" if to == "reopen" else None
+
+
+def failed_approach(m) -> bool:
+    """A progress report of an attempt's approach that failed (the edge ``approach -> reopen``): the hand never got
+    to grasp, so it is no grasp attempt (thesis §3.4.3: "every time the robot tries to grasp an object"); the
+    bench counts these apart."""
+    return _attempt_edge(m) == "reopen" and m.node == "approach"
+
+
+def _attempt_edge(m) -> str | None:
+    """Where an edge of the ``attempt`` task goes (its unnamed id ``<from>-><to>#<k>``); None for other reports."""
+    if m.kind != str(ProgressKind.EDGE) or not m.path or not m.path[-1].startswith("attempt"):
+        return None
+    return m.edge.split("->", 1)[-1].split("#", 1)[0]
 
 
 STOPPED = "stopped by the supervisor"
@@ -450,6 +465,18 @@ def _run_once(executor: str, strategy: str, seed: int, n_objects: int, max_attem
                                                                    sensor)
 
 
+def summary_row(method: str, executor: str, sensor: str, rs: list[dict]) -> dict:
+    """One row of the table from a variant's runs: means with their 95 % intervals, the boxes emptied, the worst run
+    and how the attempts ended."""
+    attempts, times = mean([r["attempts"] for r in rs]), mean([r["time"] for r in rs])
+    return {"method": method, "executor": executor, "sensor": sensor, "attempts": attempts["mean"],
+            "attempts_ci95": attempts["ci95"], "time": times["mean"], "time_ci95": times["ci95"],
+            "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs),
+            "emptied": rate(sum(r["success"] for r in rs), len(rs)),
+            "attempts_max": int(max(r["attempts"] for r in rs)), "time_max": float(max(r["time"] for r in rs)),
+            "outcomes": mean_outcomes(rs), "failed_approaches": float(np.mean([r["failed_approaches"] for r in rs]))}
+
+
 def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, jobs: int = 1,
         max_time: float | None = None, max_attempts: int | None = None, strategy: list[str] | None = None,
         first_seed: int = 100, executor: str = "local", sensor: list[str] | None = None) -> dict:
@@ -486,29 +513,23 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     # one line per finished run, for long benchmarks
     results = run_logged(_run_once, plan, jobs, out_dir / "empty_box_runs.jsonl", "empty the box",
                          lambda r: f"{r['executor']}: {r['strategy']} seed {r['seed']}: {r['left']} left")
-    rows = []
-    for ex in executors:
-        for s, sn in variants:
-            rs = [r for r in results if r["strategy"] == s and r["executor"] == ex and r["sensor"] == sn]
-            rows.append({"method": s, "executor": ex, "sensor": sn, "attempts": float(np.mean([r["attempts"] for r in rs])),
-                         "time": float(np.mean([r["time"] for r in rs])),
-                         "success": float(np.mean([r["success"] for r in rs])), "runs": len(rs),
-                         "emptied": rate(sum(r["success"] for r in rs), len(rs)),
-                         "attempts_max": int(max(r["attempts"] for r in rs)),
-                         "time_max": float(max(r["time"] for r in rs)),
-                         "outcomes": mean_outcomes(rs)})
+    rows = [summary_row(s, ex, sn, [r for r in results if r["strategy"] == s and r["executor"] == ex and r["sensor"] == sn])
+            for ex in executors for s, sn in variants]
     summary = {"benchmark": "empty_box", "robot": ROBOT, "objects": n_objects, "runs_per_strategy": n_runs, "first_seed": first_seed,
                "quick": quick, "executors": list(executors), "max_time": max_time, "max_attempts": max_attempts, "rows": rows, "thesis": THESIS, "wall_time": time.perf_counter() - t_start,
                "runs": results}
     (out_dir / "empty_box.json").write_text(json.dumps(summary, indent=1))
-    md = ["| method | executor | attempts | time (sim s) | boxes emptied [95 % interval] | most attempts | longest (sim s) "
-          "| how attempts ended, per box | thesis attempts | thesis time | thesis success |",
-          "|---|---|---|---|---|---|---|---|---|---|---|"]
+    md = ["| method | executor | attempts [95 % interval] | time (sim s) [95 %] | boxes emptied [95 % interval] | most attempts | longest (sim s) "
+          "| how attempts ended, per box | failed approaches (no attempt), per box | thesis attempts | thesis time "
+          "| thesis success |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         t = THESIS[r["method"]]
-        md.append(f"| {_label(r)} | {r['executor']} | {r['attempts']:.1f} | {r['time']:.1f} | "
+        md.append(f"| {_label(r)} | {r['executor']} | {mean_text(r['attempts'], r['attempts_ci95'])} | "
+                  f"{mean_text(r['time'], r['time_ci95'])} | "
                   f"{rate_text(r['emptied']['successes'], r['runs'])} | "
-                  f"{r['attempts_max']} | {r['time_max']:.0f} | {outcome_text(r['outcomes'], top=8)} | {t['attempts']} | "
+                  f"{r['attempts_max']} | {r['time_max']:.0f} | {outcome_text(r['outcomes'], top=8)} | "
+                  f"{r['failed_approaches']:.1f} | {t['attempts']} | "
                   f"{t['time']} s | {100 * t['success']:.0f}% |")
     caps = f"a run ends after {max_time:g} s of simulated time or {max_attempts} grasp attempt{'s' if max_attempts != 1 else ''}"
     md.append(f"\n{n_objects} objects, {n_runs} runs per strategy (seeds {first_seed}-{first_seed + n_runs - 1}); {caps}"
@@ -516,12 +537,13 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     (out_dir / "empty_box.md").write_text("\n".join(md) + "\n")
     table = Table(title=f"Empty a box (Table 3.6), {n_objects} objects x {n_runs} independent runs (own contents each)",
                   caption=caps)
-    for col in ("method", "executor", "attempts", "time (s)", "boxes emptied [95 % interval]", "most attempts", "longest (s)",
+    for col in ("method", "executor", "attempts [95 %]", "time (s) [95 %]", "boxes emptied [95 % interval]", "most attempts", "longest (s)",
                 "how attempts ended, per box", "thesis"):
         table.add_column(col)
     for r in rows:
         t = THESIS[r["method"]]
-        table.add_row(_label(r), r["executor"], f"{r['attempts']:.1f}", f"{r['time']:.1f}",
+        table.add_row(_label(r), r["executor"], mean_text(r["attempts"], r["attempts_ci95"]),
+                      mean_text(r["time"], r["time_ci95"]),
                       rate_text(r["emptied"]["successes"], r["runs"]),
                       str(r["attempts_max"]), f"{r['time_max']:.0f}", outcome_text(r["outcomes"]),
                       f"{t['attempts']} / {t['time']} s / {100 * t['success']:.0f}%")

@@ -32,7 +32,7 @@ import numpy as np
 from contactflow.embodiments import bench_empty_box as box
 from contactflow.embodiments.parallel import run_logged
 from contactflow.embodiments.primitives.base import top_grasp_pose
-from contactflow.nodes.stats import rate, rate_text
+from contactflow.nodes.stats import mean, mean_text, rate, rate_text
 
 EXPLORER, EXPLORER_ARM = "melfa", "arm"  # robot A: explores, and takes nothing
 TAKER = box.ROBOT  # robot B: takes the objects (its arm: box.ARM)
@@ -227,7 +227,8 @@ def _supervise(watch, cmap: _Map, controls: list[dict], names: list[str], mapped
     end = emptied if emptied is not None else min(now, start + max_time)
     pokes = [e for e in watch.messages() if e.module.endswith("/poke") and e.event in watch.FINAL]
     attempts = min(attempts, max_attempts + 1)
-    return {"attempts": attempts, "outcomes": box.attempt_outcomes(progress, attempts), "time": end - start,
+    return {"attempts": attempts, "outcomes": box.attempt_outcomes(progress, attempts),
+            "failed_approaches": sum(map(box.failed_approach, progress)), "time": end - start,
             "explored": explored, "left": left,
             "touches": [int(e.values.get("touches", 0)) for e in pokes],
             "success": left == 0, "result": why, "map": localisation(cmap.at(at), truth),
@@ -267,11 +268,12 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
     caps = (f"{n_objects} object{'s' if n_objects > 1 else ''} per box, {n_runs} seeded runs per variant; a run ends "
             f"after {max_time:g} s of the taker's simulated time or {max_attempts} attempts")
     table = Table(title=f"{TAKER} empties a box alone, or with the cell's map of {EXPLORER}'s touches", caption=caps)
-    for col in ("variant", "attempts", "how attempts ended, per box", f"{TAKER} time (s)", f"{EXPLORER} exploring (s)", "boxes emptied [95 %]",
+    for col in ("variant", "attempts [95 %]", "how attempts ended, per box", f"{TAKER} time (s) [95 %]", f"{EXPLORER} exploring (s)", "boxes emptied [95 %]",
                 f"objects localised (<= {100 * LOCALISED:g} cm)", "map error (cm)", "spurious estimates"):
         table.add_column(col)
     for r in rows:
-        table.add_row(r["variant"], f"{r['attempts']:.1f}", box.outcome_text(r["outcomes"]), f"{r['time']:.0f}", f"{r['explored']:.0f}" if r["explored"] else "-",
+        table.add_row(r["variant"], mean_text(r["attempts"], r["attempts_ci95"]), box.outcome_text(r["outcomes"]),
+                      mean_text(r["time"], r["time_ci95"], 0), f"{r['explored']:.0f}" if r["explored"] else "-",
                       rate_text(r["emptied"]["successes"], r["runs"]), f"{r['localised']}/{r['objects']}",
                       f"{100 * r['error']:.1f}" if r["error"] is not None else "-", f"{r['spurious']}")
     Console().print(table)
@@ -281,9 +283,10 @@ def run(out_dir: pathlib.Path, quick: bool = False, runs: int | None = None, job
 
 def _row(variant: str, rs: list[dict]) -> dict:
     errors = [d for r in rs for d in r["map"]["nearest"].values() if d is not None and d <= LOCALISED]
-    return {"variant": variant, "runs": len(rs), "attempts": float(np.mean([r["attempts"] for r in rs])),
-            "outcomes": box.mean_outcomes(rs),
-            "time": float(np.mean([r["time"] for r in rs])), "explored": float(np.mean([r["explored"] for r in rs])),
+    attempts, times = mean([r["attempts"] for r in rs]), mean([r["time"] for r in rs])
+    return {"variant": variant, "runs": len(rs), "attempts": attempts["mean"], "attempts_ci95": attempts["ci95"],
+            "outcomes": box.mean_outcomes(rs), "time": times["mean"], "time_ci95": times["ci95"],
+            "explored": float(np.mean([r["explored"] for r in rs])),
             "emptied": rate(sum(r["success"] for r in rs), len(rs)),
             "localised": sum(r["map"]["localised"] for r in rs), "objects": sum(r["map"]["objects"] for r in rs),
             "error": float(np.mean(errors)) if errors else None, "spurious": sum(r["map"]["spurious"] for r in rs)}

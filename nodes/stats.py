@@ -1,8 +1,9 @@
-"""Success rates as benchmarks report them: the count, the independent trials behind it, and a 95 % Wilson interval."""
+"""Benchmark figures with the independent trials behind them: success rates with a 95 % Wilson interval, means with a 95 % t interval."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile
 
@@ -35,3 +36,38 @@ def rate_text(k: int, n: int) -> str:
     """``27/30 = 90 % [74-97 %]``: the count, the rate and its 95 % Wilson interval, for a table cell."""
     lo, hi = wilson(k, n)
     return f"{k}/{n} = {100 * k / n:.0f} % [{100 * lo:.0f}-{100 * hi:.0f} %]" if n else "0/0"
+
+
+def mean_interval(values: Sequence[float], level: float = 0.95) -> tuple[float, float] | None:
+    """The Student t interval of the mean of ``values`` (independent runs); None for fewer than two.
+
+    A figure per run (attempts per box, time per box) is chaotic in its seed: the same seed
+    gave 8 and 23 attempts on two machines. So a mean over ten runs says little without
+    this interval, and a goal inside it is neither met nor missed. The t interval assumes
+    roughly normal means; a skewed figure (one box of 53 attempts among boxes of 8-22) makes
+    it approximate.
+    """
+    from scipy.stats import t as student
+
+    n = len(values)
+    if n < 2:
+        return None
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"mean_interval: level {level!r} is not in (0, 1)")
+    mean = math.fsum(values) / n
+    sd = math.sqrt(math.fsum((v - mean) ** 2 for v in values) / (n - 1))
+    half = float(student.ppf(0.5 + level / 2, n - 1)) * sd / math.sqrt(n)
+    return mean - half, mean + half
+
+
+def mean(values: Sequence[float]) -> dict:
+    """A mean for a benchmark's JSON: the mean, the runs behind it and its 95 % interval (None under two runs)."""
+    ci = mean_interval(values)
+    return {"mean": math.fsum(values) / len(values) if values else 0.0, "runs": len(values),
+            "ci95": list(ci) if ci is not None else None}
+
+
+def mean_text(value: float, ci: Sequence[float] | None, digits: int = 1) -> str:
+    """``16.9 [7.3-26.5]``: a mean and its 95 % interval (``mean``'s ``ci95``), for a table cell; the mean alone
+    without an interval (one run)."""
+    return f"{value:.{digits}f}" if ci is None else f"{value:.{digits}f} [{ci[0]:.{digits}f}-{ci[1]:.{digits}f}]"

@@ -34,6 +34,7 @@ def test_bench_empty_box_quick_and_the_vision_strategy_on_the_runtime_as_in_proc
     # how each attempt ended: the vision's was still placing the object it had taken out when the supervisor stopped
     assert local["outcomes"] == {bench_empty_box.STOPPED: 1}, local
     assert all(sum(r["outcomes"].values()) == r["attempts"] for r in saved["runs"])
+    assert all(r["failed_approaches"] >= 0 for r in saved["runs"])
     assert any(k != bench_empty_box.STOPPED for r in saved["runs"] for k in r["outcomes"]), saved["runs"]
     assert next(r for r in saved["rows"] if r["method"] == "vision")["outcomes"] == {bench_empty_box.STOPPED: 1.0}
     assert f"{bench_empty_box.STOPPED} 1.0" in (tmp_path / "empty_box.md").read_text()
@@ -42,6 +43,8 @@ def test_bench_empty_box_quick_and_the_vision_strategy_on_the_runtime_as_in_proc
         assert (row["attempts_max"], row["time_max"]) == (one["attempts"], one["time"])
     assert (tmp_path / "empty_box.png").stat().st_size > 0
     assert "| most attempts | longest (sim s) |" in (tmp_path / "empty_box.md").read_text()
+    assert "| attempts [95 % interval] | time (sim s) [95 %] |" in (tmp_path / "empty_box.md").read_text()
+    assert all(r["attempts_ci95"] is None for r in saved["rows"])  # one run per strategy: no interval
     assert "| exploration (fused contacts) | local |" in (tmp_path / "empty_box.md").read_text()
     with pytest.raises(ParamError, match="--sensor 'tactile' is not one of"):
         bench_empty_box.run(tmp_path, quick=True, sensor=["tactile"])
@@ -71,16 +74,39 @@ def test_an_attempt_s_outcome_is_the_step_that_sent_the_hand_back_open_or_the_pl
              (edge(attempt, "grasp", "lift", Event.SUCCESS), None),  # the attempt goes on
              (edge(attempt, "reopen", "back", Event.SUCCESS), None),
              (edge((*attempt, "place"), "put", "open", Event.SUCCESS), None),  # the place task's own step
-             (edge(("empty_box_vision",), "attempt", "clear_view", Event.FAILURE), None)]  # the strategy's
+             (edge(("empty_box_vision",), "attempt", "clear_view", Event.FAILURE), None),  # the strategy's
+             # an approach that failed: the hand never got to grasp, so no attempt ended there (counted apart)
+             (edge(attempt, "approach", "reopen", Event.FAILURE), None)]
     for report, want in cases:
         assert bench_empty_box.attempt_outcome(report) == want, report
+        assert bench_empty_box.failed_approach(report) == (report.node == "approach"), report
         wire = TaskProgressMsg(kind=str(report.kind), run=report.run, path=list(report.path), node=report.node,
                                edge=report.edge, event=str(report.event))
         assert bench_empty_box.attempt_outcome(wire) == want, wire  # the runtime's supervisor reads these
+        assert bench_empty_box.failed_approach(wire) == (report.node == "approach"), wire
     entered = Progress(ProgressKind.ENTERED, "r1", attempt, 1.0, node="grasp")
     assert bench_empty_box.attempt_outcome(entered) is None and bench_empty_box.attempt_started(entered)
     assert bench_empty_box.outcome_text({"placed": 5.0, "grasp: failure": 7.24, "lift: grasp_lost": 1.0}, top=2) == \
         "grasp: failure 7.2, placed 5.0"
+
+
+def test_a_row_gives_the_mean_attempts_and_time_with_their_95_percent_intervals() -> None:
+    def run(seed: int, attempts: int, time: float, left: int = 0) -> dict:
+        return {"strategy": "vision", "seed": seed, "attempts": attempts, "time": time, "left": left,
+                "success": left == 0, "outcomes": {"placed": 5, "grasp: failure": attempts - 5},
+                "failed_approaches": seed - 100}
+
+    runs = [run(100, 8, 200.0), run(101, 23, 731.0), run(102, 20, 539.0, left=1)]
+    row = bench_empty_box.summary_row("vision", "local", "own", runs)
+    assert row["attempts"] == pytest.approx(17.0) and row["time"] == pytest.approx(490.0) and row["runs"] == 3
+    # the same seed gives 8 or 23 attempts on two machines: three boxes pin the mean down to tens of attempts
+    lo, hi = row["attempts_ci95"]
+    assert lo < 8 and hi > 23 and (lo + hi) / 2 == pytest.approx(17.0)
+    assert row["time_ci95"][0] < 200.0 < 731.0 < row["time_ci95"][1]
+    assert row["emptied"]["successes"] == 2 and (row["attempts_max"], row["time_max"]) == (23, 731.0)
+    assert row["outcomes"] == {"placed": 5.0, "grasp: failure": 12.0} and row["failed_approaches"] == 1.0
+    one = bench_empty_box.summary_row("vision", "local", "own", runs[:1])
+    assert one["attempts_ci95"] is None and one["time_ci95"] is None  # one box: no interval
 
 
 def test_sweep_keeps_the_whole_hand_inside_the_box_and_off_its_bottom() -> None:

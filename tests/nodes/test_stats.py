@@ -25,3 +25,25 @@ def test_a_rate_carries_its_trials_and_interval():
     assert r["successes"] == 27 and r["trials"] == 30 and r["rate"] == pytest.approx(0.9)
     assert r["ci95"] == pytest.approx(list(wilson(27, 30)))
     assert rate_text(27, 30) == "27/30 = 90 % [74-97 %]"
+
+
+def test_a_mean_carries_its_runs_and_t_interval():
+    from contactflow.nodes.stats import mean, mean_interval, mean_text
+
+    # [1, 2, 3]: sd 1, t(0.975, 2 dof) = 4.3027, so 2 -/+ 4.3027 / sqrt(3)
+    assert mean_interval([1.0, 2.0, 3.0]) == pytest.approx((2 - 2.48414, 2 + 2.48414), abs=1e-5)
+    # a wider level widens it; identical runs have none to speak of
+    lo90, hi90 = mean_interval([1.0, 2.0, 3.0], 0.9)
+    assert 2 - 2.48414 < lo90 < 2 < hi90 < 2 + 2.48414
+    assert mean_interval([4.0, 4.0, 4.0]) == (4.0, 4.0)
+    assert mean_interval([7.0]) is None and mean_interval([]) is None
+    with pytest.raises(ValueError, match="level 1.0 is not in"):
+        mean_interval([1.0, 2.0], 1.0)
+    # ten boxes of the vision strategy (attempts per box): the thesis's goal of 11 lies inside the interval
+    boxes = [22, 8, 8, 15, 7, 14, 13, 53, 16, 13]
+    m = mean(boxes)
+    assert m["mean"] == pytest.approx(16.9) and m["runs"] == 10
+    assert m["ci95"][0] < 11 < m["ci95"][1]
+    assert mean_text(m["mean"], m["ci95"]) == "16.9 [7.3-26.5]"
+    assert mean([3.0]) == {"mean": 3.0, "runs": 1, "ci95": None}
+    assert mean_text(3.0, None) == "3.0" and mean_text(3.14159, None, 0) == "3"
