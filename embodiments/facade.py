@@ -27,6 +27,11 @@ class RobotFacade(ABC):
     def _sync_kin(self) -> None:
         """Bring ``kin`` to the measured joints."""
 
+    @abstractmethod
+    def kin_q_cmd(self) -> np.ndarray:
+        """The model's joints: measured, with each arm at its commanded joints (where plans and their goal IK start,
+        and the grasp filters' reachability with them)."""
+
     def arm(self, name: str):
         try:
             return self._arms[name]

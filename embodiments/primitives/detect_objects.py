@@ -255,7 +255,10 @@ class DetectObjects(Primitive):
         return hand_pose_for(self.r.spec.name, T, self.params.preshape)
 
     def _reach(self):
-        """IK of the arm (any arm without ``params.arm``), seeded at the robot's joints; None: no filter."""
+        """IK of the arm (any arm without ``params.arm``), seeded where the planner's goal IK starts (the robot's
+        joints, each arm at its commanded ones) and searching as long (``GOAL_RESTARTS``): an approach the filter
+        passes is one the planner reaches; None: no filter."""
+        from contactflow.embodiments.control.planning import GOAL_RESTARTS
         from contactflow.recognition.reachability import ArmReach
 
         if not self.params.reachable:
@@ -268,10 +271,10 @@ class DetectObjects(Primitive):
             # 16 restarts: clear of the table, a side grasp's postures are few (beside the open_bottle cell's
             # bottle 1 cm above the lowest reachable height, 4 restarts of 200 steps found none, 8 of 300 one
             # seed in two); only a pose that is never reached pays for all of them (0.2 s)
-            reach = ArmReach(self.r.spec.name, arm, None if kin is None else kin.base, restarts=16, iters=300,
-                             where=f"{self.name}: arm {arm!r}", obstacles=fixtures)
+            reach = ArmReach(self.r.spec.name, arm, None if kin is None else kin.base, restarts=GOAL_RESTARTS,
+                             iters=300, where=f"{self.name}: arm {arm!r}", obstacles=fixtures)
             if kin is not None:
-                reach.set_seed(kin.q)
+                reach.set_seed(self.r.kin_q_cmd())
             solvers.append(reach)
 
         def ik(T: np.ndarray):

@@ -217,6 +217,37 @@ def test_the_seeing_and_exploring_strategies_turn_the_hand_for_the_box_walls() -
         assert params["yaw"] == bench_empty_box.YAW
 
 
+def test_an_approach_the_vision_filter_passes_beside_a_wall_is_one_the_planner_reaches() -> None:
+    """detect_objects' reachability and the planner's goal share one IK search (planning.GOAL_RESTARTS, from the
+    commanded joints): the top approach to a brick at the box's +x wall (as the filter gave it in a vision run),
+    from the clear view's posture, which 8 restarts do not reach and 16 do.
+
+    Regression: the planner's 8 restarts missed the approach the filter's 16 had passed, and the Cartesian
+    fallback ended "motion aborted (not reached)": 6 times over in one vision run (seed 105), the same brick."""
+    from contactflow.embodiments.control.kinematics import Kinematics
+    from contactflow.embodiments.control.planning import GOAL_RESTARTS, seed_ompl, solve_ik
+    from contactflow.recognition.reachability import ArmReach
+
+    b = bench_empty_box
+    seed_ompl(105)
+    robot = b.box_scene([box("brick", (0.06, 0.035, 0.04), xyz=(0.633, -0.299, b.BOTTOM + 0.02), mass=0.12)])
+    runner = LocalPrimitiveRunner(robot)
+    assert outcome(run_primitive(runner, "move_to", {"arm": b.ARM, "target": b.task_params("vision", 0)["target"],
+                                                     "rest_posture": True})).event is Event.SUCCESS  # the clear view
+    approach = [0.673, -0.281, 0.85, np.pi, 0.0, 0.0]
+    T = matrix6(approach, "approach")
+    arm = robot.spec.arm(b.ARM)
+    kin = Kinematics(robot.spec.urdf(), robot.kin.base)
+    assert solve_ik(kin, arm.joints, arm.ee_frame, T, robot.kin_q_cmd(), restarts=8) is None  # the border case
+    # the filter as detect_objects builds it: clear of the cell's fixtures, from the commanded joints
+    reach = ArmReach(robot.spec.name, b.ARM, robot.kin.base, restarts=GOAL_RESTARTS, iters=300,
+                     obstacles=robot.fixtures())
+    reach.set_seed(robot.kin_q_cmd())
+    assert reach(T) is not None
+    reached = outcome(run_primitive(runner, "move_to", {"arm": b.ARM, "target": approach}))
+    assert reached.event is Event.SUCCESS and reached.values["planned"] == 1.0, reached
+
+
 def test_vision_approach_is_a_filtered_grasp_synthesis_axis_of_the_box() -> None:
     """detect_objects (the vision strategy's and the pick tasks' detector) approaches along a box axis."""
     world = World(WorldParams())

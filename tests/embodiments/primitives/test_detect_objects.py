@@ -51,6 +51,9 @@ class StillRobot(RobotFacade):
     def _sync_kin(self) -> None:
         return None
 
+    def kin_q_cmd(self) -> np.ndarray:
+        return self.kin.q.copy()  # still: commanded where it stands
+
     def camera(self, name: str = "kinect"):
         self.frames += 1
         return self.frame
