@@ -359,8 +359,9 @@ def run_once_runtime(strategy: str, seed: int, n_objects: int, max_attempts: int
                 why = f"supervisor: {max_time:g} s of simulated time"
         left = in_box_poses(names, poses[-1]) if emptied is None else 0
         attempts = min(attempts, max_attempts + 1)
-        outcomes = attempt_outcomes(cell.progress(), attempts)  # as in-process: the reports up to the stop
-        failed = sum(map(failed_approach, cell.progress()))
+        progress = cell.progress()
+        outcomes = attempt_outcomes(progress, attempts)  # as in-process: the reports up to the stop
+        failed = sum(map(failed_approach, progress))
     end = emptied if emptied is not None else min(now, max_time)
     return {"strategy": strategy, "seed": seed, "objects": n_objects, "attempts": attempts,
             "time": end, "left": left, "success": left == 0, "result": why, "executor": "runtime", "sensor": sensor,

@@ -49,11 +49,11 @@ def mean_interval(values: Sequence[float], level: float = 0.95) -> tuple[float, 
     """
     from scipy.stats import t as student
 
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"mean_interval: level {level!r} is not in (0, 1)")
     n = len(values)
     if n < 2:
         return None
-    if not 0.0 < level < 1.0:
-        raise ValueError(f"mean_interval: level {level!r} is not in (0, 1)")
     mean = math.fsum(values) / n
     sd = math.sqrt(math.fsum((v - mean) ** 2 for v in values) / (n - 1))
     half = float(student.ppf(0.5 + level / 2, n - 1)) * sd / math.sqrt(n)

@@ -32,13 +32,14 @@ def test_a_mean_carries_its_runs_and_t_interval():
 
     # [1, 2, 3]: sd 1, t(0.975, 2 dof) = 4.3027, so 2 -/+ 4.3027 / sqrt(3)
     assert mean_interval([1.0, 2.0, 3.0]) == pytest.approx((2 - 2.48414, 2 + 2.48414), abs=1e-5)
-    # a wider level widens it; identical runs have none to speak of
+    # a lower level narrows it; identical runs have no spread
     lo90, hi90 = mean_interval([1.0, 2.0, 3.0], 0.9)
     assert 2 - 2.48414 < lo90 < 2 < hi90 < 2 + 2.48414
     assert mean_interval([4.0, 4.0, 4.0]) == (4.0, 4.0)
     assert mean_interval([7.0]) is None and mean_interval([]) is None
-    with pytest.raises(ValueError, match="level 1.0 is not in"):
-        mean_interval([1.0, 2.0], 1.0)
+    for values in ([1.0, 2.0], [1.0]):  # a bad level is refused even where there is no interval to give
+        with pytest.raises(ValueError, match="level 1.0 is not in"):
+            mean_interval(values, 1.0)
     # ten boxes of the vision strategy (attempts per box): the thesis's goal of 11 lies inside the interval
     boxes = [22, 8, 8, 15, 7, 14, 13, 53, 16, 13]
     m = mean(boxes)
