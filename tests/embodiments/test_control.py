@@ -235,6 +235,53 @@ def test_a_profiled_trajectory_passes_a_repeated_waypoint_takes_its_corner_slowl
         TrajectoryFollower(path, TrajectoryParams(max_acceleration=0.0))
 
 
+def test_a_path_timed_per_segment_comes_to_rest_where_it_turns_back_and_nowhere_else():
+    from contactflow.embodiments.control.trajectory import TrajectoryFollower, TrajectoryParams
+
+    # out 0.1 rad in 0.02 rad steps, then back 0.06 rad: waypoint 5 turns back (its neighbours' directions are opposed)
+    path = np.array([[0.02 * k, 0.01 * k] for k in range(6)] + [[0.1 - 0.02 * k, 0.05] for k in range(1, 4)])
+    f = TrajectoryFollower(path, TrajectoryParams(max_velocity=1.0))
+    step = 0.05  # s, each 0.02 rad step lasts the shortest segment time (0.4 rad/s)
+    assert np.allclose(f.durations, [step] * 4 + [2 * step] * 2 + [step] * 2)
+    ts = np.arange(0.0, f.duration, 0.001)
+    q = np.array([f.sample(t)[0] for t in ts])
+    qd = np.array([f.sample(t)[1] for t in ts])
+    assert np.allclose(f.sample(f.times[5])[1], 0.0)  # at rest where it turns back
+    # the velocity never jumps there: it runs down from the 0.4 rad/s of the way out and up to that of the way back
+    around = (ts > f.times[4] + 1e-6) & (ts < f.times[6] - 1e-6)
+    assert np.abs(np.diff(qd[around], axis=0)).max() < 0.4 * 0.001 / step + 1e-9
+    assert np.allclose(f.sample(f.times[4] + 1e-9)[1], f.sample(f.times[4] - 1e-9)[1], atol=1e-6)
+    assert np.allclose(f.sample(f.times[6] + 1e-9)[1], f.sample(f.times[6] - 1e-9)[1], atol=1e-6)
+    # the sampled velocity is the derivative of the sampled position
+    assert np.allclose(np.diff(q, axis=0) / 0.001, 0.5 * (qd[1:] + qd[:-1]), atol=0.01)
+    assert np.allclose(f.sample(f.times[5])[0], path[5]) and np.allclose(f.sample(f.duration)[0], path[-1])
+    # a path with a turn under 90 degrees keeps each segment at its own pace
+    bent = np.array([[0.0, 0.0], [0.02, 0.0], [0.04, 0.0], [0.05, 0.02], [0.06, 0.04]])
+    assert np.allclose(TrajectoryFollower(bent, TrajectoryParams(max_velocity=1.0)).durations, step)
+
+
+def test_an_arm_turning_back_along_its_path_does_not_jolt_its_wrist_into_a_contact_abort():
+    """A planned path that turns back: at 0.4 rad/s the reversal read 29 N on the wrist and aborted the path."""
+    robot = make_robot("tombatossals", table=False)
+    arm = robot.arm("right")
+    robot.step(0.5)
+    q0 = arm.q_cmd.copy()
+    out = np.array([-0.0157, -0.0184, -0.0055, 0.0177, 0.0124, 0.0008, -0.0198])  # rad per waypoint
+    back = np.array([0.0073, 0.0132, -0.0001, -0.0195, -0.0098, 0.0004, 0.0052])  # a plan's turn, 153 degrees
+    path = np.array([q0 + k * out for k in range(1, 9)] + [q0 + 8 * out + k * back for k in range(1, 9)])
+    arm.execute_waypoints(path, abort_force=15.0)  # transport's contact threshold
+    turn = arm.ctl.traj.times[8]  # s, into the path (waypoint 0 is the joints it starts from)
+    t0, ts, fs = robot.time, [], []
+    while not arm.done() and robot.time < t0 + 5.0:
+        robot.step(0.005)
+        ts.append(robot.time - t0)
+        fs.append(float(np.linalg.norm(robot.ft("right").force)))
+    assert arm.status == Status.SUCCESS, arm.abort_reason
+    near = np.abs(np.array(ts) - turn) < 0.15
+    assert near.sum() > 40 and np.array(fs)[near].max() < 8.0
+    assert np.abs(arm.q() - path[-1]).max() < 5e-3
+
+
 def test_the_drives_hold_every_target_given_whether_it_changed_or_not():
     from contactflow.embodiments.sim_robot import SimRobot
     from contactflow.embodiments.world import World, WorldParams

@@ -304,11 +304,6 @@ def test_move_to_stops_at_an_unexpected_obstacle_planned_or_straight_and_a_guard
 
 
 def test_transport_plans_beyond_the_planning_distance_and_out_of_a_local_minimum() -> None:
-    from contactflow.embodiments.control.planning import seed_ompl
-
-    # OMPL's random state is the process's: unseeded, the plans here were those of whatever tests ran before on the
-    # worker (one order planned a path into the points: "collision during the planned motion")
-    seed_ompl(306)
     robot, runner = scene()
     near, far = top_grasp_pose((0.45, -0.1, 0.95)), top_grasp_pose((0.45, -0.3, 0.95))
     assert outcome(run_primitive(runner, "move_to", {"arm": "right", "target": vec(far)})).event is Event.SUCCESS
