@@ -125,12 +125,9 @@ def _run(case: str, seed: int, folder: str, corrections: bool = False) -> dict:
     world = world_node(site, scene, listen=endpoint, wait_for=(control["node"],), ground_truth_hz=20.0,
                        contacts_hz=50.0, seed=seed, pushes=pushes)
     watch = PredictorWatch(site, endpoint)
-    opener = threading.Timer(0.5, watch.open)  # once the world's node listens
-    opener.start()
-    try:
-        cell = run_cell(folder_, world, [control], endpoint, timeout=300.0, after=AFTER)
+    try:  # the watch joins once the world listens, before the control node: it hears the predictor from the start
+        cell = run_cell(folder_, world, [control], endpoint, timeout=300.0, after=AFTER, joined=watch.open)
     finally:
-        opener.cancel()
         watch.close()
     return {**measure(case, seed, cell, watch), "corrections": corrections}
 

@@ -352,13 +352,16 @@ class CellRun:
 
 
 def start_nodes(folder: Path, configs: list[Mapping[str, Any]], site: str, endpoint: str,
-                processes: bool = False, timeout: float = 60.0) -> tuple[list[Any], SiteWatch]:
+                processes: bool = False, timeout: float = 60.0,
+                joined: Callable[[], None] | None = None) -> tuple[list[Any], SiteWatch]:
     """Start node ``configs`` in order (the world first: a site watch joins it on ``endpoint``); each a
     process of its own with ``processes``, else a zenoh session each in this process.
 
     Each node is started once the watch sees the one before it: a node that joined before the
     watch had reached the world would not know of the watch's subscriptions, and its first
-    events (a task's first steps) would reach nobody.
+    events (a task's first steps) would reach nobody. ``joined`` is called once the world is up,
+    before the next node starts: another session that must hear every node (a predictor's watch)
+    opens there, for the same reason.
     """
     from contactflow.nodes.config import load_node_config
     from contactflow.nodes.keys import ANY
@@ -382,6 +385,8 @@ def start_nodes(folder: Path, configs: list[Mapping[str, Any]], site: str, endpo
             up = watch.ks.alive_module(ANY, cfg["node"], ANY)
             if not wait_for(lambda up=up, w=watch: bool(w.t.alive(up, timeout=0.5)), timeout):
                 raise TimeoutError(f"node {cfg['node']!r} did not come up within {timeout:g} s (see {folder})")
+            if joined is not None and len(started) == 1:
+                joined()
     except BaseException:
         stop_nodes(started, watch, processes)
         raise
@@ -412,21 +417,23 @@ def _control_rate(world: Mapping[str, Any]) -> float:
 
 def run_cell(folder: Path, world: Mapping[str, Any], controls: list[Mapping[str, Any]], endpoint: str,
              processes: bool = False, timeout: float = 300.0, keep: Callable[[Any], None] | None = None,
-             services: tuple[Mapping[str, Any], ...] = (), after: float = 0.0) -> CellRun:
+             services: tuple[Mapping[str, Any], ...] = (), after: float = 0.0,
+             joined: Callable[[], None] | None = None) -> CellRun:
     """Run a world node and control nodes until every control node's task ended.
 
     ``processes``: each node a process of its own (``contactflow node``); else all of them in
     this process, a zenoh session each. ``keep`` is called with the world module (in-process
     runs) before the nodes stop, to read what only the simulation knows. ``services`` are
     nodes the control nodes read (a vision node), started before them. The nodes run on for ``after`` s
-    of wall time once the last task ended (what a predictor was still deciding gets said).
+    of wall time once the last task ended (what a predictor was still deciding gets said). ``joined``:
+    as :func:`start_nodes`.
     """
     from contactflow.nodes.procs import wait_for
 
     configs = [world, *services, *controls]
     robots = [next(m["robot"] for m in c["modules"] if m["name"] == "task") for c in controls]
     names = [f"{r}/{c['node']}/task" for r, c in zip(robots, controls, strict=True)]
-    started, watch = start_nodes(folder, configs, world["site"], endpoint, processes)
+    started, watch = start_nodes(folder, configs, world["site"], endpoint, processes, joined=joined)
     try:
         if not wait_for(lambda: all(watch.outcome(n) for n in names), timeout):
             logs = "".join((folder / f"{c['node']}.log").read_text()[-2000:] for c in configs

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pytest
 
@@ -40,12 +38,9 @@ def run(tmp_path, site: str, world_scene, task_file=None, task: str = "pick_and_
     world = world_node(site, world_scene, listen=endpoint, wait_for=(control["node"],), ground_truth_hz=20.0,
                        pushes=pushes)
     watch = PredictorWatch(site, endpoint)
-    opener = threading.Timer(0.5, watch.open)  # the world listens once its node started
-    opener.start()
-    try:
-        return run_cell(tmp_path, world, [control], endpoint), watch
+    try:  # the watch joins once the world listens, before the control node (a timer opened it too late on a loaded machine)
+        return run_cell(tmp_path, world, [control], endpoint, joined=watch.open), watch
     finally:
-        opener.cancel()
         watch.close()
 
 
@@ -157,12 +152,9 @@ def test_the_predictor_places_a_believed_object_where_the_vision_node_sees_it(tm
     world = world_node(site, BELIEF, listen=endpoint, wait_for=(control["node"], vision["node"]), camera_hz=2.0,
                        ground_truth_hz=20.0)
     watch = PredictorWatch(site, endpoint)
-    opener = threading.Timer(0.5, watch.open)
-    opener.start()
     try:
-        cell = run_cell(tmp_path, world, [control], endpoint, services=(vision,))
+        cell = run_cell(tmp_path, world, [control], endpoint, services=(vision,), joined=watch.open)
     finally:
-        opener.cancel()
         watch.close()
     assert cell.outcomes[ROBOT].event is Event.SUCCESS, cell.events
     (seen,) = [m for m in watch.mismatches if m.kind == "object"]
