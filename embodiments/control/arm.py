@@ -88,9 +88,10 @@ class ArmController:
         """Follow joint waypoints; abort when the F/T force changes by more than ``abort_force`` N.
 
         Each segment is timed alone (``TrajectoryParams.min_segment``), so a densely planned path runs
-        at 0.4 rad/s at most, and comes to rest where the path turns back. The empty-box benchmark was measured with this timing: timed along the
-        path with an acceleration bound, its moves that started with the hand pressed against an object
-        aborted more, and more boxes were left unemptied (the planner module uses that timing).
+        at 0.4 rad/s at most, and comes to rest where the path turns back. The empty-box benchmark was
+        measured with this timing: timed along the path with an acceleration bound, its moves that
+        started with the hand pressed against an object aborted more, and more boxes were left
+        unemptied (the planner module uses that timing).
         """
         self._resync()
         w = np.asarray(waypoints, dtype=np.float64)
